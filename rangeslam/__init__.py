@@ -1,0 +1,44 @@
+"""rangeslam: microphones, trajectories and rooms from ranges (echoes and radio beacons).
+
+The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruction to SLAM"
+(ICASSP 2016). Points are rows, shape (N, d); ranges are metres; masks are True where observed.
+"""
+
+from .alignment import Alignment, align
+from .crlb import multilateration_crlb
+from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
+from .errors import (
+    DataFormatError,
+    DegenerateGeometryError,
+    InvalidInputError,
+    RangeSlamError,
+    SolverError,
+)
+from .geometry import ImageSources, Room
+from .multilateration import MultilaterationResult, multilaterate
+from .room_reconstruction import RoomReconstruction, reconstruct_room
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Alignment",
+    "DataFormatError",
+    "DegenerateGeometryError",
+    "ImageSources",
+    "InvalidInputError",
+    "MultilaterationResult",
+    "RangeSlamError",
+    "Room",
+    "RoomReconstruction",
+    "SolverError",
+    "__version__",
+    "align",
+    "classical_mds",
+    "edm",
+    "edm_to_gram",
+    "gram_to_edm",
+    "is_edm",
+    "multilateration_crlb",
+    "multilaterate",
+    "reconstruct_room",
+]

@@ -1,0 +1,151 @@
+"""Simulated measurements: range matrices, noise, missing entries, outliers, random rooms and arrays.
+
+Every random function takes ``rng`` (a ``numpy.random.Generator``, a seed, or None) and never
+touches global random state. Ranges are distances in metres; masks are True where observed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ._validation import as_mask, as_points, as_ranges
+from .errors import InvalidInputError
+from .geometry import Room
+
+__all__ = [
+    "add_outliers",
+    "add_range_noise",
+    "echo_ranges",
+    "random_convex_room",
+    "random_mask",
+    "random_points_in_room",
+    "range_matrix",
+]
+
+
+def range_matrix(receivers: ArrayLike, sources: ArrayLike) -> np.ndarray:
+    """(M, K) distances between receivers (M, d) and sources (K, d)."""
+    r = as_points(receivers, "receivers")
+    s = as_points(sources, "sources", dim=r.shape[1])
+    return np.linalg.norm(r[:, None, :] - s[None, :, :], axis=2)
+
+
+def echo_ranges(room: Room, receivers: ArrayLike, source: ArrayLike) -> np.ndarray:
+    """(M, 1+K) distances from receivers to the source (column 0) and its K first-order images."""
+    src = np.asarray(source, dtype=float)
+    images = room.image_sources(src, order=1).positions
+    return range_matrix(receivers, np.vstack([src[None, :], images]))
+
+
+def _check_sigma(sigma: float, name: str = "sigma") -> float:
+    sigma = float(sigma)
+    if not np.isfinite(sigma) or sigma < 0:
+        raise InvalidInputError(f"{name} must be a finite number >= 0; got {sigma}")
+    return sigma
+
+
+def _check_fraction(p: float, name: str) -> float:
+    p = float(p)
+    if not 0.0 <= p <= 1.0:
+        raise InvalidInputError(f"{name} must be in [0, 1]; got {p}")
+    return p
+
+
+def add_range_noise(ranges: ArrayLike, sigma: float, *, rng=None) -> np.ndarray:
+    """Ranges plus i.i.d. N(0, sigma^2) noise (metres); a new array.
+
+    A noisy range below zero is folded back (|r + e|): distances cannot be negative. This only
+    happens for ranges within a few sigma of zero.
+    """
+    rng = np.random.default_rng(rng)
+    r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges))
+    sigma = _check_sigma(sigma)
+    return np.abs(r + sigma * rng.standard_normal(r.shape))
+
+
+def random_mask(shape: tuple[int, ...], missing_fraction: float, *, rng=None) -> np.ndarray:
+    """Boolean mask of the given shape, True where observed, each entry missing with the given probability."""
+    rng = np.random.default_rng(rng)
+    p = _check_fraction(missing_fraction, "missing_fraction")
+    return rng.random(shape) >= p
+
+
+def add_outliers(
+    ranges: ArrayLike,
+    fraction: float,
+    *,
+    min_error: float = 0.2,
+    max_error: float = 2.0,
+    mask: ArrayLike | None = None,
+    rng=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Corrupt a fraction of the observed ranges, as wrong echo picks do.
+
+    Each chosen range moves by a random sign times a uniform error in [min_error, max_error] metres
+    (folded at zero). Returns ``(corrupted, is_outlier)``, both of the shape of ``ranges``.
+    """
+    rng = np.random.default_rng(rng)
+    r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges))
+    p = _check_fraction(fraction, "fraction")
+    observed = as_mask(mask, "mask", shape=r.shape)
+    if not 0 <= min_error <= max_error:
+        raise InvalidInputError(f"need 0 <= min_error <= max_error; got {min_error}, {max_error}")
+    is_outlier = observed & (rng.random(r.shape) < p)
+    err = rng.uniform(min_error, max_error, r.shape) * rng.choice([-1.0, 1.0], r.shape)
+    out = r.copy()
+    out[is_outlier] = np.abs(r[is_outlier] + err[is_outlier])
+    return out, is_outlier
+
+
+def random_points_in_room(
+    room: Room, n: int, *, margin: float = 0.0, rng=None, max_tries: int = 10_000
+) -> np.ndarray:
+    """(n, d) points uniform in the room, at least ``margin`` metres from every wall (rejection sampling)."""
+    rng = np.random.default_rng(rng)
+    if not isinstance(n, int | np.integer) or n < 0:
+        raise InvalidInputError(f"n must be a non-negative integer; got {n!r}")
+    lo, hi = room.vertices.min(axis=0), room.vertices.max(axis=0)
+    out: list[np.ndarray] = []
+    got = 0
+    for _ in range(max_tries):
+        cand = rng.uniform(lo, hi, size=(max(4 * (n - got), 16), room.dim))
+        keep = cand[room.contains(cand, margin=margin)]
+        out.append(keep[: n - got])
+        got += len(out[-1])
+        if got >= n:
+            return np.vstack(out) if out else np.empty((0, room.dim))
+    raise InvalidInputError(f"could not place {n} points {margin} m inside the room; margin too large?")
+
+
+def random_convex_room(
+    dim: int,
+    n_walls: int,
+    *,
+    inner_radius: float = 2.0,
+    radius_spread: float = 0.5,
+    rng=None,
+) -> Room:
+    """A random convex room with ``n_walls`` walls, none of them redundant.
+
+    Walls are tangent planes to spheres of radius in [inner_radius, inner_radius + radius_spread]
+    around a random centre, with random outward normals; draws that leave the room unbounded or make
+    a wall redundant are rejected. ``n_walls`` >= d + 1 (a simplex) and typically up to ~12.
+    """
+    from .errors import DegenerateGeometryError
+
+    rng = np.random.default_rng(rng)
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    if not isinstance(n_walls, int | np.integer) or n_walls < dim + 1:
+        raise InvalidInputError(f"n_walls must be an integer >= {dim + 1}; got {n_walls!r}")
+    centre = rng.uniform(2.0, 4.0, dim)
+    for _ in range(1000):
+        normals = rng.normal(size=(n_walls, dim))
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        radii = inner_radius + radius_spread * rng.random(n_walls)
+        try:
+            return Room(normals, normals @ centre + radii)
+        except DegenerateGeometryError:
+            continue
+    raise InvalidInputError(f"could not draw a bounded room with {n_walls} non-redundant walls in {dim}-D")
