@@ -38,7 +38,7 @@ __all__ = [
     "edm_to_gram",
     "gram_to_edm",
     "is_edm",
-    "multilateration_crlb",
     "multilaterate",
+    "multilateration_crlb",
     "reconstruct_room",
 ]

@@ -23,7 +23,9 @@ def _as_float_array(value: ArrayLike, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float, copy=True)
     except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"{name} must be an array of real numbers; got {value!r:.80}") from exc
+        raise InvalidInputError(
+            f"{name} must be an array of real numbers; got {value!r:.80}"
+        ) from exc
     return arr
 
 
@@ -50,7 +52,9 @@ def as_points(
         )
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0]
-        raise InvalidInputError(f"{name} must be finite; entry {tuple(int(i) for i in bad)} is {arr[tuple(bad)]}")
+        raise InvalidInputError(
+            f"{name} must be finite; entry {tuple(int(i) for i in bad)} is {arr[tuple(bad)]}"
+        )
     return arr
 
 
@@ -111,7 +115,9 @@ def as_mask(value: ArrayLike | None, name: str, *, shape: tuple[int, ...]) -> np
             f"{name} must be a boolean array (True where observed); got dtype {arr.dtype}"
         )
     if arr.shape != shape:
-        raise InvalidInputError(f"{name} must have shape {shape_str(shape)}; got {shape_str(arr.shape)}")
+        raise InvalidInputError(
+            f"{name} must have shape {shape_str(shape)}; got {shape_str(arr.shape)}"
+        )
     return arr
 
 

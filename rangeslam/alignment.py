@@ -77,7 +77,9 @@ def align(
     rot = (u * sign) @ vt
     if scale:
         if var_x <= np.finfo(float).eps * max(1.0, float(np.abs(x).max())) ** 2:
-            raise DegenerateGeometryError("estimate points all coincide: the scale cannot be estimated")
+            raise DegenerateGeometryError(
+                "estimate points all coincide: the scale cannot be estimated"
+            )
         c = float(np.sum(s * sign)) / var_x
     else:
         c = 1.0

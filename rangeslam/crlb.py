@@ -32,15 +32,25 @@ def multilateration_crlb(
     m, d = a.shape
     x = as_point(point, "point", dim=d)
     observed = as_mask(mask, "mask", shape=(m,))
-    s = np.broadcast_to(np.asarray(sigma, dtype=float), (m,)) if np.ndim(sigma) == 0 else np.asarray(sigma, float)
+    s = (
+        np.broadcast_to(np.asarray(sigma, dtype=float), (m,))
+        if np.ndim(sigma) == 0
+        else np.asarray(sigma, float)
+    )
     if s.shape != (m,):
-        raise InvalidInputError(f"sigma must be a scalar or have shape ({m},); got {shape_str(s.shape)}")
+        raise InvalidInputError(
+            f"sigma must be a scalar or have shape ({m},); got {shape_str(s.shape)}"
+        )
     if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise InvalidInputError("sigma must be positive and finite (the bound is infinite information at 0)")
+        raise InvalidInputError(
+            "sigma must be positive and finite (the bound is infinite information at 0)"
+        )
     diff = x - a[observed]
     dist = np.linalg.norm(diff, axis=1)
     if np.any(dist == 0):
-        raise DegenerateGeometryError("point coincides with an anchor: the range gradient is undefined there")
+        raise DegenerateGeometryError(
+            "point coincides with an anchor: the range gradient is undefined there"
+        )
     u = diff / dist[:, None] / s[observed][:, None]
     fisher = u.T @ u
     eig = np.linalg.eigvalsh(fisher)

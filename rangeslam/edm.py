@@ -17,7 +17,9 @@ __all__ = ["centring_matrix", "classical_mds", "edm", "edm_to_gram", "gram_to_ed
 def _as_square(value: ArrayLike, name: str) -> np.ndarray:
     arr = np.array(value, dtype=float, copy=True)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.shape[0] < 1:
-        raise InvalidInputError(f"{name} must be a square (N, N) matrix; got {shape_str(arr.shape)}")
+        raise InvalidInputError(
+            f"{name} must be a square (N, N) matrix; got {shape_str(arr.shape)}"
+        )
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError(f"{name} must be finite")
     return arr

@@ -44,7 +44,9 @@ class RoomExperiment:
     source_errors: np.ndarray
 
 
-def wall_errors(room: Room, normals: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wall_errors(
+    room: Room, normals: np.ndarray, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order."""
     cos = np.clip(np.einsum("kd,kd->k", normals, room.normals), -1.0, 1.0)
     return np.abs(offsets - room.offsets), np.degrees(np.arccos(cos))
@@ -90,9 +92,20 @@ def demo_rooms() -> dict[str, Room]:
     """The rooms of ``rangeslam demo``: the paper's Fig. 3 shoebox and a non-box convex room."""
     # A 5.1 x 3.7 x 2.6 m shoebox with one corner cut by a slanted wall and a sloping ceiling.
     normals = np.array(
-        [[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0.0, 0.25, 1.0], [1.0, 1.0, 0.0]]
+        [
+            [-1, 0, 0],
+            [1, 0, 0],
+            [0, -1, 0],
+            [0, 1, 0],
+            [0, 0, -1],
+            [0.0, 0.25, 1.0],
+            [1.0, 1.0, 0.0],
+        ]
     )
     points = np.array(
         [[0, 0, 0], [5.1, 0, 0], [0, 0, 0], [0, 3.7, 0], [0, 0, 0], [0, 0, 2.6], [4.3, 3.7, 0]]
     )
-    return {"shoebox": Room.shoebox([5.1, 3.7, 2.6]), "cut corner": Room.from_planes(normals, points)}
+    return {
+        "shoebox": Room.shoebox([5.1, 3.7, 2.6]),
+        "cut corner": Room.from_planes(normals, points),
+    }

@@ -82,7 +82,9 @@ class Room:
             )
         k, d = normals.shape
         if offsets.shape != (k,):
-            raise InvalidInputError(f"offsets must have shape ({k},); got {shape_str(offsets.shape)}")
+            raise InvalidInputError(
+                f"offsets must have shape ({k},); got {shape_str(offsets.shape)}"
+            )
         if not (np.all(np.isfinite(normals)) and np.all(np.isfinite(offsets))):
             raise InvalidInputError("normals and offsets must be finite")
         norms = np.linalg.norm(normals, axis=1)
@@ -130,7 +132,9 @@ class Room:
             raise InvalidInputError("normals and points must be finite")
         norms = np.linalg.norm(normals, axis=1)
         if np.any(norms < 1e-12):
-            raise InvalidInputError(f"normals must be non-zero; row {int(np.argmin(norms))} is zero")
+            raise InvalidInputError(
+                f"normals must be non-zero; row {int(np.argmin(norms))} is zero"
+            )
         unit = normals / norms[:, None]
         return cls(unit, np.einsum("kd,kd->k", unit, points))
 
@@ -143,7 +147,9 @@ class Room:
         """
         dims = np.array(dims, dtype=float)
         if dims.ndim != 1 or dims.shape[0] not in (2, 3):
-            raise InvalidInputError(f"dims must have shape (d,) with d in (2, 3); got {shape_str(dims.shape)}")
+            raise InvalidInputError(
+                f"dims must have shape (d,) with d in (2, 3); got {shape_str(dims.shape)}"
+            )
         if not np.all(np.isfinite(dims)) or np.any(dims <= 0):
             raise InvalidInputError(f"dims must be finite and positive; got {dims.tolist()}")
         d = dims.shape[0]
@@ -210,7 +216,9 @@ class Room:
         halfspaces = np.column_stack([self.normals, -self.offsets])
         pts = HalfspaceIntersection(halfspaces, self._interior).intersections
         scale = max(1.0, float(np.abs(pts).max()))
-        uniq = np.unique(np.round(pts / (1e-9 * scale)).astype(np.int64), axis=0, return_index=True)[1]
+        uniq = np.unique(
+            np.round(pts / (1e-9 * scale)).astype(np.int64), axis=0, return_index=True
+        )[1]
         return frozen(pts[np.sort(uniq)])
 
     @cached_property
@@ -283,7 +291,9 @@ class Room:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Room):
             return NotImplemented
-        return np.array_equal(self.normals, other.normals) and np.array_equal(self.offsets, other.offsets)
+        return np.array_equal(self.normals, other.normals) and np.array_equal(
+            self.offsets, other.offsets
+        )
 
     __hash__ = None  # type: ignore[assignment]
 

@@ -147,7 +147,7 @@ def _srls(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) -> tuple
     return y_of(lam)[:d], float(lam)
 
 
-def _srls_hard_case(a_mat, b, weights, v, e, vg, vf, lam_min, d):  # noqa: PLR0913
+def _srls_hard_case(a_mat, b, weights, v, e, vg, vf, lam_min, d):
     """Beck et al.'s hard case: the optimum sits at lam = -1/e_max, with a free component along the
     top generalised eigenvector chosen so that the constraint holds (the lower-cost root)."""
     c = (vg - lam_min * vf)[:-1] / (1.0 + lam_min * e[:-1])
@@ -246,10 +246,16 @@ def multilaterate(
     m, d = a.shape
     observed = as_mask(mask, "mask", shape=(m,))
     r = as_ranges(ranges, "ranges", shape=(m,), observed=observed)
-    if inlier_threshold is not None and not (np.isfinite(inlier_threshold) and inlier_threshold > 0):
-        raise InvalidInputError(f"inlier_threshold must be a positive number of metres; got {inlier_threshold}")
+    if inlier_threshold is not None and not (
+        np.isfinite(inlier_threshold) and inlier_threshold > 0
+    ):
+        raise InvalidInputError(
+            f"inlier_threshold must be a positive number of metres; got {inlier_threshold}"
+        )
     if not isinstance(max_hypotheses, int | np.integer) or max_hypotheses < 1:
-        raise InvalidInputError(f"max_hypotheses must be a positive integer; got {max_hypotheses!r}")
+        raise InvalidInputError(
+            f"max_hypotheses must be a positive integer; got {max_hypotheses!r}"
+        )
 
     n_obs = int(observed.sum())
     if n_obs < d + 1:
@@ -277,7 +283,9 @@ def multilaterate(
     converged = True
     message = "SR-LS exact solution"
     if robust and n_obs <= d + 1:
-        message = f"SR-LS; no outlier rejection possible with {n_obs} ranges in {d}-D (needs {d + 2})"
+        message = (
+            f"SR-LS; no outlier rejection possible with {n_obs} ranges in {d}-D (needs {d + 2})"
+        )
     elif robust:
         idx = np.flatnonzero(observed)
         x, sigma = _lmeds_start(a_s[idx], r_s[idx], int(max_hypotheses), rng)
@@ -304,7 +312,9 @@ def multilaterate(
                 sigma = math.sqrt(float(fit @ fit) / max(int(inliers.sum()) - d, 1))
                 thr = max(_INLIER_K * sigma, 1e-9)
         if converged:
-            message = f"SR-LS after LMedS outlier rejection: {int(inliers.sum())} of {n_obs} ranges kept"
+            message = (
+                f"SR-LS after LMedS outlier rejection: {int(inliers.sum())} of {n_obs} ranges kept"
+            )
         else:
             lam = float("nan")
     if not robust or n_obs <= d + 1:

@@ -7,11 +7,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy.spatial import ConvexHull  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from scipy.spatial import ConvexHull
 
-from .geometry import Room  # noqa: E402
+from .geometry import Room
 
 __all__ = ["plot_room_reconstruction"]
 
@@ -46,15 +46,39 @@ def plot_room_reconstruction(
     for ax, (name, axes, labels) in zip(axs[0], views, strict=True):
         _outline(ax, true_room, axes, color="0.3", lw=2.0, label="true room")
         if estimated_room is not None:
-            _outline(ax, estimated_room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed")
+            _outline(
+                ax, estimated_room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed"
+            )
         if image_sources is not None:
             ims = image_sources.reshape(-1, d)
-            ax.scatter(ims[:, axes[0]], ims[:, axes[1]], marker="*", s=40, c="tab:orange", label="image sources (est.)")
-        ax.scatter(mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones")
-        ax.scatter(true_sources[:, axes[0]], true_sources[:, axes[1]], marker="s", s=60, facecolors="none",
-                   edgecolors="k", label="loudspeaker (true)")
-        ax.scatter(estimated_sources[:, axes[0]], estimated_sources[:, axes[1]], marker="x", s=50, c="tab:red",
-                   label="loudspeaker (est.)")
+            ax.scatter(
+                ims[:, axes[0]],
+                ims[:, axes[1]],
+                marker="*",
+                s=40,
+                c="tab:orange",
+                label="image sources (est.)",
+            )
+        ax.scatter(
+            mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
+        )
+        ax.scatter(
+            true_sources[:, axes[0]],
+            true_sources[:, axes[1]],
+            marker="s",
+            s=60,
+            facecolors="none",
+            edgecolors="k",
+            label="loudspeaker (true)",
+        )
+        ax.scatter(
+            estimated_sources[:, axes[0]],
+            estimated_sources[:, axes[1]],
+            marker="x",
+            s=50,
+            c="tab:red",
+            label="loudspeaker (est.)",
+        )
         ax.set_xlabel(labels[0])
         ax.set_ylabel(labels[1])
         ax.set_title(name)

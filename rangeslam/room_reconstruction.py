@@ -100,7 +100,11 @@ def _images(sources: np.ndarray, walls: np.ndarray) -> np.ndarray:
     """
     rho = np.einsum("kd,kd->k", walls, walls)
     q = sources @ walls.T  # (J, K)
-    return sources[:, None, :] - 2.0 * (q / rho)[:, :, None] * walls[None, :, :] + 2.0 * walls[None, :, :]
+    return (
+        sources[:, None, :]
+        - 2.0 * (q / rho)[:, :, None] * walls[None, :, :]
+        + 2.0 * walls[None, :, :]
+    )
 
 
 def _points_and_jacobian(sources: np.ndarray, walls: np.ndarray):
@@ -176,7 +180,9 @@ def _mixture_fit(
     """
     r2 = np.where(valid, res**2, 0.0)
     n = np.maximum(valid.sum(axis=1), 1)
-    med = np.array([np.median(np.abs(row[v])) if v.any() else 0.0 for row, v in zip(res, valid, strict=True)])
+    med = np.array(
+        [np.median(np.abs(row[v])) if v.any() else 0.0 for row, v in zip(res, valid, strict=True)]
+    )
     sigma = np.maximum(1.4826 * med, sigma_floor)
     gamma = np.full(len(res), 0.5)
     p_out = 1.0 / (2.0 * nu)
@@ -222,7 +228,9 @@ def _wall_hypotheses(
                 subsets = np.array(list(itertools.combinations(idx, d + 1)))
             else:
                 subsets = idx[np.argsort(rng.random((per_source, len(idx))), axis=1)[:, : d + 1]]
-            a_sub = np.concatenate([-2.0 * mics[subsets], np.ones((len(subsets), d + 1, 1))], axis=2)
+            a_sub = np.concatenate(
+                [-2.0 * mics[subsets], np.ones((len(subsets), d + 1, 1))], axis=2
+            )
             b_sub = ranges[j][subsets] ** 2 - np.einsum("hpd,hpd->hp", mics[subsets], mics[subsets])
             sv = np.linalg.svd(a_sub, compute_uv=False)
             ok = sv[:, -1] > 1e-8 * sv[:, 0]
@@ -269,7 +277,9 @@ def reconstruct_room(
     m_pts = as_points(mics, "mics")
     m_n, d = m_pts.shape
     if m_n < d + 1:
-        raise InvalidInputError(f"mics must hold at least d + 1 = {d + 1} microphones in {d}-D; got {shape_str(m_pts.shape)}")
+        raise InvalidInputError(
+            f"mics must hold at least d + 1 = {d + 1} microphones in {d}-D; got {shape_str(m_pts.shape)}"
+        )
     if affine_rank(m_pts) < d:
         kind = {0: "coincident", 1: "collinear", 2: "coplanar"}[affine_rank(m_pts)]
         raise DegenerateGeometryError(
@@ -319,7 +329,9 @@ def reconstruct_room(
             )
         res = multilaterate(mics_s, r_s[j, :, 0], mask=obs, robust=robust, rng=rng)
         if not res.converged:
-            raise InvalidInputError(f"loudspeaker {j}: the direct path could not be located: {res.message}")
+            raise InvalidInputError(
+                f"loudspeaker {j}: the direct path could not be located: {res.message}"
+            )
         sources0[j] = res.position
         direct_resid.append(res.residuals[res.inliers])
     # Echoes cannot be located more precisely than the direct sound: the noise scale of the direct
@@ -334,14 +346,22 @@ def reconstruct_room(
         """Inliers of one column's residuals (J, M): fixed threshold, or the mixture posterior."""
         if fixed_thr is not None:
             return obs_col & (np.abs(res_col) <= fixed_thr)
-        _, _, _, post = _mixture_fit(res_col.reshape(1, -1), obs_col.reshape(1, -1), nu, sigma_floor)
+        _, _, _, post = _mixture_fit(
+            res_col.reshape(1, -1), obs_col.reshape(1, -1), nu, sigma_floor
+        )
         return obs_col & (post.reshape(res_col.shape) > 0.5)
 
     # 2. Each wall by consensus over all loudspeakers (bisector of s_j and its image, section 2).
     walls0 = np.empty((k_n, d))
     for k in range(k_n):
-        cands = _wall_hypotheses(mics_s, r_s[:, :, 1 + k], observed[:, :, 1 + k], sources0,
-                                 max_hypotheses if robust else 0, rng)
+        cands = _wall_hypotheses(
+            mics_s,
+            r_s[:, :, 1 + k],
+            observed[:, :, 1 + k],
+            sources0,
+            max_hypotheses if robust else 0,
+            rng,
+        )
         if len(cands) == 0:
             raise InvalidInputError(
                 f"wall {k} (column {1 + k}): no loudspeaker has {d + 1} observed echoes from "
@@ -372,11 +392,22 @@ def reconstruct_room(
     message = ""
     for _ in range(20):
         if use.sum() < n_params:
-            converged, message = False, f"only {int(use.sum())} inlier ranges for {n_params} unknowns"
+            converged, message = (
+                False,
+                f"only {int(use.sum())} inlier ranges for {n_params} unknowns",
+            )
             break
         inlier_model = _JointModel(mics_s, r_s, use)
-        fit = least_squares(inlier_model.residuals, theta, jac=inlier_model.jacobian, method="trf",
-                            x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        fit = least_squares(
+            inlier_model.residuals,
+            theta,
+            jac=inlier_model.jacobian,
+            method="trf",
+            x_scale="jac",
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+        )
         theta, nfev = fit.x, nfev + fit.nfev
         if not robust:
             break

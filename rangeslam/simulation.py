@@ -115,7 +115,9 @@ def random_points_in_room(
         got += len(out[-1])
         if got >= n:
             return np.vstack(out) if out else np.empty((0, room.dim))
-    raise InvalidInputError(f"could not place {n} points {margin} m inside the room; margin too large?")
+    raise InvalidInputError(
+        f"could not place {n} points {margin} m inside the room; margin too large?"
+    )
 
 
 def random_convex_room(
@@ -148,4 +150,6 @@ def random_convex_room(
             return Room(normals, normals @ centre + radii)
         except DegenerateGeometryError:
             continue
-    raise InvalidInputError(f"could not draw a bounded room with {n_walls} non-redundant walls in {dim}-D")
+    raise InvalidInputError(
+        f"could not draw a bounded room with {n_walls} non-redundant walls in {dim}-D"
+    )

@@ -129,7 +129,9 @@ def random_walk(
         if room.dim != d:
             raise InvalidInputError(f"start has dimension {d} but room has dimension {room.dim}")
         if not room.contains(start_pt[None, :], margin=margin)[0]:
-            raise InvalidInputError(f"start {start_pt.tolist()} must be at least {margin} m inside the room")
+            raise InvalidInputError(
+                f"start {start_pt.tolist()} must be at least {margin} m inside the room"
+            )
     heading = rng.normal(size=d)
     heading /= np.linalg.norm(heading)
     out = np.empty((n_steps, d))
@@ -145,7 +147,9 @@ def random_walk(
             heading = rng.normal(size=d)
             heading /= np.linalg.norm(heading)
         else:
-            raise InvalidInputError("random_walk could not stay inside the room; reduce step_length or margin")
+            raise InvalidInputError(
+                "random_walk could not stay inside the room; reduce step_length or margin"
+            )
         heading = new_heading
         out[i] = candidate
     return out

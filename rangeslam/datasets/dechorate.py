@@ -93,7 +93,9 @@ def load_dechorate(path: str | Path) -> DEchorate:
     pos_path, toa_path = root / "positions.json", root / "echo_toa.csv"
     for p in (pos_path, toa_path):
         if not p.is_file():
-            raise FileNotFoundError(f"dEchorate file not found: {p} (pass the directory that holds it)")
+            raise FileNotFoundError(
+                f"dEchorate file not found: {p} (pass the directory that holds it)"
+            )
     meta = _read_json(pos_path)
     mics = _vectors(meta, "mics_calibrated", pos_path)
     sources = _vectors(meta, "sources_calibrated", pos_path)
@@ -103,7 +105,9 @@ def load_dechorate(path: str | Path) -> DEchorate:
     c = float(meta.get("speed_of_sound_m_s", math.nan))
     fs = float(meta.get("fs_Hz", math.nan))
     if not (np.isfinite(c) and c > 0 and np.isfinite(fs) and fs > 0):
-        raise DataFormatError(f"{pos_path}: 'speed_of_sound_m_s' and 'fs_Hz' must be positive numbers")
+        raise DataFormatError(
+            f"{pos_path}: 'speed_of_sound_m_s' and 'fs_Hz' must be positive numbers"
+        )
     arrays = np.asarray(meta.get("mic_to_array", np.arange(len(mics)) // 5), dtype=int)
 
     n_mic, n_src = len(mics), len(sources)
@@ -116,23 +120,33 @@ def load_dechorate(path: str | Path) -> DEchorate:
             raise DataFormatError(f"{toa_path}: header must be {','.join(want)}; got {header}")
         for row_no, row in enumerate(reader, start=2):
             if len(row) != len(want):
-                raise DataFormatError(f"{toa_path}, row {row_no}: expected {len(want)} fields, got {len(row)}")
+                raise DataFormatError(
+                    f"{toa_path}, row {row_no}: expected {len(want)} fields, got {len(row)}"
+                )
             try:
                 mic, src = int(row[0]), int(row[1])
                 vals = [float(v) for v in row[2:]]
             except ValueError as exc:
                 raise DataFormatError(f"{toa_path}, row {row_no}: {exc}") from exc
             if not (0 <= mic < n_mic and 0 <= src < n_src):
-                raise DataFormatError(f"{toa_path}, row {row_no}: mic {mic} or src {src} out of range")
+                raise DataFormatError(
+                    f"{toa_path}, row {row_no}: mic {mic} or src {src} out of range"
+                )
             if not all(math.isfinite(v) and v > 0 for v in vals):
-                raise DataFormatError(f"{toa_path}, row {row_no}: times of arrival must be positive and finite")
+                raise DataFormatError(
+                    f"{toa_path}, row {row_no}: times of arrival must be positive and finite"
+                )
             if not np.all(np.isnan(toa[src, mic])):
-                raise DataFormatError(f"{toa_path}, row {row_no}: duplicate row for mic {mic}, src {src}")
+                raise DataFormatError(
+                    f"{toa_path}, row {row_no}: duplicate row for mic {mic}, src {src}"
+                )
             toa[src, mic] = vals
     missing = np.argwhere(np.isnan(toa[:, :, 0]))
     if len(missing):
         s, m = missing[0]
-        raise DataFormatError(f"{toa_path}: no row for mic {m}, src {s} ({len(missing)} pairs missing)")
+        raise DataFormatError(
+            f"{toa_path}: no row for mic {m}, src {s} ({len(missing)} pairs missing)"
+        )
     return DEchorate(
         mics=frozen(mics),
         sources=frozen(sources),
