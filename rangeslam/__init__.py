@@ -5,7 +5,7 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 """
 
 from .alignment import Alignment, align
-from .crlb import multilateration_crlb
+from .crlb import multilateration_crlb, wall_crlb
 from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
 from .errors import (
     DataFormatError,
@@ -41,4 +41,5 @@ __all__ = [
     "multilaterate",
     "multilateration_crlb",
     "reconstruct_room",
+    "wall_crlb",
 ]

@@ -16,7 +16,8 @@ __all__ = ["as_mask", "as_points", "as_ranges", "frozen", "shape_str"]
 
 
 def shape_str(shape: tuple[int, ...]) -> str:
-    return "(" + ", ".join(str(s) for s in shape) + ")"
+    """Format a shape as Python prints it: (3,), (4, 2)."""
+    return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
 def _as_float_array(value: ArrayLike, name: str) -> np.ndarray:

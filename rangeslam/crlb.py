@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike
 from ._validation import as_mask, as_point, as_points, shape_str
 from .errors import DegenerateGeometryError, InvalidInputError
 
-__all__ = ["multilateration_crlb"]
+__all__ = ["multilateration_crlb", "wall_crlb"]
 
 
 def multilateration_crlb(
@@ -59,3 +59,73 @@ def multilateration_crlb(
             "the Fisher information is singular: the anchors' directions from the point do not span R^d"
         )
     return np.linalg.solve(fisher, np.eye(d))
+
+
+def wall_crlb(
+    mics: ArrayLike,
+    sources: ArrayLike,
+    normals: ArrayLike,
+    offsets: ArrayLike,
+    sigma: float,
+    *,
+    points: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """CRLB of the walls reconstructed from first-order echoes heard by known microphones.
+
+    The unknowns are the J loudspeakers (J, d) and the K walls, each image source tied to its
+    source and wall (the joint model of :func:`rangeslam.reconstruct_room`); the ranges are
+    i.i.d. N(0, sigma^2) in metres, ``mask`` (J, M, 1+K) True where observed.
+
+    Returns:
+        offset_std: (K,) bound on the standard deviation of each wall plane's offset measured at
+            ``points[k]`` (a point on wall k, such as its centroid; by default the foot of the
+            perpendicular from the first source), metres.
+        normal_std: (K,) bound on the standard deviation of each wall normal's angle, radians.
+    """
+    from .room_reconstruction import _JointModel
+
+    m = as_points(mics, "mics")
+    d = m.shape[1]
+    s = as_points(sources, "sources", dim=d)
+    n = as_points(normals, "normals", dim=d)
+    o = np.asarray(offsets, dtype=float)
+    k_n, j_n = len(n), len(s)
+    if o.shape != (k_n,):
+        raise InvalidInputError(f"offsets must have shape ({k_n},); got {shape_str(o.shape)}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+    if points is None:
+        p = s[0] + (o - n @ s[0])[:, None] * n
+    else:
+        p = as_points(points, "points", dim=d)
+        if p.shape != (k_n, d):
+            raise InvalidInputError(
+                f"points must have shape ({k_n}, {d}); got {shape_str(p.shape)}"
+            )
+    observed = as_mask(mask, "mask", shape=(j_n, len(m), 1 + k_n))
+    # Centre on the sources' mean, inside the room, so that no wall passes through the origin.
+    c = s.mean(axis=0)
+    w = n * (o - n @ c)[:, None]
+    theta = np.concatenate([(s - c).ravel(), w.ravel()])
+    model = _JointModel(m - c, np.zeros((j_n, len(m), 1 + k_n)), observed)
+    jac = model.jacobian(theta) / sigma
+    fisher = jac.T @ jac
+    eig = np.linalg.eigvalsh(fisher)
+    if eig[0] <= 1e-12 * eig[-1]:
+        raise DegenerateGeometryError(
+            "the Fisher information of the walls is singular: too few echoes"
+        )
+    cov = np.linalg.solve(fisher, np.eye(len(theta)))
+    offset_std = np.empty(k_n)
+    normal_std = np.empty(k_n)
+    for k in range(k_n):
+        sl = slice((j_n + k) * d, (j_n + k + 1) * d)
+        cw = cov[sl, sl]
+        nk, rho = w[k] / np.linalg.norm(w[k]), np.linalg.norm(w[k])
+        proj = np.eye(d) - np.outer(nk, nk)
+        # offset at p: e = n.(p - c) - |w|, de/dw = (I - n n^T)(p - c)/|w| - n  (n = w/|w|)
+        grad = proj @ (p[k] - c) / rho - nk
+        offset_std[k] = np.sqrt(grad @ cw @ grad)
+        normal_std[k] = np.sqrt(np.trace(proj @ cw @ proj)) / rho
+    return offset_std, normal_std

@@ -28,7 +28,7 @@ class RoomExperiment:
         ranges: J noisy range matrices (M, 1+K) given to the solver.
         outliers: J boolean matrices (M, 1+K), True where a wrong pick was injected.
         result: the reconstruction.
-        offset_errors: (K,) |estimated - true| wall offsets, metres.
+        offset_errors: (K,) distance from each true wall centroid to the estimated plane, metres.
         normal_errors_deg: (K,) angle between estimated and true normals, degrees.
         source_errors: (J,) loudspeaker position errors, metres.
     """
@@ -47,9 +47,15 @@ class RoomExperiment:
 def wall_errors(
     room: Room, normals: np.ndarray, offsets: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order."""
+    """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order.
+
+    The offset error of wall k is the distance from the true wall's centroid p_k (the paper's
+    description of a wall by n_k and p_k) to the estimated plane, |n_k_est . p_k - o_k_est|: the
+    offset where the wall is, independent of where the coordinate origin happens to be.
+    """
     cos = np.clip(np.einsum("kd,kd->k", normals, room.normals), -1.0, 1.0)
-    return np.abs(offsets - room.offsets), np.degrees(np.arccos(cos))
+    offset_err = np.abs(np.einsum("kd,kd->k", normals, room.wall_centroids) - offsets)
+    return offset_err, np.degrees(np.arccos(cos))
 
 
 def room_experiment(

@@ -43,8 +43,9 @@ class ImageSources:
         orders: (J,) reflection order of each image (``len(walls[j])``).
         valid: (J,) Borish's validity test: the parent image lies on the room side of the last wall
             it is reflected in. Every first-order image of a source inside a convex room is valid;
-            in non-rectangular rooms some higher-order ones are not. Visibility from a given
-            receiver is not tested.
+            in a box the invalid ones up to order 3 are the sequences (a, b, a) with b perpendicular
+            to a (they coincide with the image in b), in other rooms more fail. Visibility from a
+            given receiver is not tested.
     """
 
     positions: np.ndarray
@@ -106,6 +107,15 @@ class Room:
         # not a wall and would produce meaningless image sources.
         verts = self.vertices
         tol = _GEOM_RTOL * max(1.0, float(np.ptp(verts, axis=0).max()))
+        # A plane given twice carries the same facet twice; the copy is redundant as well.
+        for i, j in itertools.combinations(range(k), 2):
+            if np.allclose(normals[i], normals[j], rtol=0, atol=1e-9) and (
+                abs(offsets[i] - offsets[j]) <= tol
+            ):
+                raise DegenerateGeometryError(
+                    f"planes {i} and {j} are the same plane (normal {np.round(normals[i], 6).tolist()}, "
+                    f"offset {offsets[i]:.6g}): it is redundant"
+                )
         for i in range(k):
             on = verts[np.abs(verts @ normals[i] - offsets[i]) <= tol]
             if len(on) < d or np.linalg.matrix_rank(on - on[0], tol=tol) < d - 1:
@@ -220,6 +230,15 @@ class Room:
             np.round(pts / (1e-9 * scale)).astype(np.int64), axis=0, return_index=True
         )[1]
         return frozen(pts[np.sort(uniq)])
+
+    @cached_property
+    def wall_centroids(self) -> np.ndarray:
+        """(K, d) centroid of each wall's face (the mean of its vertices; p_k of the paper)."""
+        tol = _GEOM_RTOL * max(1.0, float(np.ptp(self.vertices, axis=0).max()))
+        dist = np.abs(self.vertices @ self.normals.T - self.offsets)  # (V, K)
+        return frozen(
+            np.array([self.vertices[dist[:, k] <= tol].mean(axis=0) for k in range(self.n_walls)])
+        )
 
     @cached_property
     def volume(self) -> float:

@@ -41,8 +41,10 @@ WeightSpec = ArrayLike | Literal["uniform", "inverse_range"] | None
 
 # Relative singular-value threshold below which anchors are taken to be affinely dependent.
 _AFFINE_RTOL = 1e-8
-# Inlier threshold in robust scale units (Rousseeuw and Leroy's 2.5).
+# Inlier threshold in robust scale units (Rousseeuw and Leroy's 2.5), and the standard deviation
+# of a unit normal truncated to +-2.5 (residuals kept by that threshold are that much too tight).
 _INLIER_K = 2.5
+_TRUNCATED_STD = 0.9546
 
 
 @dataclass(frozen=True)
@@ -169,7 +171,11 @@ def _range_residuals(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> 
 
 
 def _lmeds_start(
-    anchors: np.ndarray, ranges: np.ndarray, max_hypotheses: int, rng: np.random.Generator
+    anchors: np.ndarray,
+    ranges: np.ndarray,
+    max_hypotheses: int,
+    rng: np.random.Generator,
+    threshold: float | None = None,
 ) -> tuple[np.ndarray, float]:
     """Least-median-of-squares hypothesis over subsets of d+1 anchors (scaled coordinates).
 
@@ -193,10 +199,13 @@ def _lmeds_start(
     y = np.linalg.solve(a_sub[ok], b_sub[ok][..., None])[..., 0]
     res2 = _range_residuals(y[:, None, :d], anchors[None, :, :], ranges[None, :]) ** 2
     h = (n + p + 1) // 2  # Rousseeuw's order statistic for the highest breakdown point
-    score = np.partition(res2, h - 1, axis=1)[:, h - 1]
+    lmeds = np.partition(res2, h - 1, axis=1)[:, h - 1]
+    # With a known threshold, MSAC (Torr and Zisserman 2000): truncated squared residuals, which
+    # tolerates more than half wrong ranges when the wrong ones do not agree with each other.
+    score = lmeds if threshold is None else np.minimum(res2, threshold**2).sum(axis=1)
     best = int(np.argmin(score))
     # Finite-sample consistency correction of Rousseeuw and Leroy (1987), p = d unknowns.
-    sigma = 1.4826 * (1.0 + 5.0 / max(n - d, 1)) * math.sqrt(score[best])
+    sigma = 1.4826 * (1.0 + 5.0 / max(n - d, 1)) * math.sqrt(lmeds[best])
     return y[best, :d], sigma
 
 
@@ -232,8 +241,11 @@ def multilaterate(
             ``ranges`` are ignored, whatever they hold.
         robust: reject outliers first (least median of squares over anchor subsets, then a
             threshold of 2.5 robust standard deviations and a re-fit). Needs M >= d + 2 observed.
+            Breaks down when half or more of the ranges are wrong.
         inlier_threshold: with ``robust``, a fixed threshold on |range residual| in metres instead
-            of the data-driven one.
+            of the data-driven one; subsets are then scored by consensus (MSAC) instead of LMedS,
+            which copes with more than half wrong ranges as long as those disagree among
+            themselves.
         max_hypotheses: with ``robust``, the number of random anchor subsets tried when there are
             more subsets than this (otherwise all are tried).
         rng: random generator (or seed) for the subset draws.
@@ -288,7 +300,8 @@ def multilaterate(
         )
     elif robust:
         idx = np.flatnonzero(observed)
-        x, sigma = _lmeds_start(a_s[idx], r_s[idx], int(max_hypotheses), rng)
+        thr_s = None if inlier_threshold is None else inlier_threshold / scale
+        x, sigma = _lmeds_start(a_s[idx], r_s[idx], int(max_hypotheses), rng, thr_s)
         fixed = inlier_threshold is not None
         # Floor on the threshold (scaled units): exact data has residuals at round-off level.
         thr = inlier_threshold / scale if fixed else max(_INLIER_K * sigma, 1e-9)
@@ -309,7 +322,9 @@ def multilaterate(
             x, lam = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
             if not fixed:
                 fit = _range_residuals(x, a_s[inliers], r_s[inliers])
-                sigma = math.sqrt(float(fit @ fit) / max(int(inliers.sum()) - d, 1))
+                sigma = (
+                    math.sqrt(float(fit @ fit) / max(int(inliers.sum()) - d, 1)) / _TRUNCATED_STD
+                )
                 thr = max(_INLIER_K * sigma, 1e-9)
         if converged:
             message = (

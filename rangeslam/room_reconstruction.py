@@ -4,15 +4,20 @@ For each loudspeaker j, column 0 of its (M, 1+K) range matrix holds the direct-p
 the M microphones and column k the distances to the image source of wall k (echoes matched to
 walls, as the paper assumes). The pipeline:
 
-1. every source and image source is located on its own by SR-LS multilateration (eq. 3), robustly
-   if asked, which also flags wrong echo picks;
-2. wall k is the perpendicular bisector of s_j and its image s_jk (the image-source formula of
-   section 2 read backwards); with several loudspeakers the wall from the best-supported one starts;
-3. all sources and walls are refined jointly by maximum likelihood on the ranges (Gaussian range
-   noise), with every image s_jk tied to its source and wall: s_jk = s_j + 2(o_k - n_k.s_j) n_k.
-   With ``robust`` this is first done with a Cauchy loss, then ranges more than 3 robust standard
-   deviations off are rejected and the fit is repeated on the rest until the inlier set is stable.
-   Several loudspeakers share the walls, so an echo mis-picked for one is outvoted by the others.
+1. each loudspeaker is located from its direct path by SR-LS multilateration (eq. 3), with least
+   median of squares against wrong picks when ``robust``; the MAD of those residuals gives the
+   noise scale sigma;
+2. wall k is chosen by consensus (MSAC, Torr and Zisserman 2000) among candidate walls, each the
+   perpendicular bisector of s_j and an image source located from d+1 microphones of one
+   loudspeaker (the image-source formula of section 2 read backwards), scored on the echoes of
+   wall k from every loudspeaker; so a wall mis-picked for one loudspeaker is outvoted by another;
+3. all sources and walls are refined jointly by maximum likelihood on the ranges (Gaussian noise),
+   every image tied to its source and wall, s_jk = s_j + 2(o_k - n_k.s_j) n_k, on the ranges within
+   3 sigma of the fit (or ``inlier_threshold``), sigma re-estimated as the MAD of all residuals,
+   until the inlier set is stable (reweighted least squares).
+
+Breakdown: a column with half or more of its picks wrong cannot be trusted; a loudspeaker whose
+direct path then disagrees with the fit is reported (``converged`` False), never returned as good.
 
 Walls are parametrised in the optimiser by w_k = o_k n_k in coordinates centred on the microphones
 (a plane not through the origin, unoriented, d numbers); since the microphones are inside the room,
@@ -41,8 +46,33 @@ __all__ = ["RoomReconstruction", "reconstruct_room"]
 
 log = logging.getLogger(__name__)
 
-# Inlier threshold of the joint fit, in robust standard deviations of the range residual.
-_JOINT_INLIER_K = 3.0
+# Inlier threshold in standard deviations of the range noise.
+_INLIER_K = 3.0
+
+
+def _studentized(abs_res: np.ndarray, jac: np.ndarray, in_fit: np.ndarray) -> np.ndarray:
+    """|Residuals| divided by their standard deviation in units of the noise sigma.
+
+    ``jac`` (N, p) holds the Jacobian rows of all N residuals, ``in_fit`` (N,) marks those the
+    least-squares fit used. With the leverage h = x (J^T J)^+ x^T (J the in-fit rows), a residual in
+    the fit has variance sigma^2 (1 - h), one outside it sigma^2 (1 + h) (the deleted-residual
+    test). Exactly fitted residuals (h ~ 1) say nothing and cannot be tested: they get NaN.
+    """
+    _, sv, vt = np.linalg.svd(jac[in_fit], full_matrices=False)
+    keep = sv > 1e-10 * max(float(sv[0]) if sv.size else 0.0, 1e-300)
+    proj = (jac @ vt[keep].T) / sv[keep]  # rows: x V S^-1, so h = ||row||^2
+    lev = np.sum(proj**2, axis=1)
+    var = np.where(in_fit, 1.0 - lev, 1.0 + lev)
+    out = np.full(abs_res.shape, np.nan)
+    ok = var > 1e-6
+    out[ok] = abs_res[ok] / np.sqrt(var[ok])
+    return out
+
+
+def _mad_sigma(stud: np.ndarray) -> float:
+    """1.4826 times the median of the finite studentized |residuals| (floored at 1e-9)."""
+    finite = stud[np.isfinite(stud)]
+    return max(1.4826 * float(np.median(finite)), 1e-9) if finite.size else 1e-9
 
 
 @dataclass(frozen=True)
@@ -169,37 +199,6 @@ class _JointModel:
         return jac[self.use]
 
 
-def _mixture_fit(
-    res: np.ndarray, valid: np.ndarray, nu: float, sigma_floor: float, iterations: int = 30
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Fit residuals as inliers N(0, sigma^2) plus outliers uniform on [-nu, nu], by EM (MLESAC).
-
-    ``res`` and ``valid`` are (H, N): H hypotheses, N residuals each (``valid`` False = ignore).
-    Returns sigma (H,) (never below ``sigma_floor``), the inlier fraction gamma (H,), the
-    log-likelihood (H,) and the inlier posterior (H, N) (Torr and Zisserman, "MLESAC", CVIU 2000).
-    """
-    r2 = np.where(valid, res**2, 0.0)
-    n = np.maximum(valid.sum(axis=1), 1)
-    med = np.array(
-        [np.median(np.abs(row[v])) if v.any() else 0.0 for row, v in zip(res, valid, strict=True)]
-    )
-    sigma = np.maximum(1.4826 * med, sigma_floor)
-    gamma = np.full(len(res), 0.5)
-    p_out = 1.0 / (2.0 * nu)
-    for _ in range(iterations):
-        p_in = np.exp(-0.5 * r2 / sigma[:, None] ** 2) / (math.sqrt(2.0 * math.pi) * sigma[:, None])
-        num = gamma[:, None] * p_in
-        post = np.where(valid, num / (num + (1.0 - gamma[:, None]) * p_out), 0.0)
-        wsum = np.maximum(post.sum(axis=1), 1e-12)
-        sigma = np.maximum(np.sqrt((post * r2).sum(axis=1) / wsum), sigma_floor)
-        gamma = np.clip(wsum / n, 1e-3, 1.0 - 1e-3)
-    p_in = np.exp(-0.5 * r2 / sigma[:, None] ** 2) / (math.sqrt(2.0 * math.pi) * sigma[:, None])
-    mix = gamma[:, None] * p_in + (1.0 - gamma[:, None]) * p_out
-    loglik = np.where(valid, np.log(mix), 0.0).sum(axis=1)
-    post = np.where(valid, gamma[:, None] * p_in / mix, 0.0)
-    return sigma, gamma, loglik, post
-
-
 def _wall_hypotheses(
     mics: np.ndarray,
     ranges: np.ndarray,
@@ -247,6 +246,84 @@ def _wall_hypotheses(
     return np.vstack(walls) if walls else np.empty((0, d))
 
 
+def _select_walls(mics, r_s, observed, sources, thr, n_hyp, rng) -> np.ndarray:
+    """Each wall (K, d), as w = o n, by MSAC (Torr and Zisserman 2000) over candidate walls.
+
+    Candidates come from every loudspeaker (:func:`_wall_hypotheses`) and are scored by the
+    truncated squared residuals min(r^2, thr^2) of every loudspeaker's echoes of that wall.
+    """
+    k_n, d = observed.shape[2] - 1, mics.shape[1]
+    walls = np.empty((k_n, d))
+    for k in range(k_n):
+        cands = _wall_hypotheses(mics, r_s[:, :, 1 + k], observed[:, :, 1 + k], sources, n_hyp, rng)
+        if len(cands) == 0:
+            raise InvalidInputError(
+                f"wall {k} (column {1 + k}): no loudspeaker has {d + 1} observed echoes from "
+                f"microphones spanning {d}-D to locate it"
+            )
+        imgs = _images(sources, cands).transpose(1, 0, 2)  # (H, J, d)
+        dist = np.linalg.norm(mics[None, None, :, :] - imgs[:, :, None, :], axis=3)
+        res2 = (dist - r_s[None, :, :, 1 + k]) ** 2
+        score = np.where(observed[None, :, :, 1 + k], np.minimum(res2, thr**2), 0.0).sum(
+            axis=(1, 2)
+        )
+        walls[k] = cands[int(np.argmin(score))]
+    return walls
+
+
+def _reweighted_fit(model: _JointModel, theta, use, *, robust: bool, fixed_thr: float | None):
+    """Joint least squares on the ranges in ``use``, re-classifying and re-fitting until stable.
+
+    Without a fixed threshold a range is kept when its studentized residual is within 3 sigma,
+    sigma being 1.4826 MAD of all studentized residuals. Returns (theta, use, sigma, nfev, message);
+    message is empty on success.
+    """
+    observed = model.use
+    n_params = theta.size
+    nfev = 0
+    sigma = float("nan")
+    seen: list[np.ndarray] = []
+    for _ in range(20):
+        if use.sum() < n_params:
+            return (
+                theta,
+                use,
+                sigma,
+                nfev,
+                f"only {int(use.sum())} inlier ranges for {n_params} unknowns; ",
+            )
+        inlier_model = _JointModel(model.mics, model.ranges, use)
+        fit = least_squares(
+            inlier_model.residuals,
+            theta,
+            jac=inlier_model.jacobian,
+            method="trf",
+            x_scale="jac",
+            xtol=1e-12,
+            ftol=1e-12,
+            gtol=1e-12,
+        )
+        theta, nfev = fit.x, nfev + fit.nfev
+        res_all = np.abs(model.all_residuals(theta))
+        # Jacobian rows follow the C order of observed; use[observed] marks those in the fit.
+        stud = _studentized(res_all[observed], model.jacobian(theta), use[observed])
+        sigma = _mad_sigma(stud)
+        if not robust:
+            return theta, use, sigma, nfev, ""
+        new = observed.copy()
+        if fixed_thr is None:
+            new[observed] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay
+        else:
+            new = observed & (res_all <= fixed_thr)
+        # Stop when the set repeats: unchanged, or a cycle through ranges sitting on the threshold
+        # (the fits in such a cycle differ by those borderline ranges only).
+        if any(np.array_equal(new, old) for old in seen):
+            return theta, use, sigma, nfev, ""
+        seen.append(use)
+        use = new
+    return theta, use, sigma, nfev, "inlier set still changing after 20 re-fits; "
+
+
 def reconstruct_room(
     mics: ArrayLike,
     ranges: ArrayLike | Sequence[ArrayLike],
@@ -266,8 +343,14 @@ def reconstruct_room(
             or a list of J such matrices, one per loudspeaker, with the same walls in the same
             column order, whose walls are then estimated jointly.
         mask: boolean array(s) of the shape of ``ranges``, True where the echo was observed.
-        robust: reject wrong echo picks (LMedS per source, then a robust joint fit). Without it
-            every observed range is used in a plain least-squares fit.
+        robust: reject wrong echo picks (LMedS for the direct paths, MSAC for the walls, then a
+            reweighted joint fit). Without it every observed range is used in a plain fit.
+        inlier_threshold: with ``robust``, a fixed bound in metres on |range residual| for a
+            range to be used. By default it is 3 sigma, sigma estimated robustly from the direct
+            paths and then from all residuals of the fit, which suits echoes as accurate as the direct sound (simulation).
+            Measured echo picks are less accurate than the direct path and their wrong picks are
+            often only 5-15 cm off: pass a few samples' worth, e.g. 3 c / fs.
+        max_hypotheses: with ``robust``, random microphone subsets per loudspeaker and wall.
         rng: random generator (or seed) for the robust subset search.
 
     Returns:
@@ -333,90 +416,68 @@ def reconstruct_room(
                 f"loudspeaker {j}: the direct path could not be located: {res.message}"
             )
         sources0[j] = res.position
-        direct_resid.append(res.residuals[res.inliers])
-    # Echoes cannot be located more precisely than the direct sound: the noise scale of the direct
-    # paths is the floor of every column's noise scale below.
-    pooled = np.concatenate(direct_resid)
-    sigma_floor = max(math.sqrt(float(pooled @ pooled) / max(pooled.size - j_n * d, 1)), 1e-9)
-    # Outliers are spread over the span of the measured ranges (MLESAC's uniform component).
-    nu = float(r_s[observed].max())
+        # Studentized direct-path residuals: unit vectors from the source are the Jacobian rows.
+        u = mics_s[obs] - res.position
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        direct_resid.append(_studentized(np.abs(res.residuals[obs]), u, res.inliers[obs]))
+    # Noise scale from the direct paths, the most reliable picks: 1.4826 MAD of their studentized
+    # residuals about the robust fits (breakdown point 50% of the pooled direct paths).
+    sigma0 = _mad_sigma(np.concatenate(direct_resid))
+    if robust and j_n > 1:
+        # LMedS alone breaks down when half of one loudspeaker's direct picks are wrong; knowing
+        # sigma from the pool, locate each source again by consensus at 3 sigma (MSAC).
+        for j in range(j_n):
+            res = multilaterate(
+                mics_s,
+                r_s[j, :, 0],
+                mask=observed[j, :, 0],
+                robust=True,
+                inlier_threshold=_INLIER_K * sigma0,
+                rng=rng,
+            )
+            if res.converged:
+                sources0[j] = res.position
     fixed_thr = None if inlier_threshold is None else float(inlier_threshold) / scale
-
-    def classify(res_col: np.ndarray, obs_col: np.ndarray) -> np.ndarray:
-        """Inliers of one column's residuals (J, M): fixed threshold, or the mixture posterior."""
-        if fixed_thr is not None:
-            return obs_col & (np.abs(res_col) <= fixed_thr)
-        _, _, _, post = _mixture_fit(
-            res_col.reshape(1, -1), obs_col.reshape(1, -1), nu, sigma_floor
-        )
-        return obs_col & (post.reshape(res_col.shape) > 0.5)
-
-    # 2. Each wall by consensus over all loudspeakers (bisector of s_j and its image, section 2).
-    walls0 = np.empty((k_n, d))
-    for k in range(k_n):
-        cands = _wall_hypotheses(
-            mics_s,
-            r_s[:, :, 1 + k],
-            observed[:, :, 1 + k],
-            sources0,
-            max_hypotheses if robust else 0,
-            rng,
-        )
-        if len(cands) == 0:
-            raise InvalidInputError(
-                f"wall {k} (column {1 + k}): no loudspeaker has {d + 1} observed echoes from "
-                f"microphones spanning {d}-D to locate it"
-            )
-        imgs = _images(sources0, cands.reshape(-1, d)).transpose(1, 0, 2)  # (H, J, d)
-        dist = np.linalg.norm(mics_s[None, None, :, :] - imgs[:, :, None, :], axis=3)
-        res = (dist - r_s[None, :, :, 1 + k]).reshape(len(cands), -1)
-        valid = np.broadcast_to(observed[None, :, :, 1 + k], dist.shape).reshape(len(cands), -1)
-        if fixed_thr is not None:  # MSAC: truncated squared residuals over every loudspeaker
-            score = np.where(valid, np.minimum(res**2, fixed_thr**2), 0.0).sum(axis=1)
-        else:  # MLESAC: negative log-likelihood of the inlier/outlier mixture
-            score = -_mixture_fit(res, valid, nu, sigma_floor)[2]
-        walls0[k] = cands[int(np.argmin(score))]
-
-    # 3. Joint maximum-likelihood refinement with every image tied to its source and wall.
-    theta = np.concatenate([sources0.ravel(), walls0.ravel()])
-    n_params = theta.size
-    nfev = 0
     model = _JointModel(mics_s, r_s, observed)
+    n_hyp = max_hypotheses if robust else 0
 
-    def classify_all(theta: np.ndarray) -> np.ndarray:
-        res_all = model.all_residuals(theta)
-        return np.stack([classify(res_all[:, :, c], observed[:, :, c]) for c in range(c_n)], axis=2)
-
-    use = classify_all(theta) if robust else observed.copy()
-    converged = True
-    message = ""
-    for _ in range(20):
-        if use.sum() < n_params:
-            converged, message = (
-                False,
-                f"only {int(use.sum())} inlier ranges for {n_params} unknowns",
-            )
-            break
-        inlier_model = _JointModel(mics_s, r_s, use)
-        fit = least_squares(
-            inlier_model.residuals,
-            theta,
-            jac=inlier_model.jacobian,
-            method="trf",
-            x_scale="jac",
-            xtol=1e-12,
-            ftol=1e-12,
-            gtol=1e-12,
+    # 2-3. Select the walls at the current noise scale, then refine jointly. Without a fixed
+    # threshold, a second pass selects the walls again at the scale of the first joint fit, which
+    # is estimated from every range rather than from the few direct paths (too tight a scale
+    # makes the selection favour minimal subsets that fit d+1 ranges exactly).
+    passes = 2 if robust and fixed_thr is None else 1
+    sources, sigma, nfev = sources0, sigma0, 0
+    for _ in range(passes):
+        thr = fixed_thr if fixed_thr is not None else _INLIER_K * sigma
+        walls0 = _select_walls(mics_s, r_s, observed, sources, thr, n_hyp, rng)
+        theta = np.concatenate([sources.ravel(), walls0.ravel()])
+        res0 = np.abs(model.all_residuals(theta))
+        if fixed_thr is None:
+            # The MAD of all ranges about the selected model is a steadier scale than the few
+            # direct paths (it may only be larger: the walls were chosen to fit at sigma).
+            thr = _INLIER_K * max(sigma, 1.4826 * float(np.median(res0[observed])))
+        use = observed & (res0 <= thr) if robust else observed.copy()
+        theta, use, sigma, n_eval, message = _reweighted_fit(
+            model, theta, use, robust=robust, fixed_thr=fixed_thr
         )
-        theta, nfev = fit.x, nfev + fit.nfev
-        if not robust:
-            break
-        new = classify_all(theta)
-        if np.array_equal(new, use):
-            break
-        use = new
-    else:
-        message = "inlier set still changing after 20 re-fits; "
+        nfev += n_eval
+        sources = model.unpack(theta)[0]
+    converged = not message
+    for k in range(k_n):
+        if use[:, :, 1 + k].sum() < d + 1:
+            converged = False
+            message += f"wall {k}: only {int(use[:, :, 1 + k].sum())} of {int(observed[:, :, 1 + k].sum())} echo ranges agree with the fit; "
+
+    # A loudspeaker whose direct path mostly disagrees with the fit was not located (beyond the
+    # 50% breakdown point of the robust estimators): say so rather than return it as converged.
+    for j in range(j_n):
+        n_obs, n_in = int(observed[j, :, 0].sum()), int(use[j, :, 0].sum())
+        if 2 * n_in < n_obs:
+            converged = False
+            message += (
+                f"loudspeaker {j}: only {n_in} of {n_obs} direct-path ranges agree with the fit "
+                "(more than half mis-picked?); "
+            )
 
     s_s, w_s = _JointModel(mics_s, r_s, use).unpack(theta)
     offsets_s = np.linalg.norm(w_s, axis=1)
@@ -444,6 +505,11 @@ def reconstruct_room(
         if not np.all(room.contains(sources, margin=-tol)):
             converged = False
             message += "a source lies outside the reconstructed room; "
+    if not converged and robust and inlier_threshold is None:
+        message += (
+            "for measured echoes, which are less accurate than the direct sound, pass "
+            "inlier_threshold (a few samples of c/fs); "
+        )
     if converged:
         message += f"converged: {int(use.sum())} of {int(observed.sum())} ranges used, RMS residual {rms:.3g} m"
     return RoomReconstruction(

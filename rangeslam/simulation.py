@@ -83,7 +83,7 @@ def add_outliers(
     """Corrupt a fraction of the observed ranges, as wrong echo picks do.
 
     Each chosen range moves by a random sign times a uniform error in [min_error, max_error] metres
-    (folded at zero). Returns ``(corrupted, is_outlier)``, both of the shape of ``ranges``.
+    (a shortening that would go below zero becomes a lengthening). Returns ``(corrupted, is_outlier)``, both of the shape of ``ranges``.
     """
     rng = np.random.default_rng(rng)
     r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges))
@@ -94,7 +94,9 @@ def add_outliers(
     is_outlier = observed & (rng.random(r.shape) < p)
     err = rng.uniform(min_error, max_error, r.shape) * rng.choice([-1.0, 1.0], r.shape)
     out = r.copy()
-    out[is_outlier] = np.abs(r[is_outlier] + err[is_outlier])
+    # A shortening that would go below zero lengthens instead, so |change| stays in the interval.
+    err = np.where(r + err < 0, -err, err)
+    out[is_outlier] = r[is_outlier] + err[is_outlier]
     return out, is_outlier
 
 
@@ -120,6 +122,23 @@ def random_points_in_room(
     )
 
 
+def _spread_directions(n: int, dim: int, rng: np.random.Generator) -> np.ndarray:
+    """n unit vectors spread over the circle/sphere: even angles (2-D) or a Fibonacci sphere (3-D),
+    randomly rotated, each jittered by about a third of the spacing."""
+    if dim == 2:
+        angles = 2 * np.pi * (np.arange(n) + rng.uniform(-0.3, 0.3, n)) / n + rng.uniform(
+            0, 2 * np.pi
+        )
+        return np.column_stack([np.cos(angles), np.sin(angles)])
+    i = np.arange(n) + 0.5
+    z = 1 - 2 * i / n
+    phi = np.pi * (1 + 5**0.5) * i
+    base = np.column_stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z])
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    dirs = base @ q.T + rng.normal(scale=0.6 / np.sqrt(n), size=(n, 3))
+    return dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+
+
 def random_convex_room(
     dim: int,
     n_walls: int,
@@ -131,8 +150,10 @@ def random_convex_room(
     """A random convex room with ``n_walls`` walls, none of them redundant.
 
     Walls are tangent planes to spheres of radius in [inner_radius, inner_radius + radius_spread]
-    around a random centre, with random outward normals; draws that leave the room unbounded or make
-    a wall redundant are rejected. ``n_walls`` >= d + 1 (a simplex) and typically up to ~12.
+    around a random centre, with outward normals spread over the circle or sphere (evenly spaced,
+    randomly rotated and jittered); draws that leave the room unbounded, make
+    a wall redundant, or put a corner more than 2.5 outer radii (d + 1 for a simplex) from the
+    centre are rejected. ``n_walls`` >= d + 1 (a simplex) and typically up to ~12.
     """
     from .errors import DegenerateGeometryError
 
@@ -143,13 +164,20 @@ def random_convex_room(
         raise InvalidInputError(f"n_walls must be an integer >= {dim + 1}; got {n_walls!r}")
     centre = rng.uniform(2.0, 4.0, dim)
     for _ in range(1000):
-        normals = rng.normal(size=(n_walls, dim))
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = _spread_directions(n_walls, dim, rng)
         radii = inner_radius + radius_spread * rng.random(n_walls)
         try:
-            return Room(normals, normals @ centre + radii)
+            room = Room(normals, normals @ centre + radii)
         except DegenerateGeometryError:
             continue
+        # Reject spiky rooms: no corner farther than 2.5 times the outer radius from the centre.
+        # A d-simplex around a ball of radius r has a corner at least d r from its centre (the
+        # regular one exactly), so 2.5 would refuse every tetrahedron: simplices get d + 1.
+        spike = 2.5 if n_walls > dim + 1 else max(2.5, dim + 1.0)
+        if np.linalg.norm(room.vertices - centre, axis=1).max() <= spike * (
+            inner_radius + radius_spread
+        ):
+            return room
     raise InvalidInputError(
         f"could not draw a bounded room with {n_walls} non-redundant walls in {dim}-D"
     )

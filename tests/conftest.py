@@ -1,0 +1,45 @@
+"""Shared fixtures: a seeded ``rng`` (``--seed`` to re-run with another seed) and the dEchorate data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+DEFAULT_SEED = 20261121
+_REPO = Path(__file__).resolve().parents[1]
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"seed of the rng fixture (default {DEFAULT_SEED}); re-run with others to vary data",
+    )
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    return f"rangeslam rng seed: {config.getoption('--seed')}"
+
+
+@pytest.fixture
+def rng(request: pytest.FixtureRequest) -> np.random.Generator:
+    """A fresh Generator per test, seeded from --seed, so tests do not depend on their order."""
+    return np.random.default_rng(request.config.getoption("--seed"))
+
+
+@pytest.fixture
+def dechorate_dir() -> Path:
+    """Path of the dEchorate data: $RANGESLAM_DATA/dechorate, else <repo>/../shared/data/dechorate."""
+    env = os.environ.get("RANGESLAM_DATA")
+    base = Path(env) if env else _REPO.parent / "shared" / "data"
+    path = (base / "dechorate").resolve()
+    if not path.is_dir():
+        pytest.skip(
+            f"dEchorate data not found at {path}; set RANGESLAM_DATA to the directory that "
+            "contains dechorate/"
+        )
+    return path
