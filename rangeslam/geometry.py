@@ -269,7 +269,7 @@ class Room:
         undo the first), K (K-1)^(r-1) of them.
         """
         src = as_point(source, "source", dim=self.dim)
-        if not isinstance(order, int | np.integer) or order < 1:
+        if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 1:
             raise InvalidInputError(f"order must be an integer >= 1; got {order!r}")
         tol = _GEOM_RTOL * self.size
         if not self.contains(src[None, :], margin=-tol)[0]:

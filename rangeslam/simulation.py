@@ -86,14 +86,14 @@ def add_outliers(
     (a shortening that would go below zero becomes a lengthening). Returns ``(corrupted, is_outlier)``, both of the shape of ``ranges``.
     """
     rng = np.random.default_rng(rng)
-    r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges))
+    observed = as_mask(mask, "mask", shape=np.shape(ranges))
+    r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges), observed=observed)
     p = _check_fraction(fraction, "fraction")
-    observed = as_mask(mask, "mask", shape=r.shape)
     if not 0 <= min_error <= max_error:
         raise InvalidInputError(f"need 0 <= min_error <= max_error; got {min_error}, {max_error}")
     is_outlier = observed & (rng.random(r.shape) < p)
     err = rng.uniform(min_error, max_error, r.shape) * rng.choice([-1.0, 1.0], r.shape)
-    out = r.copy()
+    out = np.array(ranges, dtype=float, copy=True)  # unobserved entries come back as given
     # A shortening that would go below zero lengthens instead, so |change| stays in the interval.
     err = np.where(r + err < 0, -err, err)
     out[is_outlier] = r[is_outlier] + err[is_outlier]

@@ -459,3 +459,25 @@ def test_contains_rejects_points_of_wrong_dimension():
     """contains() refuses points whose dimension differs from the room's."""
     with pytest.raises(InvalidInputError, match=r"points must have shape \(N, d\) with d = 2"):
         Room.shoebox([1.0, 1.0]).contains([[0.5, 0.5, 0.5]])
+
+
+def test_wall_centroids_of_a_shoebox():
+    """The centroid of each shoebox wall is the centre of that face."""
+    room = Room.shoebox([4.0, 3.0, 2.0])
+    expected = [[0, 1.5, 1], [4, 1.5, 1], [2, 0, 1], [2, 3, 1], [2, 1.5, 0], [2, 1.5, 2]]
+    np.testing.assert_allclose(room.wall_centroids, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_wall_centroids_lie_on_their_walls(rng, dim):
+    """In random convex rooms every wall centroid is on its own plane and inside the closed room."""
+    room = random_convex_room(dim, dim + 4, rng=rng)
+    c = room.wall_centroids
+    np.testing.assert_allclose(np.einsum("kd,kd->k", room.normals, c), room.offsets, atol=1e-9)
+    assert room.contains(c, margin=-1e-9).all()
+
+
+def test_image_sources_refuse_boolean_order():
+    """order=True is a bool, not an order."""
+    with pytest.raises(InvalidInputError, match="order must be an integer"):
+        Room.shoebox([4.0, 3.0, 2.0]).image_sources([1.0, 1.0, 1.0], order=True)

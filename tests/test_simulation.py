@@ -270,3 +270,14 @@ def test_random_convex_room_walls_are_not_redundant(rng):
             np.vstack([room.normals, room.normals[:1]]),
             np.append(room.offsets, room.offsets[0] + 1.0),
         )
+
+
+def test_add_outliers_ignores_unobserved_placeholders(rng):
+    """Unobserved entries may hold NaN; they are neither checked nor corrupted, and stay as given."""
+    r = np.full((5, 4), 2.0)
+    r[0, 0] = np.nan
+    mask = np.ones((5, 4), dtype=bool)
+    mask[0, 0] = False
+    out, is_out = add_outliers(r, 1.0, mask=mask, rng=rng)
+    assert not is_out[0, 0] and is_out[mask].all()
+    assert np.isnan(out[0, 0])
