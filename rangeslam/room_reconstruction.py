@@ -16,8 +16,12 @@ walls, as the paper assumes). The pipeline:
    3 sigma of the fit (or ``inlier_threshold``), sigma re-estimated as the MAD of all residuals,
    until the inlier set is stable (reweighted least squares).
 
-Breakdown: a column with half or more of its picks wrong cannot be trusted; a loudspeaker whose
-direct path then disagrees with the fit is reported (``converged`` False), never returned as good.
+Between two such passes every loudspeaker is located again from all its ranges: the echo of wall k
+is a direct path from the microphone mirrored in that wall, ||m - R_k(s)|| = ||R_k(m) - s||, so a
+direct path whose picks are mostly wrong is outvoted by the echoes.
+
+Breakdown: a loudspeaker with half or more of all its ranges inconsistent with the fit is reported
+(``converged`` False), never returned as good.
 
 Walls are parametrised in the optimiser by w_k = o_k n_k in coordinates centred on the microphones
 (a plane not through the origin, unoriented, d numbers); since the microphones are inside the room,
@@ -271,6 +275,32 @@ def _select_walls(mics, r_s, observed, sources, thr, n_hyp, rng) -> np.ndarray:
     return walls
 
 
+def _relocate_sources(mics, r_s, observed, walls, thr, n_hyp, rng) -> np.ndarray:
+    """Each loudspeaker (J, d) from all its ranges, by consensus, given the walls (K, d) as w = o n.
+
+    The echo of wall k is a direct path from the microphone mirrored in that wall:
+    ||m - R_k(s)|| = ||R_k(m) - s||. So the (1+K) M ranges of a loudspeaker are direct ranges from
+    the real and mirrored microphones, and robust multilateration (MSAC at ``thr``) over all of them
+    outvotes a direct path whose picks are mostly wrong.
+    """
+    j_n, m_n, c_n = r_s.shape
+    mirrored = _images(mics, walls)  # (M, K, d): microphone m mirrored in wall k
+    anchors = np.concatenate([mics[:, None, :], mirrored], axis=1).reshape(m_n * c_n, -1)
+    out = np.empty((j_n, mics.shape[1]))
+    for j in range(j_n):
+        res = multilaterate(
+            anchors,
+            r_s[j].ravel(),
+            mask=observed[j].ravel(),
+            robust=True,
+            inlier_threshold=thr,
+            max_hypotheses=max(n_hyp, 1),
+            rng=rng,
+        )
+        out[j] = res.position
+    return out
+
+
 def _reweighted_fit(model: _JointModel, theta, use, *, robust: bool, fixed_thr: float | None):
     """Joint least squares on the ranges in ``use``, re-classifying and re-fitting until stable.
 
@@ -445,10 +475,15 @@ def reconstruct_room(
     # threshold, a second pass selects the walls again at the scale of the first joint fit, which
     # is estimated from every range rather than from the few direct paths (too tight a scale
     # makes the selection favour minimal subsets that fit d+1 ranges exactly).
-    passes = 2 if robust and fixed_thr is None else 1
+    # Between the passes each loudspeaker is located again from all its echoes through the walls
+    # of the first pass (see _relocate_sources), so a mostly mis-picked direct path is outvoted.
+    passes = 2 if robust else 1
     sources, sigma, nfev = sources0, sigma0, 0
+    fitted_walls = None
     for _ in range(passes):
         thr = fixed_thr if fixed_thr is not None else _INLIER_K * sigma
+        if fitted_walls is not None:
+            sources = _relocate_sources(mics_s, r_s, observed, fitted_walls, thr, n_hyp, rng)
         walls0 = _select_walls(mics_s, r_s, observed, sources, thr, n_hyp, rng)
         theta = np.concatenate([sources.ravel(), walls0.ravel()])
         res0 = np.abs(model.all_residuals(theta))
@@ -461,21 +496,22 @@ def reconstruct_room(
             model, theta, use, robust=robust, fixed_thr=fixed_thr
         )
         nfev += n_eval
-        sources = model.unpack(theta)[0]
+        sources, fitted_walls = model.unpack(theta)
     converged = not message
     for k in range(k_n):
         if use[:, :, 1 + k].sum() < d + 1:
             converged = False
             message += f"wall {k}: only {int(use[:, :, 1 + k].sum())} of {int(observed[:, :, 1 + k].sum())} echo ranges agree with the fit; "
 
-    # A loudspeaker whose direct path mostly disagrees with the fit was not located (beyond the
-    # 50% breakdown point of the robust estimators): say so rather than return it as converged.
+    # A loudspeaker whose ranges mostly disagree with the fit was not located (beyond the 50%
+    # breakdown point of the robust estimators): say so rather than return it as converged.
+    # (Its direct path alone may be mostly wrong: the echoes through the walls locate it.)
     for j in range(j_n):
-        n_obs, n_in = int(observed[j, :, 0].sum()), int(use[j, :, 0].sum())
+        n_obs, n_in = int(observed[j].sum()), int(use[j].sum())
         if 2 * n_in < n_obs:
             converged = False
             message += (
-                f"loudspeaker {j}: only {n_in} of {n_obs} direct-path ranges agree with the fit "
+                f"loudspeaker {j}: only {n_in} of its {n_obs} ranges agree with the fit "
                 "(more than half mis-picked?); "
             )
 

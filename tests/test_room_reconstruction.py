@@ -132,21 +132,35 @@ def test_wrong_picks_are_rejected(rng, dim):
     assert within >= 6
 
 
-def test_mostly_wrong_direct_path_is_reported(rng):
-    """If 7 of 12 direct-path picks of a loudspeaker are wrong (beyond the breakdown point), the
-    result either says so (converged False, naming the loudspeaker) or is right: never a wrong room
-    presented as converged."""
+def test_mostly_wrong_direct_path_is_outvoted_by_the_echoes(rng):
+    """If 7 of 12 direct-path picks of a loudspeaker are wrong (beyond the breakdown point of any
+    estimator using the direct path alone), the loudspeaker is still located to 1 cm from its echoes
+    through the walls (mirrored microphones), and exactly the wrong picks are rejected."""
     room = Room.shoebox([5.1, 3.7, 2.6])
     mics, sources, ranges = _scene(rng, room, n_mics=12, n_sources=2)
     ranges = [add_range_noise(r, 1e-3, rng=rng) for r in ranges]
     ranges[0][:7, 0] += rng.uniform(0.3, 2.0, 7)
     res = reconstruct_room(mics, ranges, rng=rng)
-    if res.converged:
-        off, _ = wall_errors(room, res.wall_normals, res.wall_offsets)
-        assert off.max() < 0.01
-        np.testing.assert_allclose(res.sources, sources, atol=0.01)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.sources, sources, atol=0.01)
+    assert wall_errors(room, res.wall_normals, res.wall_offsets)[0].max() < 0.01
+    assert not res.inliers[0, :7, 0].any()
+
+
+def test_mostly_wrong_loudspeaker_is_reported(rng):
+    """If most of one loudspeaker's ranges (direct path and echoes) are wrong, the result says so
+    (converged False, with what to try) instead of returning a wrong room as good."""
+    room = Room.shoebox([5.1, 3.7, 2.6])
+    mics, _, ranges = _scene(rng, room, n_mics=12, n_sources=2)
+    ranges = [add_range_noise(r, 1e-3, rng=rng) for r in ranges]
+    bad = rng.random(ranges[0].shape) < 0.6
+    ranges[0][bad] += rng.uniform(0.3, 2.0, int(bad.sum()))
+    res = reconstruct_room(mics, ranges, rng=rng)
+    if res.converged:  # then it must be right, and have rejected the wrong picks
+        assert wall_errors(room, res.wall_normals, res.wall_offsets)[0].max() < 0.01
+        assert not (res.inliers[0] & bad).any()
     else:
-        assert "inlier_threshold" in res.message  # says what went wrong and what to try
+        assert "loudspeaker 0" in res.message and "inlier_threshold" in res.message
 
 
 def test_plain_fit_is_spoilt_by_a_wrong_pick(rng):
