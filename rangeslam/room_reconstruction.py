@@ -4,9 +4,10 @@ For each loudspeaker j, column 0 of its (M, 1+K) range matrix holds the direct-p
 the M microphones and column k the distances to the image source of wall k (echoes matched to
 walls, as the paper assumes). The pipeline:
 
-1. each loudspeaker is located from its direct path by SR-LS multilateration (eq. 3), with least
-   median of squares against wrong picks when ``robust``; the MAD of those residuals gives the
-   noise scale sigma;
+1. each source and image source is located on its own by SR-LS multilateration (eq. 3), with
+   least median of squares against wrong picks when ``robust``; the median over columns of their
+   residuals' MAD gives the noise scale sigma, and each loudspeaker is located again from its
+   direct path by consensus at 3 sigma (MSAC);
 2. wall k is chosen by consensus (MSAC, Torr and Zisserman 2000) among candidate walls, each the
    perpendicular bisector of s_j and an image source located from d+1 microphones of one
    loudspeaker (the image-source formula of section 2 read backwards), scored on the echoes of
@@ -430,9 +431,13 @@ def reconstruct_room(
     mics_s = (m_pts - centre) / scale
     r_s = r_all / scale
 
-    # 1. Each loudspeaker from its direct path (eq. 3), robustly if asked.
+    # 1. Each source and image source on its own (eq. 3), robustly if asked. The noise scale sigma
+    # is the median over all columns (every loudspeaker's direct path and echoes) of each column's
+    # 1.4826 MAD of studentized residuals about its own fit: one column that is mostly mis-picked
+    # (even a direct path) inflates its own scale, not the median.
     sources0 = np.empty((j_n, d))
-    direct_resid: list[np.ndarray] = []
+    points0 = np.full((j_n, c_n, d), np.nan)  # robust per-column positions (source, images)
+    column_sigmas: list[float] = []
     for j in range(j_n):
         obs = observed[j, :, 0]
         if obs.sum() < d + 1 or affine_rank(mics_s[obs]) < d:
@@ -440,22 +445,26 @@ def reconstruct_room(
                 f"loudspeaker {j}: the direct path (column 0) needs at least {d + 1} observed "
                 f"ranges from microphones spanning {d}-D; got {int(obs.sum())}"
             )
-        res = multilaterate(mics_s, r_s[j, :, 0], mask=obs, robust=robust, rng=rng)
-        if not res.converged:
-            raise InvalidInputError(
-                f"loudspeaker {j}: the direct path could not be located: {res.message}"
-            )
-        sources0[j] = res.position
-        # Studentized direct-path residuals: unit vectors from the source are the Jacobian rows.
-        u = mics_s[obs] - res.position
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        direct_resid.append(_studentized(np.abs(res.residuals[obs]), u, res.inliers[obs]))
-    # Noise scale from the direct paths, the most reliable picks: 1.4826 MAD of their studentized
-    # residuals about the robust fits (breakdown point 50% of the pooled direct paths).
-    sigma0 = _mad_sigma(np.concatenate(direct_resid))
-    if robust and j_n > 1:
-        # LMedS alone breaks down when half of one loudspeaker's direct picks are wrong; knowing
-        # sigma from the pool, locate each source again by consensus at 3 sigma (MSAC).
+        for c in range(c_n):
+            obs = observed[j, :, c]
+            if obs.sum() < d + 2 or affine_rank(mics_s[obs]) < d:
+                continue  # no redundancy: says nothing about the noise
+            res = multilaterate(mics_s, r_s[j, :, c], mask=obs, robust=robust, rng=rng)
+            if c == 0:
+                sources0[j] = res.position
+            if res.converged:
+                points0[j, c] = res.position
+                u = mics_s[obs] - res.position  # Jacobian rows: unit vectors from the point
+                u /= np.linalg.norm(u, axis=1, keepdims=True)
+                stud = _studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
+                column_sigmas.append(_mad_sigma(stud))
+        if observed[j, :, 0].sum() == d + 1:  # exactly determined direct path
+            sources0[j] = multilaterate(mics_s, r_s[j, :, 0], mask=observed[j, :, 0]).position
+    sigma0 = float(np.median(column_sigmas)) if column_sigmas else 1e-9
+    if robust:
+        # LMedS breaks down when half of a direct path's picks are wrong; knowing sigma, locate
+        # each source again by consensus at 3 sigma (MSAC), which copes if the wrong picks disagree.
+        support = np.zeros(j_n)
         for j in range(j_n):
             res = multilaterate(
                 mics_s,
@@ -467,6 +476,27 @@ def reconstruct_room(
             )
             if res.converged:
                 sources0[j] = res.position
+                support[j] = res.inliers.sum() / max(observed[j, :, 0].sum(), 1)
+        # Even so a direct path with few good picks is ambiguous. The loudspeaker whose direct
+        # path is most consistent gives walls (bisectors of its source and its own images), and
+        # every loudspeaker is located again from all its ranges through those walls.
+        best = int(np.argmax(support))
+        imgs = points0[best, 1:]
+        known = np.all(np.isfinite(imgs), axis=1)
+        if j_n > 1 and known.sum() >= 1:
+            normal = imgs[known] - sources0[best]
+            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+            offset = np.einsum("kd,kd->k", normal, (imgs[known] + sources0[best]) / 2.0)
+            cols = np.r_[0, 1 + np.flatnonzero(known)]
+            sources0 = _relocate_sources(
+                mics_s,
+                r_s[:, :, cols],
+                observed[:, :, cols],
+                normal * offset[:, None],
+                _INLIER_K * sigma0,
+                max_hypotheses,
+                rng,
+            )
     fixed_thr = None if inlier_threshold is None else float(inlier_threshold) / scale
     model = _JointModel(mics_s, r_s, observed)
     n_hyp = max_hypotheses if robust else 0
