@@ -103,10 +103,13 @@ def _resolve_weights(weights: WeightSpec, ranges: np.ndarray, scale: float) -> n
     return w
 
 
-def _srls(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, float]:
+def _srls(
+    anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray
+) -> tuple[np.ndarray, float, bool]:
     """Exact minimiser of sum w (||x-a||^2 - r^2)^2; anchors already centred and unit-scaled.
 
-    Returns (x, lam). Anchors (with positive weight) must affinely span R^d.
+    Returns (x, lam, unique). Anchors (with positive weight) must affinely span R^d; ``unique`` is
+    False in the hard case, where a set of points attains the minimum.
     """
     n, d = anchors.shape
     a_mat = np.column_stack([-2.0 * anchors, np.ones(n)])
@@ -137,7 +140,7 @@ def _srls(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) -> tuple
             lo = cand
             break
     if lo is None:
-        return _srls_hard_case(a_mat, b, weights, v, e, vg, vf, lam_min, d), lam_min
+        return _srls_hard_case(vg, vf, v, e, lam_min, d), lam_min, False
     hi = max(1.0, abs(lam_min))
     for _ in range(200):
         if phi(hi) < 0:
@@ -146,24 +149,27 @@ def _srls(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) -> tuple
     else:
         raise SolverError("SR-LS: could not bracket the GTRS multiplier", status="no sign change")
     lam = brentq(phi, lo, hi, xtol=1e-15, rtol=1e-15, maxiter=500)
-    return y_of(lam)[:d], float(lam)
+    return y_of(lam)[:d], float(lam), True
 
 
-def _srls_hard_case(a_mat, b, weights, v, e, vg, vf, lam_min, d):
-    """Beck et al.'s hard case: the optimum sits at lam = -1/e_max, with a free component along the
-    top generalised eigenvector chosen so that the constraint holds (the lower-cost root)."""
-    c = (vg - lam_min * vf)[:-1] / (1.0 + lam_min * e[:-1])
-    y0 = v[:, :-1] @ c
-    u = v[:, -1]
-    qa = float(u[:d] @ u[:d])
-    qb = float(2.0 * y0[:d] @ u[:d] - u[d])
-    qc = float(y0[:d] @ y0[:d] - y0[d])
-    disc = qb * qb - 4.0 * qa * qc
-    if qa <= 0 or disc < -1e-12 * max(1.0, qb * qb):
-        raise SolverError("SR-LS hard case without a feasible point", status="infeasible GTRS")
-    roots = (-qb + np.array([-1.0, 1.0]) * math.sqrt(max(disc, 0.0))) / (2.0 * qa)
-    best = min(roots, key=lambda t: float(np.sum(weights * (a_mat @ (y0 + t * u) - b) ** 2)))
-    return (y0 + best * u)[:d]
+def _srls_hard_case(vg, vf, v, e, lam_min, d):
+    """Beck et al.'s hard case: the optimum sits at lam = -1/e_max, where A^T W A + lam D is
+    singular. Any y = y0 + U t in the null space U (the top generalised eigenvectors, possibly
+    several when the anchors are symmetric) that satisfies the constraint is a minimiser, so the
+    minimiser is not unique; one is returned (along the first null vector with a real root)."""
+    null = np.abs(1.0 + lam_min * e) <= 1e-9 * max(1.0, abs(lam_min * e).max())
+    c = np.zeros_like(e)
+    c[~null] = (vg - lam_min * vf)[~null] / (1.0 + lam_min * e[~null])
+    y0 = v @ c
+    for u in v[:, null].T:
+        qa = float(u[:d] @ u[:d])
+        qb = float(2.0 * y0[:d] @ u[:d] - u[d])
+        qc = float(y0[:d] @ y0[:d] - y0[d])
+        disc = qb * qb - 4.0 * qa * qc
+        if qa > 0 and disc >= -1e-12 * max(1.0, qb * qb):
+            t = (-qb + math.sqrt(max(disc, 0.0))) / (2.0 * qa)
+            return (y0 + t * u)[:d]
+    raise SolverError("SR-LS hard case without a feasible point", status="infeasible GTRS")
 
 
 def _range_residuals(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray:
@@ -292,7 +298,7 @@ def multilaterate(
         raise DegenerateGeometryError("anchors with positive weight must affinely span R^d")
 
     inliers = observed.copy()
-    converged = True
+    converged, unique = True, True
     message = "SR-LS exact solution"
     if robust and n_obs <= d + 1:
         message = (
@@ -306,6 +312,7 @@ def multilaterate(
         # Floor on the threshold (scaled units): exact data has residuals at round-off level.
         thr = inlier_threshold / scale if fixed else max(_INLIER_K * sigma, 1e-9)
         inliers = np.zeros(m, dtype=bool)
+        seen: list[np.ndarray] = []
         for _ in range(20):
             new = observed & (np.abs(_range_residuals(x, a_s, r_s)) <= thr)
             if new.sum() < d + 1 or affine_rank(a_s[new]) < d:
@@ -316,24 +323,36 @@ def multilaterate(
                 )
                 inliers = new
                 break
-            if np.array_equal(new, inliers):
+            # Stop when the set repeats: unchanged, or cycling through borderline ranges.
+            if np.array_equal(new, inliers) or any(np.array_equal(new, old) for old in seen):
                 break
+            seen.append(inliers)
             inliers = new
-            x, lam = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
+            x, lam, unique = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
             if not fixed:
                 fit = _range_residuals(x, a_s[inliers], r_s[inliers])
                 sigma = (
                     math.sqrt(float(fit @ fit) / max(int(inliers.sum()) - d, 1)) / _TRUNCATED_STD
                 )
                 thr = max(_INLIER_K * sigma, 1e-9)
+        else:
+            converged = False
+            message = "robust multilateration: the inlier set was still changing after 20 re-fits"
         if converged:
+            how = "LMedS" if inlier_threshold is None else "MSAC"
             message = (
-                f"SR-LS after LMedS outlier rejection: {int(inliers.sum())} of {n_obs} ranges kept"
+                f"SR-LS after {how} outlier rejection: {int(inliers.sum())} of {n_obs} ranges kept"
             )
         else:
             lam = float("nan")
     if not robust or n_obs <= d + 1:
-        x, lam = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
+        x, lam, unique = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
+    if not unique:
+        converged = False
+        message = (
+            "the minimiser of eq. (3) is not unique (hard case of the GTRS: symmetric anchors with "
+            "inconsistent ranges leave a set of equally good points); one of them is returned"
+        )
 
     pos = centre + scale * x
     residuals = np.where(observed, _range_residuals(pos, a, r), np.nan)

@@ -54,14 +54,17 @@ def test_exact_at_zero_noise(rng, dim, kind, weights):
 
 
 @pytest.mark.parametrize("dim", [2, 3])
-def test_global_minimiser_of_squared_range_cost(rng, dim):
-    """With noise, no local search from 30 random starts finds a lower eq.-(3) cost than SR-LS."""
+@pytest.mark.parametrize("weights", ["uniform", "inverse_range"])
+def test_global_minimiser_of_squared_range_cost(rng, dim, weights):
+    """With noise, no local search from 30 random starts finds a lower (weighted) eq.-(3) cost than
+    SR-LS, and the reported cost is the cost at the returned point."""
     anchors, point = _scene(rng, dim, "room", m=6)
     ranges = _ranges(anchors, point) + 0.05 * rng.standard_normal(6)
-    res = multilaterate(anchors, ranges, weights="uniform")
+    res = multilaterate(anchors, ranges, weights=weights)
+    w = np.ones(6) if weights == "uniform" else 1.0 / ranges**2
 
     def cost(x):
-        return np.sum((np.sum((anchors - x) ** 2, axis=1) - ranges**2) ** 2)
+        return np.sum(w * (np.sum((anchors - x) ** 2, axis=1) - ranges**2) ** 2)
 
     assert res.cost == pytest.approx(cost(res.position), rel=1e-10)
     for _ in range(30):
@@ -296,3 +299,21 @@ def test_crlb_matches_closed_form():
     """Two orthogonal anchors at unit distance: the CRLB is sigma^2 I."""
     cov = multilateration_crlb(np.array([[1.0, 0], [0, 1]]), [0.0, 0.0], 0.1)
     np.testing.assert_allclose(cov, 0.01 * np.eye(2), atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("anchors", "radius2"),
+    [
+        ([[1, 0], [-1, 0], [0, 1], [0, -1]], 7.0),
+        ([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], 22.0 / 3.0),
+    ],
+)
+def test_hard_case_reports_non_unique_minimiser(anchors, radius2):
+    """Symmetric anchors with equal, inconsistent ranges (3 m from unit-distance anchors): every
+    point at squared radius radius2 minimises eq. (3) (the cost is n(r^2 - 8)^2 + 8 r^2 for n anchors:
+    r^2 = 7 in 2-D, 22/3 in 3-D; Beck et al.'s hard case). The
+    result is one of them, finite, and says it is not unique (converged False)."""
+    res = multilaterate(anchors, [3.0] * len(anchors), weights="uniform")
+    assert not res.converged and "not unique" in res.message
+    assert np.all(np.isfinite(res.position))
+    assert res.position @ res.position == pytest.approx(radius2, rel=1e-9)
