@@ -20,6 +20,7 @@ estimate (reweighted least squares, Rousseeuw and Leroy 1987) and SR-LS is re-so
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from dataclasses import dataclass
@@ -33,7 +34,7 @@ from scipy.optimize import brentq
 from ._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from .errors import DegenerateGeometryError, InvalidInputError, SolverError
 
-__all__ = ["MultilaterationResult", "affine_rank", "multilaterate"]
+__all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,8 @@ class MultilaterationResult:
         position: (d,) estimated point, metres.
         residuals: (M,) range residuals ||x - a_m|| - r_m in metres; NaN where not observed.
         inliers: (M,) True for the ranges used in the final fit (observed and, if robust, accepted).
-        cost: weighted squared-range cost of eq. (3) over the inliers, at ``position`` (m^4).
+        cost: weighted squared-range cost of eq. (3) over the inliers, at ``position`` (m^4 times
+            the unit of the weights: m^4 for uniform weights, m^2 for the default 1/r^2).
         converged: False when the robust search found too few consistent ranges to trust.
         message: what happened, in words.
         lagrange_multiplier: the GTRS multiplier lam at the solution (dimensionless, scaled problem).
@@ -176,6 +178,32 @@ def _range_residuals(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> 
     return np.linalg.norm(anchors - x, axis=-1) - ranges
 
 
+def minimal_subset_points(
+    anchors: np.ndarray,
+    ranges: np.ndarray,
+    candidates: np.ndarray,
+    max_subsets: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Points (H, d) from subsets of d+1 of the ``candidates`` (indices into anchors (M, d)).
+
+    Each subset gives the exact solution of the linear system [-2 a^T, 1] [x; t] = r^2 - ||a||^2
+    (d+1 equations, d+1 unknowns); all subsets when there are at most ``max_subsets`` of them,
+    otherwise that many random ones. Affinely dependent subsets are skipped.
+    """
+    d = anchors.shape[1]
+    p = d + 1
+    if math.comb(len(candidates), p) <= max_subsets:
+        subsets = np.array(list(itertools.combinations(candidates, p)), dtype=int).reshape(-1, p)
+    else:
+        subsets = candidates[np.argsort(rng.random((max_subsets, len(candidates))), axis=1)[:, :p]]
+    a_sub = np.concatenate([-2.0 * anchors[subsets], np.ones((len(subsets), p, 1))], axis=2)
+    b_sub = ranges[subsets] ** 2 - np.einsum("hpd,hpd->hp", anchors[subsets], anchors[subsets])
+    sv = np.linalg.svd(a_sub, compute_uv=False)
+    ok = sv[:, -1] > 1e-8 * sv[:, 0]
+    return np.linalg.solve(a_sub[ok], b_sub[ok][..., None])[..., 0][:, :d]
+
+
 def _lmeds_start(
     anchors: np.ndarray,
     ranges: np.ndarray,
@@ -191,34 +219,20 @@ def _lmeds_start(
     """
     n, d = anchors.shape
     p = d + 1
-    n_all = math.comb(n, p)
-    if n_all <= max_hypotheses:
-        subsets = np.array(list(_combinations(n, p)))
-    else:
-        subsets = np.argsort(rng.random((max_hypotheses, n)), axis=1)[:, :p]
-    a_sub = np.concatenate([-2.0 * anchors[subsets], np.ones((len(subsets), p, 1))], axis=2)
-    b_sub = ranges[subsets] ** 2 - np.einsum("hpd,hpd->hp", anchors[subsets], anchors[subsets])
-    sv = np.linalg.svd(a_sub, compute_uv=False)
-    ok = sv[:, -1] > 1e-8 * sv[:, 0]
-    if not np.any(ok):
+    x = minimal_subset_points(anchors, ranges, np.arange(n), max_hypotheses, rng)
+    if len(x) == 0:
         raise DegenerateGeometryError("every subset of d+1 anchors is affinely dependent")
-    y = np.linalg.solve(a_sub[ok], b_sub[ok][..., None])[..., 0]
-    res2 = _range_residuals(y[:, None, :d], anchors[None, :, :], ranges[None, :]) ** 2
+    res2 = _range_residuals(x[:, None, :], anchors[None, :, :], ranges[None, :]) ** 2
     h = (n + p + 1) // 2  # Rousseeuw's order statistic for the highest breakdown point
     lmeds = np.partition(res2, h - 1, axis=1)[:, h - 1]
     # With a known threshold, MSAC (Torr and Zisserman 2000): truncated squared residuals, which
     # tolerates more than half wrong ranges when the wrong ones do not agree with each other.
     score = lmeds if threshold is None else np.minimum(res2, threshold**2).sum(axis=1)
     best = int(np.argmin(score))
-    # Finite-sample consistency correction of Rousseeuw and Leroy (1987), p = d unknowns.
+    # Finite-sample consistency correction of Rousseeuw and Leroy (1987), for the d unknowns of x
+    # (the subsets have d + 1 members because the linear system also carries t = ||x||^2).
     sigma = 1.4826 * (1.0 + 5.0 / max(n - d, 1)) * math.sqrt(lmeds[best])
-    return y[best, :d], sigma
-
-
-def _combinations(n: int, p: int):
-    import itertools
-
-    return itertools.combinations(range(n), p)
+    return x[best], sigma
 
 
 def multilaterate(

@@ -32,9 +32,7 @@ sources to their images (outward); a wall whose images lie on the wrong side fai
 
 from __future__ import annotations
 
-import itertools
 import logging
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -45,7 +43,7 @@ from scipy.optimize import least_squares
 from ._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from .errors import DegenerateGeometryError, InvalidInputError
 from .geometry import Room
-from .multilateration import affine_rank, multilaterate
+from .multilateration import affine_rank, minimal_subset_points, multilaterate
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
 
@@ -237,18 +235,7 @@ def _wall_hypotheses(
             continue
         images = [multilaterate(mics, ranges[j], mask=observed[j]).position[None, :]]
         if per_source > 0 and len(idx) > d + 1:
-            if math.comb(len(idx), d + 1) <= per_source:
-                subsets = np.array(list(itertools.combinations(idx, d + 1)))
-            else:
-                subsets = idx[np.argsort(rng.random((per_source, len(idx))), axis=1)[:, : d + 1]]
-            a_sub = np.concatenate(
-                [-2.0 * mics[subsets], np.ones((len(subsets), d + 1, 1))], axis=2
-            )
-            b_sub = ranges[j][subsets] ** 2 - np.einsum("hpd,hpd->hp", mics[subsets], mics[subsets])
-            sv = np.linalg.svd(a_sub, compute_uv=False)
-            ok = sv[:, -1] > 1e-8 * sv[:, 0]
-            if np.any(ok):
-                images.append(np.linalg.solve(a_sub[ok], b_sub[ok][..., None])[..., 0][:, :d])
+            images.append(minimal_subset_points(mics, ranges[j], idx, per_source, rng))
         img = np.vstack(images)
         normal = img - sources[j]
         length = np.linalg.norm(normal, axis=1)

@@ -32,10 +32,19 @@ def range_matrix(receivers: ArrayLike, sources: ArrayLike) -> np.ndarray:
 
 
 def echo_ranges(room: Room, receivers: ArrayLike, source: ArrayLike) -> np.ndarray:
-    """(M, 1+K) distances from receivers to the source (column 0) and its K first-order images."""
+    """(M, 1+K) distances from receivers to the source (column 0) and its K first-order images.
+
+    Receivers must be inside the room (the image-source model describes echoes heard inside it).
+    """
+    rec = as_points(receivers, "receivers", dim=room.dim)
+    inside = room.contains(rec, margin=-1e-9 * room.size)
+    if not inside.all():
+        raise InvalidInputError(
+            f"receivers must be inside the room; receiver {int(np.argmin(inside))} is not"
+        )
     src = np.asarray(source, dtype=float)
     images = room.image_sources(src, order=1).positions
-    return range_matrix(receivers, np.vstack([src[None, :], images]))
+    return range_matrix(rec, np.vstack([src[None, :], images]))
 
 
 def _check_sigma(sigma: float, name: str = "sigma") -> float:

@@ -281,3 +281,10 @@ def test_add_outliers_ignores_unobserved_placeholders(rng):
     out, is_out = add_outliers(r, 1.0, mask=mask, rng=rng)
     assert not is_out[0, 0] and is_out[mask].all()
     assert np.isnan(out[0, 0])
+
+
+def test_echo_ranges_refuse_receivers_outside_the_room():
+    """Echo ranges are for receivers inside the room; one outside is refused, naming it."""
+    room = Room.shoebox([4.0, 3.0, 2.0])
+    with pytest.raises(InvalidInputError, match="receiver 1 is not"):
+        echo_ranges(room, [[1.0, 1.0, 1.0], [5.0, 1.0, 1.0]], [2.0, 1.5, 1.0])
