@@ -536,11 +536,12 @@ def reconstruct_room(
         if message:  # this pass failed: a second one would start from its failure
             break
     converged = not message
-    # Every wall needs redundant support: more than d + 1 agreeing echoes (d + 1 fit any plane
-    # exactly) and at least half of those observed, over all loudspeakers.
+    # Every wall needs the support of at least half its observed echoes (over all loudspeakers)
+    # and, when more than d + 1 were observed, of more than d + 1 (d + 1 fit a plane exactly, so
+    # they would confirm nothing). A wall heard exactly d + 1 times is determined, unverified.
     for k in range(k_n):
         n_in, n_obs = int(use[:, :, 1 + k].sum()), int(observed[:, :, 1 + k].sum())
-        if n_in < d + 2 or 2 * n_in < n_obs:
+        if n_in < min(d + 2, n_obs) or 2 * n_in < n_obs:
             converged = False
             message += f"wall {k}: only {n_in} of {n_obs} echo ranges agree with the fit; "
     # The kept ranges must determine every unknown (full-rank Jacobian): otherwise, e.g. a source
