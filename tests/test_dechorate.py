@@ -72,14 +72,19 @@ def test_fixed_threshold_of_three_samples(data):
     assert np.sum(off <= 0.05) >= 4 and off.max() <= 0.15, off
 
 
-def test_single_loudspeakers_locate_themselves(data):
-    """Alone, each loudspeaker is located from its direct path (0: within 3 cm; 1: within 8 cm, its
-    calibrated height being about 5 cm off its own ranges); some of its walls are then wrong, which
-    is why the joint estimate matters (reported in the benchmark)."""
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_single_loudspeakers_locate_themselves(data, seed):
+    """Alone, each loudspeaker is located (0: within 3 cm; 1: within 8 cm, its calibrated height being
+    about 5 cm off its own ranges). Loudspeaker 1's north echoes are all mis-picked, so alone it
+    cannot verify the north wall: the result either converges or names that wall (measured: 3 of 5
+    seeds converge); never another failure."""
     for j, limit in ((0, 0.03), (1, 0.08)):
-        res = reconstruct_room(data.mics, data.ranges(j), rng=0)
-        assert res.converged, res.message
+        res = reconstruct_room(data.mics, data.ranges(j), rng=seed)
         assert np.linalg.norm(res.sources[0] - data.sources[j]) <= limit
+        if j == 0:
+            assert res.converged, res.message
+        elif not res.converged:
+            assert res.message.startswith("wall 3:"), res.message
 
 
 def _copy(src, dst):
