@@ -5,7 +5,7 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 """
 
 from .alignment import Alignment, align
-from .crlb import multilateration_crlb, wall_crlb
+from .crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
 from .errors import (
     DataFormatError,
@@ -26,6 +26,7 @@ __all__ = [
     "DegenerateGeometryError",
     "ImageSources",
     "InvalidInputError",
+    "MDUBound",
     "MultilaterationResult",
     "RangeSlamError",
     "Room",
@@ -38,6 +39,7 @@ __all__ = [
     "edm_to_gram",
     "gram_to_edm",
     "is_edm",
+    "mdu_crlb",
     "multilaterate",
     "multilateration_crlb",
     "reconstruct_room",

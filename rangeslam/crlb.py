@@ -7,13 +7,15 @@ unbiased estimator has covariance >= F^-1. The bound on the RMSE is sqrt(trace F
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ._validation import as_mask, as_point, as_points, shape_str
 from .errors import DegenerateGeometryError, InvalidInputError
 
-__all__ = ["multilateration_crlb", "wall_crlb"]
+__all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "rigid_motion_basis", "wall_crlb"]
 
 
 def multilateration_crlb(
@@ -129,3 +131,114 @@ def wall_crlb(
         offset_std[k] = np.sqrt(grad @ cw @ grad)
         normal_std[k] = np.sqrt(np.trace(proj @ cw @ proj)) / rho
     return offset_std, normal_std
+
+
+@dataclass(frozen=True)
+class MDUBound:
+    """Anchor-free CRLB of multidimensional unfolding (M receivers, K sources, all unknown).
+
+    Attributes:
+        receiver_cov: (M, d, d) bound on each receiver's error covariance, in the chosen gauge.
+        source_cov: (K, d, d) the same for the sources.
+        receiver_rmse: sqrt(mean over receivers of trace(receiver_cov)), metres.
+        source_rmse: the same over the sources, metres.
+        gauge: "receivers" (errors after rigidly aligning the receivers alone) or "all".
+        null_dimension: dimension of the Fisher information's null space (d(d+1)/2 when only
+            rigid motions are unobservable: 3 in 2-D, 6 in 3-D).
+    """
+
+    receiver_cov: np.ndarray
+    source_cov: np.ndarray
+    receiver_rmse: float
+    source_rmse: float
+    gauge: str
+    null_dimension: int
+
+
+def rigid_motion_basis(points: np.ndarray) -> np.ndarray:
+    """(N d, d(d+1)/2) orthonormal basis of the infinitesimal rigid motions of points (N, d).
+
+    Columns: d translations, then the rotations about the centroid (1 in 2-D, 3 in 3-D).
+    """
+    n, d = points.shape
+    c = points - points.mean(axis=0)
+    cols = [np.tile(np.eye(d)[i], n) for i in range(d)]
+    if d == 2:
+        cols.append(np.column_stack([-c[:, 1], c[:, 0]]).ravel())
+    else:
+        for axis in np.eye(3):
+            cols.append(np.cross(axis, c).ravel())
+    q, _ = np.linalg.qr(np.column_stack(cols))
+    return q
+
+
+def mdu_crlb(
+    receivers: ArrayLike,
+    sources: ArrayLike,
+    sigma: float,
+    *,
+    mask: ArrayLike | None = None,
+    gauge: str = "receivers",
+) -> MDUBound:
+    """CRLB of receivers (M, d) and sources (K, d) located from their ranges alone (eq. 9 setting).
+
+    Ranges r_mk = ||x_m - s_k|| + N(0, sigma^2) for the pairs in ``mask`` (M, K) (True = observed).
+    The Fisher information F = J^T J / sigma^2 is singular along the rigid motions, so the bound
+    depends on how the estimate is aligned before its error is taken:
+
+    - ``gauge="all"``: errors after aligning all points: the pseudo-inverse F^+;
+    - ``gauge="receivers"``: errors after aligning the receivers alone (as in Fig. 3): P F^+ P^T
+      with P = I - T (T_r^T T_r)^-1 T_r^T S_r, which removes the rigid motion (basis T) fitted to
+      the receiver rows (T_r, selected by S_r) of the error. This differs from F^+.
+
+    Raises DegenerateGeometryError when more than the rigid motions are unobservable.
+    """
+    x = as_points(receivers, "receivers")
+    d = x.shape[1]
+    s = as_points(sources, "sources", dim=d)
+    m, k = len(x), len(s)
+    observed = as_mask(mask, "mask", shape=(m, k))
+    if gauge not in ("receivers", "all"):
+        raise InvalidInputError(f"gauge must be 'receivers' or 'all'; got {gauge!r}")
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+    pairs = np.argwhere(observed)
+    diff = x[pairs[:, 0]] - s[pairs[:, 1]]
+    dist = np.linalg.norm(diff, axis=1)
+    if np.any(dist == 0):
+        raise DegenerateGeometryError(
+            "a receiver coincides with a source: the range gradient is undefined"
+        )
+    u = diff / dist[:, None]
+    jac = np.zeros((len(pairs), (m + k) * d))
+    for row, ((i, j), uu) in enumerate(zip(pairs, u, strict=True)):
+        jac[row, i * d : (i + 1) * d] = uu
+        jac[row, (m + j) * d : (m + j + 1) * d] = -uu
+    fisher = jac.T @ jac / sigma**2
+    eig, vec = np.linalg.eigh(fisher)
+    n_rigid = d * (d + 1) // 2
+    null = eig <= 1e-9 * eig[-1]
+    if null.sum() > n_rigid:
+        raise DegenerateGeometryError(
+            f"{int(null.sum())} unobservable directions, more than the {n_rigid} rigid motions: "
+            "too few ranges (or a degenerate configuration) for unique unfolding"
+        )
+    cov = (vec[:, ~null] / eig[~null]) @ vec[:, ~null].T  # F^+ (eigh, no explicit inverse)
+    if gauge == "receivers":
+        basis = rigid_motion_basis(np.vstack([x, s]))
+        t_r = basis[: m * d]
+        # Oblique projection: subtract the rigid motion least-squares fitted to the receiver rows.
+        fit = np.linalg.solve(t_r.T @ t_r, t_r.T)
+        proj = np.eye((m + k) * d)
+        proj[:, : m * d] -= basis @ fit
+        cov = proj @ cov @ proj.T
+    blocks = np.array([cov[i * d : (i + 1) * d, i * d : (i + 1) * d] for i in range(m + k)])
+    rec, src = blocks[:m], blocks[m:]
+    return MDUBound(
+        receiver_cov=rec,
+        source_cov=src,
+        receiver_rmse=float(np.sqrt(np.mean(np.trace(rec, axis1=1, axis2=2)))),
+        source_rmse=float(np.sqrt(np.mean(np.trace(src, axis1=1, axis2=2)))),
+        gauge=gauge,
+        null_dimension=int(null.sum()),
+    )
