@@ -18,6 +18,12 @@ from .errors import DegenerateGeometryError, InvalidInputError
 __all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "rigid_motion_basis", "wall_crlb"]
 
 
+def _check_sigma(sigma: float) -> None:
+    """A range noise standard deviation must be positive (at 0 the information is infinite)."""
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+
+
 def multilateration_crlb(
     anchors: ArrayLike,
     point: ArrayLike,
@@ -95,8 +101,7 @@ def wall_crlb(
     k_n, j_n = len(n), len(s)
     if o.shape != (k_n,):
         raise InvalidInputError(f"offsets must have shape ({k_n},); got {shape_str(o.shape)}")
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+    _check_sigma(sigma)
     if points is None:
         p = s[0] + (o - n @ s[0])[:, None] * n
     else:
@@ -200,8 +205,7 @@ def mdu_crlb(
     observed = as_mask(mask, "mask", shape=(m, k))
     if gauge not in ("receivers", "all"):
         raise InvalidInputError(f"gauge must be 'receivers' or 'all'; got {gauge!r}")
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+    _check_sigma(sigma)
     pairs = np.argwhere(observed)
     diff = x[pairs[:, 0]] - s[pairs[:, 1]]
     dist = np.linalg.norm(diff, axis=1)

@@ -211,6 +211,20 @@ class _JointModel:
         return jac[self.use]
 
 
+def _bisector_walls(source: np.ndarray, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Walls (H, d) as w = o n, each the perpendicular bisector of ``source`` (d,) and an image
+    (H, d) (the image-source formula of section 2 read backwards), and an (H,) mask of the usable
+    ones: an image on the source, or a wall through the origin (the microphones' centroid, where
+    no wall can be), gives none."""
+    normal = images - source
+    length = np.linalg.norm(normal, axis=1)
+    ok = length > 1e-9
+    normal = normal / np.where(ok, length, 1.0)[:, None]
+    offset = np.einsum("hd,hd->h", normal, (images + source) / 2.0)
+    ok &= np.abs(offset) > 1e-9
+    return normal * offset[:, None], ok
+
+
 def _wall_hypotheses(
     mics: np.ndarray,
     ranges: np.ndarray,
@@ -236,14 +250,8 @@ def _wall_hypotheses(
         images = [multilaterate(mics, ranges[j], mask=observed[j]).position[None, :]]
         if per_source > 0 and len(idx) > d + 1:
             images.append(minimal_subset_points(mics, ranges[j], idx, per_source, rng))
-        img = np.vstack(images)
-        normal = img - sources[j]
-        length = np.linalg.norm(normal, axis=1)
-        keep = length > 1e-9
-        normal = normal[keep] / length[keep, None]
-        offset = np.einsum("hd,hd->h", normal, (img[keep] + sources[j]) / 2.0)
-        keep2 = np.abs(offset) > 1e-9  # a plane through the microphones' centroid cannot be a wall
-        walls.append(normal[keep2] * offset[keep2, None])
+        cand, ok = _bisector_walls(sources[j], np.vstack(images))
+        walls.append(cand[ok])
     return np.vstack(walls) if walls else np.empty((0, d))
 
 
@@ -450,19 +458,18 @@ def reconstruct_room(
             )
         for c in range(c_n):
             obs = observed[j, :, c]
-            if obs.sum() < d + 2 or affine_rank(mics_s[obs]) < d:
-                continue  # no redundancy: says nothing about the noise
+            redundant = obs.sum() >= d + 2 and affine_rank(mics_s[obs]) == d
+            if c > 0 and not redundant:
+                continue  # an image without redundancy says nothing about the noise
             res = multilaterate(mics_s, r_s[j, :, c], mask=obs, robust=robust, rng=rng)
             if c == 0:
                 sources0[j] = res.position
-            if res.converged:
+            if res.converged and redundant:
                 points0[j, c] = res.position
                 u = mics_s[obs] - res.position  # Jacobian rows: unit vectors from the point
                 u /= np.linalg.norm(u, axis=1, keepdims=True)
                 stud = _studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
                 column_sigmas.append(_mad_sigma(stud))
-        if observed[j, :, 0].sum() == d + 1:  # exactly determined direct path
-            sources0[j] = multilaterate(mics_s, r_s[j, :, 0], mask=observed[j, :, 0]).position
     sigma0 = float(np.median(column_sigmas)) if column_sigmas else 1e-9
     if robust:
         # LMedS breaks down when half of a direct path's picks are wrong; knowing sigma, locate
@@ -486,17 +493,16 @@ def reconstruct_room(
         best = int(np.argmax(support))
         imgs = points0[best, 1:]
         known = np.all(np.isfinite(imgs), axis=1)
+        walls_best, ok = _bisector_walls(sources0[best], np.where(known[:, None], imgs, 0.0))
+        known &= ok
         if j_n > 1 and known.sum() >= 1:
-            normal = imgs[known] - sources0[best]
-            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-            offset = np.einsum("kd,kd->k", normal, (imgs[known] + sources0[best]) / 2.0)
             cols = np.r_[0, 1 + np.flatnonzero(known)]
             sources0 = _relocate_sources(
                 mics_s,
                 r_s[:, :, cols],
                 observed[:, :, cols],
                 sources0,
-                normal * offset[:, None],
+                walls_best[known],
                 _INLIER_K * sigma0,
                 max_hypotheses,
                 rng,
@@ -546,13 +552,15 @@ def reconstruct_room(
             message += f"wall {k}: only {n_in} of {n_obs} echo ranges agree with the fit; "
     # The kept ranges must determine every unknown (full-rank Jacobian): otherwise, e.g. a source
     # whose direct path kept fewer than d + 1 ranges, the answer is one of a family of fits.
-    sv = np.linalg.svd(_JointModel(mics_s, r_s, use).jacobian(theta), compute_uv=False)
+    final = _JointModel(mics_s, r_s, use)
+    res_final = final.residuals(theta)  # scaled units
+    sv = np.linalg.svd(final.jacobian(theta), compute_uv=False)
     if sv.size < theta.size or sv[-1] <= 1e-9 * sv[0]:
         converged = False
         message += "the ranges kept do not determine every source and wall (rank-deficient fit); "
     # The fit must explain its inliers at the noise level of the individual columns: a scale far
     # above it means the inlier test grew to accept a wrong model.
-    rms_s = float(np.sqrt(np.mean(_JointModel(mics_s, r_s, use).residuals(theta) ** 2)))
+    rms_s = float(np.sqrt(np.mean(res_final**2))) if res_final.size else float("nan")
     if rms_s > _MAX_RELATIVE_RMS:  # ranges are scaled by their median
         converged = False
         message += (
@@ -577,7 +585,7 @@ def reconstruct_room(
                 "(more than half mis-picked?); "
             )
 
-    s_s, w_s = _JointModel(mics_s, r_s, use).unpack(theta)
+    s_s, w_s = final.unpack(theta)
     offsets_s = np.linalg.norm(w_s, axis=1)
     normals = w_s / offsets_s[:, None]
     images_s = _images(s_s, w_s)
@@ -590,8 +598,7 @@ def reconstruct_room(
     sources = centre + scale * s_s
     image_sources = centre + scale * images_s
     wall_offsets = scale * offsets_s + normals @ centre
-    res_final = _JointModel(mics_s, r_s, use).residuals(theta) * scale
-    rms = float(np.sqrt(np.mean(res_final**2))) if res_final.size else float("nan")
+    rms = rms_s * scale
 
     room = None
     try:
