@@ -10,11 +10,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .alignment import align
+from .calibration import Calibration, calibrate
+from .crlb import mdu_crlb
+from .errors import DegenerateGeometryError
 from .geometry import Room
 from .room_reconstruction import RoomReconstruction, reconstruct_room
-from .simulation import add_outliers, add_range_noise, echo_ranges, random_points_in_room
+from .simulation import (
+    add_outliers,
+    add_range_noise,
+    echo_ranges,
+    random_points_in_room,
+    range_matrix,
+)
 
-__all__ = ["RoomExperiment", "demo_rooms", "room_experiment", "wall_errors"]
+__all__ = [
+    "CalibrationExperiment",
+    "CalibrationScene",
+    "RoomExperiment",
+    "calibration_experiment",
+    "demo_rooms",
+    "fig3_scene",
+    "room_experiment",
+    "wall_errors",
+]
+
+#: The shoebox of the paper's Fig. 3, metres.
+FIG3_ROOM_SIZE = (5.1, 3.7, 2.6)
 
 
 @dataclass(frozen=True)
@@ -115,3 +137,88 @@ def demo_rooms() -> dict[str, Room]:
         "shoebox": Room.shoebox([5.1, 3.7, 2.6]),
         "cut corner": Room.from_planes(normals, points),
     }
+
+
+@dataclass(frozen=True)
+class CalibrationScene:
+    """A zero-knowledge calibration instance (Fig. 3): microphones and the sources they hear.
+
+    Attributes:
+        room: the shoebox.
+        mics: (M, 3) microphone positions, metres.
+        loudspeaker: (3,) the real source.
+        sources: (K, 3) the loudspeaker and its K - 1 image sources nearest the array's centroid.
+        ranges: (M, K) noise-free ranges, metres.
+    """
+
+    room: Room
+    mics: np.ndarray
+    loudspeaker: np.ndarray
+    sources: np.ndarray
+    ranges: np.ndarray
+
+
+def fig3_scene(
+    rng: np.random.Generator,
+    *,
+    n_mics: int = 6,
+    n_images: int = 5,
+    cube: float = 1.0,
+    room_size: tuple[float, float, float] = FIG3_ROOM_SIZE,
+) -> CalibrationScene:
+    """The Fig. 3 setup: ``n_mics`` microphones uniform in a ``cube``-metre cube at the centre of
+    the shoebox, a loudspeaker uniform in the room, and its ``n_images`` first-order image sources
+    nearest the array (higher orders are left out: in a shoebox, second-order images coincide in
+    pairs, which would repeat a source)."""
+    room = Room.shoebox(room_size)
+    centre = np.asarray(room_size) / 2
+    mics = centre + rng.uniform(-cube / 2, cube / 2, size=(n_mics, 3))
+    loudspeaker = random_points_in_room(room, 1, rng=rng)[0]
+    candidates = room.image_sources(loudspeaker, 1).positions
+    dist = np.linalg.norm(candidates - mics.mean(axis=0), axis=1)
+    sources = np.vstack([loudspeaker, candidates[np.argsort(dist)[:n_images]]])
+    return CalibrationScene(room, mics, loudspeaker, sources, range_matrix(mics, sources))
+
+
+@dataclass(frozen=True)
+class CalibrationExperiment:
+    """One simulated calibration and its errors against the truth.
+
+    Attributes:
+        scene: the true configuration.
+        ranges: (M, K) noisy ranges given to the solver.
+        sigma: range noise standard deviation, metres.
+        result: what :func:`calibrate` returned.
+        mic_error: RMS microphone error after the best rigid motion (with reflection), metres.
+        mic_crlb: the receiver-gauge CRLB of that RMS error, metres (NaN at sigma = 0, inf when
+            the configuration is flexible to first order).
+    """
+
+    scene: CalibrationScene
+    ranges: np.ndarray
+    sigma: float
+    result: Calibration
+    mic_error: float
+    mic_crlb: float
+
+
+def calibration_experiment(
+    sigma: float, rng: np.random.Generator, **calibrate_options
+) -> CalibrationExperiment:
+    """A Fig. 3 scene, ranges with N(0, sigma^2) noise, :func:`calibrate`, and the error vs CRLB.
+
+    ``calibrate_options`` go to :func:`calibrate` (noise_std defaults to sigma, rng to ``rng``).
+    """
+    scene = fig3_scene(rng)
+    ranges = add_range_noise(scene.ranges, sigma, rng=rng) if sigma > 0 else scene.ranges
+    calibrate_options.setdefault("noise_std", sigma)
+    calibrate_options.setdefault("rng", rng)
+    result = calibrate(ranges, **calibrate_options)
+    error = align(result.receivers, scene.mics, reflection=True).rmse
+    bound = float("nan")
+    if sigma > 0:
+        try:
+            bound = mdu_crlb(scene.mics, scene.sources, sigma).receiver_rmse
+        except DegenerateGeometryError:  # a flexible configuration: no finite bound
+            bound = float("inf")
+    return CalibrationExperiment(scene, ranges, sigma, result, error, bound)

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from ._robust import mad_sigma, studentized
 from ._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from .errors import DegenerateGeometryError, InvalidInputError
 from .geometry import Room
@@ -57,31 +58,6 @@ _MAX_SCALE_GROWTH = 10.0
 # Largest plausible RMS range residual as a fraction of the median range: 2% is about 6 cm at 3 m,
 # ten times what the measured dEchorate picks show (0.2%); beyond it the fit explains nothing.
 _MAX_RELATIVE_RMS = 0.02
-
-
-def _studentized(abs_res: np.ndarray, jac: np.ndarray, in_fit: np.ndarray) -> np.ndarray:
-    """|Residuals| divided by their standard deviation in units of the noise sigma.
-
-    ``jac`` (N, p) holds the Jacobian rows of all N residuals, ``in_fit`` (N,) marks those the
-    least-squares fit used. With the leverage h = x (J^T J)^+ x^T (J the in-fit rows), a residual in
-    the fit has variance sigma^2 (1 - h), one outside it sigma^2 (1 + h) (the deleted-residual
-    test). Exactly fitted residuals (h ~ 1) say nothing and cannot be tested: they get NaN.
-    """
-    _, sv, vt = np.linalg.svd(jac[in_fit], full_matrices=False)
-    keep = sv > 1e-10 * max(float(sv[0]) if sv.size else 0.0, 1e-300)
-    proj = (jac @ vt[keep].T) / sv[keep]  # rows: x V S^-1, so h = ||row||^2
-    lev = np.sum(proj**2, axis=1)
-    var = np.where(in_fit, 1.0 - lev, 1.0 + lev)
-    out = np.full(abs_res.shape, np.nan)
-    ok = var > 1e-6
-    out[ok] = abs_res[ok] / np.sqrt(var[ok])
-    return out
-
-
-def _mad_sigma(stud: np.ndarray) -> float:
-    """1.4826 times the median of the finite studentized |residuals| (floored at 1e-9)."""
-    finite = stud[np.isfinite(stud)]
-    return max(1.4826 * float(np.median(finite)), 1e-9) if finite.size else 1e-9
 
 
 @dataclass(frozen=True)
@@ -348,8 +324,8 @@ def _reweighted_fit(model: _JointModel, theta, use, *, robust: bool, fixed_thr: 
             return theta, use, sigma, nfev, f"least squares failed: {fit.message}; "
         res_all = np.abs(model.all_residuals(theta))
         # Jacobian rows follow the C order of observed; use[observed] marks those in the fit.
-        stud = _studentized(res_all[observed], model.jacobian(theta), use[observed])
-        sigma = _mad_sigma(stud)
+        stud = studentized(res_all[observed], model.jacobian(theta), use[observed])
+        sigma = mad_sigma(stud)
         if not robust:
             return theta, use, sigma, nfev, ""
         new = observed.copy()
@@ -468,8 +444,8 @@ def reconstruct_room(
                 points0[j, c] = res.position
                 u = mics_s[obs] - res.position  # Jacobian rows: unit vectors from the point
                 u /= np.linalg.norm(u, axis=1, keepdims=True)
-                stud = _studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
-                column_sigmas.append(_mad_sigma(stud))
+                stud = studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
+                column_sigmas.append(mad_sigma(stud))
     sigma0 = float(np.median(column_sigmas)) if column_sigmas else 1e-9
     if robust:
         # LMedS breaks down when half of a direct path's picks are wrong; knowing sigma, locate

@@ -1,0 +1,412 @@
+"""Zero-knowledge calibration (Problem 2): receivers and sources from the ranges between them.
+
+Multidimensional unfolding (MDU, eq. 9): the M x K ranges between receivers (microphones) and
+sources (a loudspeaker and its image sources, or acoustic events) are the off-diagonal block of an
+(M + K) x (M + K) EDM. :func:`calibrate` completes it with Dattorro's convex iteration (eq. 10,
+:mod:`rangeslam.sdp`), embeds it in ``dim`` dimensions, refines the points by least squares on the
+ranges (:mod:`rangeslam.refinement`) and checks the answer against the noise. The problem has local
+minima (the convex iteration can stall at a wrong rank-d point), so a failed attempt is restarted
+from a random direction Z until an answer passes the check; the result says whether one did.
+
+Everything is recovered up to a rigid motion *and a reflection* (ranges cannot tell handedness).
+The result is expressed with the receivers' centroid at the origin and their principal axes along
+the coordinate axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.stats import chi2
+
+from ._robust import mad_sigma, studentized
+from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
+from .errors import InvalidInputError
+from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian
+from .sdp import EDMCompletion, EDMCompletionSDP, complete_edm, random_direction
+
+__all__ = ["Calibration", "calibrate", "mdu_edm", "mdu_mask", "unknowns_up_to_rigid_motion"]
+
+# An RMS residual below this fraction of the median range is exact data (round-off only). The SDP
+# alone (refine=False) is accurate to about 1e-6 of the scale with Clarabel's tolerances.
+_EXACT_RTOL = {True: 1e-8, False: 1e-4}
+# Significance of the chi-square residual test that accepts an answer when noise_std is given.
+_CHI2_LEVEL = 0.999
+# Without noise_std, an answer is accepted when two attempts reach it; "the same" means squared
+# distances agreeing to this fraction of the squared scale.
+_SAME_RTOL = 1e-5
+# An answer whose RMS residual exceeds this fraction of the median range explains nothing.
+_MAX_RELATIVE_RMS = 0.02
+# Outlier test on studentized residuals, in standard deviations.
+_INLIER_K = 3.0
+# Fit weights of successive attempts, relative to fit_weight. A run that stalls at a wrong
+# rank-d point with one weight often reaches the right one with another (measured on Fig. 3).
+_WEIGHT_FACTORS = (1.0, 10.0, 0.1, 100.0)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Result of :func:`calibrate`. M receivers, K sources, d = 2 or 3.
+
+    Attributes:
+        receivers: (M, d) receiver positions, metres (centroid at 0, principal axes as axes).
+        sources: (K, d) source positions in the same frame, metres.
+        residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
+        observed: (M, K) the mask that was given (True where a range was observed).
+        inliers: (M, K) the ranges used in the final fit (``observed`` unless ``robust``).
+        residual_rms: RMS residual over the inliers, metres.
+        noise_estimate: sqrt(sum of squared inlier residuals / redundancy), metres; NaN when the
+            data have no redundancy.
+        redundancy: inlier ranges minus unknowns up to a rigid motion (the chi-square degrees of
+            freedom of the residual test).
+        converged: the answer passed the residual check (see :func:`calibrate`).
+        message: why not, when ``converged`` is False; empty otherwise.
+        attempts: convex-iteration runs made (see ``max_attempts`` of :func:`calibrate`).
+        iterations: SDP solves over all attempts.
+        random_starts: least-squares runs from random points made after the attempts failed.
+        origin: "convex_iteration" or "random_start": where the answer's starting point came from.
+        eigen_gap: eigen-gap of the SDP solution the answer was refined from (0 = rank d; NaN
+            when the answer came from a random start).
+        sdp_status: solver status of that SDP solve ("" for a random start).
+        solver: the solver that produced it ("" for a random start).
+    """
+
+    receivers: np.ndarray
+    sources: np.ndarray
+    residuals: np.ndarray
+    observed: np.ndarray
+    inliers: np.ndarray
+    residual_rms: float
+    noise_estimate: float
+    redundancy: int
+    converged: bool
+    message: str
+    attempts: int
+    iterations: int
+    random_starts: int
+    origin: str
+    eigen_gap: float
+    sdp_status: str
+    solver: str
+
+    @property
+    def n_outliers(self) -> int:
+        """Observed ranges left out of the final fit."""
+        return int(np.sum(self.observed & ~self.inliers))
+
+
+def mdu_mask(mask: np.ndarray) -> np.ndarray:
+    """W of eq. (9): (M + K, M + K), True on the observed receiver-source pairs only."""
+    m, k = mask.shape
+    w = np.zeros((m + k, m + k), dtype=bool)
+    w[:m, m:] = mask
+    w[m:, :m] = mask.T
+    return w
+
+
+def mdu_edm(ranges: np.ndarray) -> np.ndarray:
+    """D-tilde of eq. (9): (M + K, M + K) with the squared ranges in the off-diagonal blocks."""
+    m, k = ranges.shape
+    d = np.zeros((m + k, m + k))
+    d[:m, m:] = ranges**2
+    d[m:, :m] = (ranges**2).T
+    return d
+
+
+def unknowns_up_to_rigid_motion(n_points: int, dim: int) -> int:
+    """Coordinates of ``n_points`` points in ``dim`` dimensions minus the rigid motions."""
+    return n_points * dim - dim * (dim + 1) // 2
+
+
+def _check_determined(mask: np.ndarray, dim: int, name: str) -> None:
+    """Refuse masks that leave the unfolding under-determined (with a message that says why)."""
+    m, k = mask.shape
+    n_obs = int(mask.sum())
+    need = unknowns_up_to_rigid_motion(m + k, dim)
+    if n_obs < need:
+        raise InvalidInputError(
+            f"{name} leaves the problem under-determined: {n_obs} observed ranges for {need} "
+            f"unknowns ({m} receivers and {k} sources in {dim}-D, up to a rigid motion)"
+        )
+    for axis, what in ((1, "receiver"), (0, "source")):
+        counts = mask.sum(axis=axis)
+        if np.any(counts < dim):
+            i = int(np.argmin(counts))
+            raise InvalidInputError(
+                f"{name} leaves the problem under-determined: {what} {i} has {int(counts[i])} "
+                f"observed ranges; each point needs at least {dim} in {dim}-D"
+            )
+
+
+def _canonical_frame(receivers: np.ndarray, sources: np.ndarray):
+    """Move the receivers' centroid to 0 and rotate their principal axes onto the coordinates."""
+    centre = receivers.mean(axis=0)
+    _, vec = np.linalg.eigh(np.cov((receivers - centre).T, bias=True))
+    rot = vec[:, ::-1]
+    if np.linalg.det(rot) < 0:
+        rot[:, -1] *= -1
+    return (receivers - centre) @ rot, (sources - centre) @ rot
+
+
+@dataclass
+class _Candidate:
+    fit: UnfoldingFit
+    inliers: np.ndarray
+    completion: EDMCompletion
+    ssr: float
+    message: str
+
+    def edm(self) -> np.ndarray:
+        pts = np.vstack([self.fit.receivers, self.fit.sources])
+        sq = np.sum(pts**2, axis=1)
+        return sq[:, None] + sq[None, :] - 2 * pts @ pts.T
+
+
+def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
+    """The SDP's points as an UnfoldingFit (used when refine=False)."""
+    dist = np.linalg.norm(points[:m, None, :] - points[None, m:, :], axis=2)
+    residuals = np.where(mask, dist - ranges, np.nan)
+    return UnfoldingFit(
+        receivers=points[:m],
+        sources=points[m:],
+        residuals=residuals,
+        rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
+        success=True,
+        message="",
+        nfev=0,
+    )
+
+
+def _reject_outliers(fit, ranges, mask, dim, noise_std):
+    """Studentized-residual test (3 sigma), refit without the outliers, until the set is stable.
+
+    sigma is ``noise_std`` when given, else 1.4826 MAD of the studentized residuals. Ranges are
+    only dropped while every point keeps at least ``dim`` of them and the data stay redundant.
+    """
+    m = mask.shape[0]
+    use = mask.copy()
+    seen: list[np.ndarray] = []
+    for _ in range(20):
+        pts = np.vstack([fit.receivers, fit.sources])
+        all_pairs = np.argwhere(mask)
+        jac = unfolding_jacobian(pts, m, all_pairs)
+        dist = np.linalg.norm(pts[all_pairs[:, 0]] - pts[m + all_pairs[:, 1]], axis=1)
+        abs_res = np.abs(dist - ranges[mask])
+        stud = studentized(abs_res, jac, use[mask])
+        sigma = noise_std if noise_std else mad_sigma(stud)
+        new = mask.copy()
+        new[mask] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay in
+        try:
+            _check_determined(new, dim, "the inlier set")
+        except InvalidInputError:
+            return fit, use, "outlier rejection stopped: dropping more ranges would leave too few; "
+        if int(new.sum()) <= unknowns_up_to_rigid_motion(sum(mask.shape), dim):
+            return fit, use, "outlier rejection stopped: no redundancy left; "
+        if np.array_equal(new, use) or any(np.array_equal(new, old) for old in seen):
+            return fit, use, ""
+        seen.append(use)
+        use = new
+        fit = refine_unfolding(fit.receivers, fit.sources, ranges, use)
+    return fit, use, "inlier set still changing after 20 re-fits; "
+
+
+def calibrate(
+    ranges: ArrayLike,
+    *,
+    dim: int = 3,
+    mask: ArrayLike | None = None,
+    noise_std: float | None = None,
+    refine: bool = True,
+    robust: bool = False,
+    max_attempts: int = 8,
+    random_starts: int = 100,
+    fit_weight: float = 10.0,
+    max_iterations: int = 50,
+    rng: np.random.Generator | None = None,
+) -> Calibration:
+    """Locate M receivers and K sources, all unknown, from their ranges (MDU, eqs. 8-10).
+
+    Args:
+        ranges: (M, K) range from receiver m to source k, metres; entries outside ``mask`` are
+            ignored (they may be NaN).
+        dim: 2 or 3.
+        mask: (M, K) boolean, True where observed; None means all observed.
+        noise_std: standard deviation of the range noise, metres, if known. An answer is accepted
+            when its sum of squared residuals passes a chi-square test at the 0.999 level (or is
+            exact to 1e-8 of the median range). Without it, all ``max_attempts`` runs are made
+            (slower) and the lowest-residual configuration is accepted when two starts reached it
+            and its RMS residual is under 2% of the median range; a wrong local minimum that wins
+            this vote is then reported as converged, so pass ``noise_std`` when you know it.
+        refine: refine the SDP's points by least squares on the ranges (Gaussian ML). Without it
+            the SDP's points are returned and "exact" means within 1e-4 of the scale.
+        robust: after each fit, drop ranges whose studentized residual exceeds 3 sigma (sigma =
+            ``noise_std`` or a MAD estimate) and refit, until the set is stable: wrong echo picks.
+        max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
+            10, 0.1 and 100, then from random Z cycling the same weights.
+        random_starts: when no convex-iteration run passes, least squares from up to this many
+            random starting points (a last resort, measured to rescue most of the 2-4% of Fig. 3
+            configurations the runs miss; only with ``refine``).
+        fit_weight: lambda of eq. (10), on data scaled to unit median range.
+        max_iterations: SDP solves per convex-iteration run.
+        rng: numpy Generator for the random restarts (a fresh default one when None).
+
+    Returns a :class:`Calibration`; ``converged`` is False (with a message) when no attempt passed
+    the check. Raises InvalidInputError for bad input or an under-determined mask, SolverError when
+    the SDP fails with both Clarabel and the SCS fallback.
+    """
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    r_in = _as_float_array(ranges, "ranges")
+    if r_in.ndim != 2:
+        raise InvalidInputError(
+            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
+        )
+    observed = as_mask(mask, "mask", shape=r_in.shape)
+    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    m, k = r.shape
+    _check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InvalidInputError(
+            f"noise_std must be a non-negative number or None; got {noise_std!r}"
+        )
+    for name, value, low in (
+        ("max_attempts", max_attempts, 1),
+        ("max_iterations", max_iterations, 1),
+        ("random_starts", random_starts, 0),
+    ):
+        if not (isinstance(value, int | np.integer) and value >= low):
+            raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+    rng = np.random.default_rng() if rng is None else rng
+
+    scale = float(np.median(r[observed]))
+    if not scale > 0:
+        raise InvalidInputError("ranges must not all be zero where observed")
+    n = m + k
+    w = mdu_mask(observed)
+    d_tilde = mdu_edm(r)
+    problem = EDMCompletionSDP(w)
+    exact_rms = _EXACT_RTOL[bool(refine)] * scale
+
+    def starting_points():
+        """Yield (points (N, d), completion or None): convex-iteration runs, then random starts."""
+        for attempt in range(max_attempts):
+            # "Several weights": the first runs start from Z = I (trace minimisation) with the fit
+            # weight scaled by each factor in turn; later runs start from random Z, cycling them.
+            factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
+            z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
+            completion = complete_edm(
+                d_tilde,
+                w,
+                dim,
+                fit_weight=fit_weight * factor,
+                max_iterations=max_iterations,
+                z0=z0,
+                problem=problem,
+            )
+            yield completion.points, completion
+        if refine:  # last resort: least squares from random points of the data's size
+            for _ in range(random_starts):
+                yield rng.standard_normal((n, dim)) * scale, None
+
+    best: _Candidate | None = None
+    confirmed = False
+    iterations = attempts = starts = 0
+    for pts, completion in starting_points():
+        if completion is not None:
+            attempts += 1
+            iterations += completion.iterations
+        else:
+            starts += 1
+        if refine:
+            fit = refine_unfolding(pts[:m], pts[m:], r, observed)
+        else:
+            fit = _embedding_fit(pts, m, r, observed)
+        inliers, note = observed, ""
+        if robust:
+            fit, inliers, note = _reject_outliers(fit, r, observed, dim, noise_std)
+        ssr = float(np.nansum(fit.residuals[inliers] ** 2))
+        cand = _Candidate(fit, inliers, completion, ssr, note)
+        if best is not None and _same(cand, best, scale):
+            confirmed = True
+        if best is None or ssr < best.ssr:
+            if best is not None and not _same(cand, best, scale):
+                confirmed = False
+            best = cand
+        if _accepted(best, noise_std, exact_rms, n, dim):
+            break
+        # Without a noise level a wrong minimum cannot be told from noise by its residual: every
+        # convex-iteration run is made, and the lowest configuration must have been reached twice.
+        if noise_std is None and confirmed and attempts == max_attempts:
+            break
+
+    assert best is not None
+    fit = best.fit
+    n_in = int(best.inliers.sum())
+    redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
+    rms = float(np.sqrt(best.ssr / n_in))
+    message = best.message
+    exact = rms <= exact_rms
+    if redundancy == 0:
+        converged = False
+        message += (
+            "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
+            "solutions and the data cannot tell which is right; "
+        )
+    elif (
+        exact
+        or _accepted(best, noise_std, exact_rms, n, dim)
+        or (noise_std is None and confirmed and rms <= _MAX_RELATIVE_RMS * scale)
+    ):
+        converged = True
+    else:
+        converged = False
+        if noise_std is not None:
+            message += (
+                f"no start in {attempts + starts} passed the residual test: best RMS residual "
+                f"{rms:.3g} m for noise_std {noise_std:.3g} m (a local minimum, or wrong ranges); "
+            )
+        else:
+            message += (
+                f"no configuration was reached twice from {attempts + starts} starts (best RMS residual "
+                f"{rms:.3g} m); pass noise_std to test the residual instead; "
+            )
+    if refine and not fit.success:
+        converged = False
+        message += f"least squares failed: {fit.message}; "
+    receivers, sources = _canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
+    residuals = np.where(observed, fit.residuals, np.nan)
+    return Calibration(
+        receivers=frozen(receivers),
+        sources=frozen(sources),
+        residuals=frozen(residuals),
+        observed=frozen(observed),
+        inliers=frozen(best.inliers.copy()),
+        residual_rms=rms,
+        noise_estimate=float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan"),
+        redundancy=int(redundancy),
+        converged=bool(converged),
+        message=message.rstrip("; "),
+        attempts=attempts,
+        iterations=iterations,
+        random_starts=starts,
+        origin="random_start" if best.completion is None else "convex_iteration",
+        eigen_gap=np.nan if best.completion is None else best.completion.eigen_gap,
+        sdp_status="" if best.completion is None else best.completion.status,
+        solver="" if best.completion is None else best.completion.solver,
+    )
+
+
+def _same(a: _Candidate, b: _Candidate, scale: float) -> bool:
+    return bool(np.max(np.abs(a.edm() - b.edm())) <= _SAME_RTOL * scale**2)
+
+
+def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, dim: int) -> bool:
+    n_in = int(c.inliers.sum())
+    if c.ssr <= exact_rms**2 * n_in:
+        return True
+    redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
+    if noise_std is None or redundancy <= 0 or noise_std == 0:
+        return False
+    return c.ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2

@@ -1,0 +1,345 @@
+"""EDM completion by semidefinite programming and Dattorro's convex iteration (paper eqs. 8-11).
+
+The back end is cvxpy; Clarabel solves by default. The problem is built once per sparsity pattern
+(:class:`EDMCompletionSDP`) with cvxpy Parameters for the direction matrix Z, the weighted data and
+the distance bounds, so each convex-iteration step re-solves without re-compiling. Data are scaled
+internally (squared distances divided by the squared median observed distance), so neither the
+result nor the fit weight depends on units.
+
+Notation: D holds *squared* distances, G is the Gram matrix of the centred points (G1 = 0),
+K(G) = diag(G)1^T + 1 diag(G)^T - 2G (eq. 6), W the boolean mask of observed pairs.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ._validation import frozen, shape_str
+from .edm import gram_to_edm
+from .errors import InvalidInputError, SolverError
+
+__all__ = [
+    "EDMCompletion",
+    "EDMCompletionSDP",
+    "complete_edm",
+    "low_rank_direction",
+    "random_direction",
+]
+
+#: Solver statuses after which G is used. "optimal_inaccurate" is Clarabel's AlmostSolved: for
+#: these small, rank-deficient SDPs the duality gap routinely stalls near 1e-7, and the convex
+#: iteration (and the refinement after it) only needs G to a few digits.
+_USABLE = ("optimal", "optimal_inaccurate")
+
+#: Used when the primary solver raises or returns an unusable status (documented in complete_edm).
+FALLBACK_SOLVER = "SCS"
+
+METHODS = ("convex_iteration", "trace_min", "trace_max")
+
+
+@dataclass(frozen=True)
+class EDMCompletion:
+    """Result of :func:`complete_edm`.
+
+    Attributes:
+        gram: (N, N) centred Gram matrix, in the caller's units squared.
+        edm: (N, N) completed squared distances K(gram).
+        points: (N, dim) points from the ``dim`` largest eigenpairs of ``gram`` (centred).
+        eigen_gap: sum of the N - dim smallest eigenvalues of ``gram`` over its trace: 0 means
+            the embedding dimension is ``dim`` (the value of program (ii) of eq. 10, normalised).
+        gaps: (iterations,) eigen_gap after each SDP solve.
+        iterations: SDP solves made.
+        converged: eigen_gap fell below the tolerance (always True for the single-solve methods
+            trace_min and trace_max, which do not target a rank).
+        status: status of the last SDP solve ("optimal" or "optimal_inaccurate").
+        solver: the solver that produced the last solve (the fallback is recorded here).
+        method: "convex_iteration", "trace_min" or "trace_max".
+    """
+
+    gram: np.ndarray
+    edm: np.ndarray
+    points: np.ndarray
+    eigen_gap: float
+    gaps: np.ndarray
+    iterations: int
+    converged: bool
+    status: str
+    solver: str
+    method: str
+
+
+def eigen_gap(gram: np.ndarray, dim: int) -> float:
+    """Sum of the N - dim smallest eigenvalues of a PSD matrix over its trace (0 = rank <= dim)."""
+    eig = np.linalg.eigvalsh(0.5 * (gram + gram.T))
+    total = float(np.sum(np.maximum(eig, 0.0)))
+    if total <= 0:
+        return 0.0
+    return float(np.sum(np.maximum(eig[: len(eig) - dim], 0.0)) / total)
+
+
+def low_rank_direction(gram: np.ndarray, dim: int) -> np.ndarray:
+    """Z of step (ii), eq. (10): projector onto the eigenvectors of the N - dim smallest eigenvalues.
+
+    It is the minimiser of <G, Z> over 0 <= Z <= I, trace Z = N - dim (Fan's theorem), found by
+    ``eigh`` instead of another SDP.
+    """
+    _, vec = np.linalg.eigh(0.5 * (gram + gram.T))
+    low = vec[:, : gram.shape[0] - dim]
+    return low @ low.T
+
+
+def random_direction(n: int, dim: int, rng: np.random.Generator) -> np.ndarray:
+    """A random feasible Z for step (i): projector onto 1/sqrt(n) and n - dim - 1 random directions.
+
+    The all-ones direction is the null space of every centred Gram matrix, so it is always kept.
+    Used to restart a convex iteration that stalled at a wrong low-rank point.
+    """
+    ones = np.full((n, 1), 1.0 / np.sqrt(n))
+    q, _ = np.linalg.qr(np.hstack([ones, rng.standard_normal((n, n - dim - 1))]))
+    return q @ q.T
+
+
+def embed(gram: np.ndarray, dim: int) -> np.ndarray:
+    """(N, dim) points whose Gram matrix is the best rank-dim approximation of ``gram``."""
+    val, vec = np.linalg.eigh(0.5 * (gram + gram.T))
+    top = vec[:, -dim:][:, ::-1] * np.sqrt(np.maximum(val[-dim:][::-1], 0.0))
+    return top
+
+
+class EDMCompletionSDP:
+    """Step (i) of the convex iteration, eq. (10) (and eq. 11 with distance bounds), built once.
+
+        minimise   <G, Z> + lambda || W o (D - K(G)) ||_F^2
+        subject to G PSD, G 1 = 0, lower_p^2 <= K(G)_p <= upper_p^2 for the bounded pairs p
+
+    The fit runs over each observed unordered pair once with weight w (so lambda here is the
+    paper's lambda up to the factor 2 of counting both triangles). Z = I gives trace minimisation,
+    Z = -I trace maximisation (bounded by the fit term).
+
+    Args:
+        mask: (N, N) boolean, symmetric, True where a distance is observed (diagonal ignored).
+        bounded_pairs: optional (P, 2) index pairs whose distances get lower/upper bounds (eq. 11).
+        solver: cvxpy solver name; Clarabel by default.
+    """
+
+    def __init__(
+        self,
+        mask: ArrayLike,
+        *,
+        bounded_pairs: ArrayLike | None = None,
+        solver: str = "CLARABEL",
+    ) -> None:
+        w = np.array(mask, copy=True)
+        if w.dtype != bool or w.ndim != 2 or w.shape[0] != w.shape[1]:
+            raise InvalidInputError(
+                f"mask must be a square boolean (N, N) array; got dtype {w.dtype}, "
+                f"shape {shape_str(w.shape)}"
+            )
+        if not np.array_equal(w, w.T):
+            raise InvalidInputError("mask must be symmetric (a distance is observed both ways)")
+        n = w.shape[0]
+        pairs = np.argwhere(np.triu(w, 1))
+        if len(pairs) == 0:
+            raise InvalidInputError("mask observes no pair of distinct points")
+        self.n = n
+        self.pairs = pairs
+        self.solver = solver
+        self._gram = cp.Variable((n, n), PSD=True)
+        self._z = cp.Parameter((n, n), symmetric=True, name="Z")
+        self._w = cp.Parameter(len(pairs), nonneg=True, name="weights")
+        self._wd = cp.Parameter(len(pairs), name="weighted_data")
+        k_of_g = self._pair_map(pairs) @ cp.vec(self._gram, order="C")  # K(G) on the pairs
+        # w * K(G) - w * D: the product of two Parameters is not DPP, so w * D is one Parameter.
+        fit = cp.sum_squares(cp.multiply(self._w, k_of_g) - self._wd)
+        constraints = [cp.sum(self._gram, axis=1) == 0]
+        self.bounded_pairs = np.zeros((0, 2), dtype=int)
+        if bounded_pairs is not None:
+            bp = np.array(bounded_pairs, dtype=int, copy=True)
+            if bp.ndim != 2 or bp.shape[1] != 2 or np.any(bp < 0) or np.any(bp >= n):
+                raise InvalidInputError(
+                    f"bounded_pairs must be (P, 2) indices into the {n} points; "
+                    f"got shape {shape_str(bp.shape)}"
+                )
+            self.bounded_pairs = bp
+            self._lower = cp.Parameter(len(bp), nonneg=True, name="lower_sq")
+            self._upper = cp.Parameter(len(bp), nonneg=True, name="upper_sq")
+            k_bounded = self._pair_map(bp) @ cp.vec(self._gram, order="C")
+            constraints += [k_bounded >= self._lower, k_bounded <= self._upper]
+        self._problem = cp.Problem(
+            cp.Minimize(cp.sum(cp.multiply(self._z, self._gram)) + fit), constraints
+        )
+        assert self._problem.is_dpp()
+        self.scale = 1.0
+
+    def _pair_map(self, pairs: np.ndarray) -> np.ndarray:
+        """(P, N^2) matrix taking vec(G) (row-major) to K(G)_ij = G_ii + G_jj - 2 G_ij, eq. (6)."""
+        n = self.n
+        a = np.zeros((len(pairs), n * n))
+        rows = np.arange(len(pairs))
+        i, j = pairs[:, 0], pairs[:, 1]
+        a[rows, i * n + i] += 1.0
+        a[rows, j * n + j] += 1.0
+        a[rows, i * n + j] -= 1.0
+        a[rows, j * n + i] -= 1.0
+        return a
+
+    def set_data(
+        self,
+        edm_matrix: np.ndarray,
+        *,
+        fit_weight: float = 10.0,
+        weights: np.ndarray | None = None,
+        bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        """Load squared distances (N, N) (only the masked pairs are read) and scale them.
+
+        ``weights`` (N, N), optional, multiplies each pair's residual (e.g. 0 drops an outlier);
+        ``bounds`` = (lower, upper) distances (P,) for the bounded pairs, in the caller's units.
+        """
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        d = np.asarray(edm_matrix, dtype=float)[i, j]
+        scale = float(np.sqrt(np.median(d[d > 0]))) if np.any(d > 0) else 1.0
+        self.scale = scale
+        w = np.full(len(d), np.sqrt(fit_weight))
+        if weights is not None:
+            w = w * np.asarray(weights, dtype=float)[i, j]
+        self._w.value = w
+        self._wd.value = w * d / scale**2
+        if len(self.bounded_pairs):
+            if bounds is None:
+                raise InvalidInputError("bounds are required: the problem was built with pairs")
+            lo, hi = (np.asarray(b, dtype=float) for b in bounds)
+            self._lower.value = (lo / scale) ** 2
+            self._upper.value = (hi / scale) ** 2
+
+    def solve(self, z: np.ndarray) -> tuple[np.ndarray, str, str]:
+        """Solve step (i) for direction ``z``; return (G in caller units^2, status, solver).
+
+        Falls back to :data:`FALLBACK_SOLVER` when the primary solver fails; raises
+        :class:`SolverError` with the status when neither gives a usable solution.
+        """
+        self._z.value = 0.5 * (z + z.T)
+        statuses = []
+        for name in dict.fromkeys((self.solver, FALLBACK_SOLVER)):
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # the status is checked below
+                    self._problem.solve(solver=name, **_solver_options(name))
+            except cp.error.SolverError as exc:
+                statuses.append(f"{name}: error ({str(exc).splitlines()[0]})")
+                continue
+            status = self._problem.status
+            if status in _USABLE and self._gram.value is not None:
+                g = self._gram.value
+                return 0.5 * (g + g.T) * self.scale**2, status, name
+            statuses.append(f"{name}: {status}")
+        raise SolverError("EDM completion SDP failed", status="; ".join(statuses))
+
+
+def _solver_options(name: str) -> dict:
+    if name == "CLARABEL":
+        return {"tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7}
+    if name == "SCS":
+        return {"eps": 1e-7, "max_iters": 20000}
+    return {}
+
+
+def complete_edm(
+    edm_matrix: ArrayLike,
+    mask: ArrayLike,
+    dim: int,
+    *,
+    method: str = "convex_iteration",
+    fit_weight: float = 10.0,
+    max_iterations: int = 50,
+    tol: float = 1e-6,
+    z0: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    bounded_pairs: ArrayLike | None = None,
+    bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    solver: str = "CLARABEL",
+    problem: EDMCompletionSDP | None = None,
+) -> EDMCompletion:
+    """Complete a partial EDM with embedding dimension ``dim`` (eq. 8, rank relaxed).
+
+    Args:
+        edm_matrix: (N, N) squared distances; only entries where ``mask`` is True are read.
+        mask: (N, N) boolean, symmetric, True where observed (W of eq. 8; eq. 9 for MDU).
+        dim: embedding dimension d (2 or 3).
+        method: "convex_iteration" (eq. 10: from Z = I, i.e. trace minimisation, alternate the SDP
+            and Z = projector on the eigenvectors of the N - d smallest eigenvalues, until their
+            sum is below ``tol`` times the trace), "trace_min" (one SDP with Z = I) or
+            "trace_max" (one SDP with Z = -I).
+        fit_weight: lambda of eq. (10), on data scaled to unit median distance.
+        z0: starting direction instead of I (e.g. :func:`random_direction` for a restart).
+        weights: optional (N, N) non-negative per-pair weights of the fit.
+        bounded_pairs, bounds: eq. (11) distance bounds: pairs (P, 2) and (lower, upper) (P,).
+        solver: cvxpy solver; on failure the SDP is retried with SCS (``FALLBACK_SOLVER``) and the
+            solver used is recorded in the result. SolverError (with both statuses) if both fail.
+        problem: a prebuilt :class:`EDMCompletionSDP` for this mask, to reuse across calls.
+
+    The iteration also stops when the gap stops decreasing (no relative progress of 1e-3 over
+    5 iterations); ``converged`` then stays False.
+    """
+    if method not in METHODS:
+        raise InvalidInputError(f"method must be one of {METHODS}; got {method!r}")
+    if not isinstance(dim, int | np.integer) or dim < 1:
+        raise InvalidInputError(f"dim must be a positive integer; got {dim!r}")
+    if not (np.isfinite(fit_weight) and fit_weight > 0):
+        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
+    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
+        raise InvalidInputError(
+            f"max_iterations must be a positive integer; got {max_iterations!r}"
+        )
+    if problem is None:
+        problem = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, solver=solver)
+    n = problem.n
+    if dim >= n:
+        raise InvalidInputError(f"dim must be smaller than the number of points {n}; got {dim}")
+    d = np.array(edm_matrix, dtype=float, copy=True)
+    if d.shape != (n, n):
+        raise InvalidInputError(f"edm_matrix must have shape ({n}, {n}); got {shape_str(d.shape)}")
+    observed = d[problem.pairs[:, 0], problem.pairs[:, 1]]
+    if not np.all(np.isfinite(observed)) or np.any(observed < 0):
+        raise InvalidInputError("edm_matrix must be finite and non-negative where observed")
+    problem.set_data(
+        d,
+        fit_weight=fit_weight,
+        weights=weights,
+        bounds=None if bounds is None else (np.asarray(bounds[0]), np.asarray(bounds[1])),
+    )
+    if method == "convex_iteration":
+        z = np.eye(n) if z0 is None else np.asarray(z0, dtype=float)
+        if z.shape != (n, n):
+            raise InvalidInputError(f"z0 must have shape ({n}, {n}); got {shape_str(z.shape)}")
+        iterations = max_iterations
+    else:
+        z = np.eye(n) if method == "trace_min" else -np.eye(n)
+        iterations = 1
+    gaps: list[float] = []
+    for _ in range(iterations):
+        g, status, used = problem.solve(z)
+        gaps.append(eigen_gap(g, dim))
+        if gaps[-1] <= tol:
+            break
+        if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
+            break  # stalled: the last 5 iterations did not improve on the earlier best
+        z = low_rank_direction(g, dim)
+    converged = method != "convex_iteration" or gaps[-1] <= tol
+    return EDMCompletion(
+        gram=frozen(g),
+        edm=frozen(np.maximum(gram_to_edm(g), 0.0)),
+        points=frozen(embed(g, dim)),
+        eigen_gap=gaps[-1],
+        gaps=frozen(np.array(gaps)),
+        iterations=len(gaps),
+        converged=bool(converged),
+        status=status,
+        solver=used,
+        method=method,
+    )
