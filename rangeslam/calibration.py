@@ -24,7 +24,7 @@ from scipy.stats import chi2
 from ._robust import mad_sigma, studentized
 from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
 from .errors import InvalidInputError
-from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian
+from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian, unfolding_residuals
 from .sdp import EDMCompletion, EDMCompletionSDP, complete_edm, random_direction
 
 __all__ = ["Calibration", "calibrate", "mdu_edm", "mdu_mask", "unknowns_up_to_rigid_motion"]
@@ -156,6 +156,7 @@ class _Candidate:
     inliers: np.ndarray
     completion: EDMCompletion
     ssr: float
+    key: float
     message: str
 
     def edm(self) -> np.ndarray:
@@ -241,8 +242,12 @@ def calibrate(
             this vote is then reported as converged, so pass ``noise_std`` when you know it.
         refine: refine the SDP's points by least squares on the ranges (Gaussian ML). Without it
             the SDP's points are returned and "exact" means within 1e-4 of the scale.
-        robust: after each fit, drop ranges whose studentized residual exceeds 3 sigma (sigma =
-            ``noise_std`` or a MAD estimate) and refit, until the set is stable: wrong echo picks.
+        robust: for wrong echo picks. The SDP fits with an L1 loss instead of s-stress; each
+            run is refined with a Cauchy loss (scale ``noise_std``, or 1.4826 MAD of the first
+            fit's residuals), then ranges whose studentized residual exceeds 3 sigma (sigma =
+            ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
+            until the set is stable. Runs are ranked by their Cauchy cost over all ranges. No
+            random starts are made.
         max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
@@ -286,7 +291,7 @@ def calibrate(
     n = m + k
     w = mdu_mask(observed)
     d_tilde = mdu_edm(r)
-    problem = EDMCompletionSDP(w)
+    problem = EDMCompletionSDP(w, loss="l1" if robust else "l2")
     exact_rms = _EXACT_RTOL[bool(refine)] * scale
 
     def starting_points():
@@ -306,10 +311,11 @@ def calibrate(
                 problem=problem,
             )
             yield completion.points, completion
-        if refine:  # last resort: least squares from random points of the data's size
+        if refine and not robust:  # last resort: least squares from random points
             for _ in range(random_starts):
                 yield rng.standard_normal((n, dim)) * scale, None
 
+    cauchy_scale = noise_std if noise_std else None
     best: _Candidate | None = None
     confirmed = False
     iterations = attempts = starts = 0
@@ -319,22 +325,31 @@ def calibrate(
             iterations += completion.iterations
         else:
             starts += 1
-        if refine:
-            fit = refine_unfolding(pts[:m], pts[m:], r, observed)
-        else:
-            fit = _embedding_fit(pts, m, r, observed)
+        fit = _embedding_fit(pts, m, r, observed)
         inliers, note = observed, ""
         if robust:
+            if cauchy_scale is None:  # from the first SDP's points: 1.4826 MAD of the residuals
+                cauchy_scale = max(1.4826 * float(np.nanmedian(np.abs(fit.residuals))), exact_rms)
+            if refine:  # straight from the SDP: a least-squares step first is pulled by outliers
+                fit = refine_unfolding(
+                    fit.receivers, fit.sources, r, observed, loss="cauchy", loss_scale=cauchy_scale
+                )
             fit, inliers, note = _reject_outliers(fit, r, observed, dim, noise_std)
+        elif refine:
+            fit = refine_unfolding(pts[:m], pts[m:], r, observed)
         ssr = float(np.nansum(fit.residuals[inliers] ** 2))
-        cand = _Candidate(fit, inliers, completion, ssr, note)
+        # Robust runs are ranked by the Cauchy cost of all observed ranges (inlier sets differ).
+        key = _cauchy_cost(fit, r, observed, cauchy_scale) if robust else ssr
+        cand = _Candidate(fit, inliers, completion, ssr, key, note)
         if best is not None and _same(cand, best, scale):
             confirmed = True
-        if best is None or ssr < best.ssr:
+        if best is None or key < best.key:
             if best is not None and not _same(cand, best, scale):
                 confirmed = False
             best = cand
-        if _accepted(best, noise_std, exact_rms, n, dim):
+        # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
+        # so robust runs are all made and ranked by their cost over all ranges.
+        if not robust and _accepted(best, noise_std, exact_rms, n, dim):
             break
         # Without a noise level a wrong minimum cannot be told from noise by its residual: every
         # convex-iteration run is made, and the lowest configuration must have been reached twice.
@@ -396,6 +411,14 @@ def calibrate(
         sdp_status="" if best.completion is None else best.completion.status,
         solver="" if best.completion is None else best.completion.solver,
     )
+
+
+def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
+    m = len(fit.receivers)
+    pts = np.vstack([fit.receivers, fit.sources])
+    pairs = np.argwhere(observed)
+    res = unfolding_residuals(pts, m, ranges[observed], pairs)
+    return float(np.sum(np.log1p((res / scale) ** 2)))
 
 
 def _same(a: _Candidate, b: _Candidate, scale: float) -> bool:

@@ -132,6 +132,7 @@ class EDMCompletionSDP:
         mask: ArrayLike,
         *,
         bounded_pairs: ArrayLike | None = None,
+        loss: str = "l2",
         solver: str = "CLARABEL",
     ) -> None:
         w = np.array(mask, copy=True)
@@ -155,7 +156,14 @@ class EDMCompletionSDP:
         self._wd = cp.Parameter(len(pairs), name="weighted_data")
         k_of_g = self._pair_map(pairs) @ cp.vec(self._gram, order="C")  # K(G) on the pairs
         # w * K(G) - w * D: the product of two Parameters is not DPP, so w * D is one Parameter.
-        fit = cp.sum_squares(cp.multiply(self._w, k_of_g) - self._wd)
+        weighted_residual = cp.multiply(self._w, k_of_g) - self._wd
+        if loss == "l2":
+            fit = cp.sum_squares(weighted_residual)  # s-stress, eq. (8)
+        elif loss == "l1":
+            fit = cp.norm1(weighted_residual)  # robust to sparse wrong ranges
+        else:
+            raise InvalidInputError(f"loss must be 'l2' or 'l1'; got {loss!r}")
+        self.loss = loss
         constraints = [cp.sum(self._gram, axis=1) == 0]
         self.bounded_pairs = np.zeros((0, 2), dtype=int)
         if bounded_pairs is not None:
@@ -205,7 +213,7 @@ class EDMCompletionSDP:
         d = np.asarray(edm_matrix, dtype=float)[i, j]
         scale = float(np.sqrt(np.median(d[d > 0]))) if np.any(d > 0) else 1.0
         self.scale = scale
-        w = np.full(len(d), np.sqrt(fit_weight))
+        w = np.full(len(d), np.sqrt(fit_weight) if self.loss == "l2" else fit_weight)
         if weights is not None:
             w = w * np.asarray(weights, dtype=float)[i, j]
         self._w.value = w
