@@ -5,6 +5,7 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 """
 
 from .alignment import Alignment, align
+from .calibration import Calibration, calibrate
 from .crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
 from .errors import (
@@ -22,6 +23,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Alignment",
+    "Calibration",
     "DataFormatError",
     "DegenerateGeometryError",
     "ImageSources",
@@ -34,6 +36,7 @@ __all__ = [
     "SolverError",
     "__version__",
     "align",
+    "calibrate",
     "classical_mds",
     "edm",
     "edm_to_gram",

@@ -23,7 +23,8 @@ from scipy.stats import chi2
 
 from ._robust import mad_sigma, studentized
 from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
-from .errors import InvalidInputError
+from .errors import DegenerateGeometryError, InvalidInputError
+from .multilateration import multilaterate
 from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian, unfolding_residuals
 from .sdp import EDMCompletion, EDMCompletionSDP, complete_edm, random_direction
 
@@ -213,6 +214,49 @@ def _reject_outliers(fit, ranges, mask, dim, noise_std):
     return fit, use, "inlier set still changing after 20 re-fits; "
 
 
+def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: float, rng):
+    """Resection: move each point to where a robust multilateration from the others puts it, when
+    more of its ranges then agree (within ``threshold``). Returns (fit, number of points moved).
+
+    A robust loss lets a single misplaced point (a receiver or source folded to the wrong side)
+    shed its ranges as outliers at a small cost; this step finds and fixes such points.
+    """
+    m = len(fit.receivers)
+    points = np.vstack([fit.receivers, fit.sources])
+    moved = 0
+    for i in range(len(points)):
+        is_receiver = i < m
+        anchors = points[m:] if is_receiver else points[:m]
+        r = ranges[i] if is_receiver else ranges[:, i - m]
+        obs = observed[i] if is_receiver else observed[:, i - m]
+        if obs.sum() < dim + 2:
+            continue
+        current = np.sum(
+            np.abs(np.linalg.norm(anchors[obs] - points[i], axis=1) - r[obs]) <= threshold
+        )
+        try:
+            cand = multilaterate(
+                anchors,
+                r,
+                mask=obs,
+                robust=True,
+                inlier_threshold=threshold,
+                max_hypotheses=200,
+                rng=rng,
+            )
+        except (DegenerateGeometryError, InvalidInputError):
+            continue
+        agree = np.sum(
+            np.abs(np.linalg.norm(anchors[obs] - cand.position, axis=1) - r[obs]) <= threshold
+        )
+        if agree > current:
+            points[i] = cand.position
+            moved += 1
+    if moved:
+        fit = _embedding_fit(points, m, ranges, observed)
+    return fit, moved
+
+
 def calibrate(
     ranges: ArrayLike,
     *,
@@ -331,9 +375,19 @@ def calibrate(
             if cauchy_scale is None:  # from the first SDP's points: 1.4826 MAD of the residuals
                 cauchy_scale = max(1.4826 * float(np.nanmedian(np.abs(fit.residuals))), exact_rms)
             if refine:  # straight from the SDP: a least-squares step first is pulled by outliers
-                fit = refine_unfolding(
-                    fit.receivers, fit.sources, r, observed, loss="cauchy", loss_scale=cauchy_scale
-                )
+                for _ in range(3):
+                    fit = refine_unfolding(
+                        fit.receivers,
+                        fit.sources,
+                        r,
+                        observed,
+                        loss="cauchy",
+                        loss_scale=cauchy_scale,
+                    )
+                    fit, moved = _repair_points(fit, r, observed, dim, 3 * cauchy_scale, rng)
+                    if not moved:
+                        break
+                    note += f"{moved} points re-placed by resection; "
             fit, inliers, note = _reject_outliers(fit, r, observed, dim, noise_std)
         elif refine:
             fit = refine_unfolding(pts[:m], pts[m:], r, observed)
@@ -360,6 +414,8 @@ def calibrate(
     fit = best.fit
     n_in = int(best.inliers.sum())
     redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
+    redundancy_all = int(observed.sum()) - unknowns_up_to_rigid_motion(n, dim)
+    n_dropped = int(observed.sum()) - n_in
     rms = float(np.sqrt(best.ssr / n_in))
     message = best.message
     exact = rms <= exact_rms
@@ -368,6 +424,13 @@ def calibrate(
         message += (
             "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
             "solutions and the data cannot tell which is right; "
+        )
+    elif robust and n_dropped > redundancy_all / 2:
+        converged = False
+        message += (
+            f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
+            f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
+            "fit by dropping enough ranges); "
         )
     elif (
         exact

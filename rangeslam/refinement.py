@@ -82,7 +82,8 @@ def refine_unfolding(
 
     ``ranges`` (M, K) metres, ``mask`` (M, K) True for the ranges to fit. ``loss`` is scipy's
     robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt; the others by a trust-region
-    reflective method), ``loss_scale`` its inlier scale in metres. Inputs are trusted (callers
+    reflective method, as is the Gaussian case with fewer ranges than coordinates),
+    ``loss_scale`` its inlier scale in metres. Inputs are trusted (callers
     validate); the problem is scaled to unit median range before scipy sees it.
     """
     m, d = receivers.shape
@@ -100,7 +101,9 @@ def refine_unfolding(
         return unfolding_jacobian(theta.reshape(-1, d), m, pairs)
 
     tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
-    if loss == "linear":
+    # MINPACK's LM needs at least as many residuals as unknowns; the gauge (a rigid motion) makes
+    # fewer enough, and the trust-region method takes those.
+    if loss == "linear" and len(pairs) >= start.size:
         fit = least_squares(fun, start.ravel(), jac=jac, method="lm", max_nfev=max_nfev, **tols)
     else:
         fit = least_squares(
@@ -109,6 +112,7 @@ def refine_unfolding(
             jac=jac,
             method="trf",
             loss=loss,
+            x_scale="jac",
             f_scale=loss_scale / scale,
             max_nfev=max_nfev,
             **tols,

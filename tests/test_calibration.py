@@ -1,0 +1,185 @@
+"""Zero-knowledge calibration (Problem 2, MDU): the Fig. 3 criteria of issue 3 and the API."""
+
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError, SolverError, align, calibrate
+from rangeslam.experiments import calibration_experiment, fig3_scene
+from rangeslam.simulation import add_outliers, add_range_noise, range_matrix
+
+
+def _fig3_runs(sigma, rng, n=100):
+    return [calibration_experiment(sigma, rng) for _ in range(n)]
+
+
+def test_fig3_exact_recovery_and_honest_convergence(rng):
+    """sigma = 0, 100 Fig. 3 configurations: at least 97 recover the microphones to < 1 mm up to a
+    rigid motion (measured 100/100 on several seeds), and `converged` is True exactly for those."""
+    runs = _fig3_runs(0.0, rng)
+    recovered = np.array([r.mic_error < 1e-3 for r in runs])
+    converged = np.array([r.result.converged for r in runs])
+    assert recovered.sum() >= 97, [r.mic_error for r in runs if r.mic_error >= 1e-3]
+    np.testing.assert_array_equal(converged, recovered)
+    for r in runs:
+        if not r.result.converged:
+            assert r.result.message
+
+
+@pytest.mark.parametrize("sigma", [1e-3, 5e-3])
+def test_fig3_median_error_within_1_5_crlb(rng, sigma):
+    """sigma = 1 mm and 5 mm, 100 configurations each: the median microphone error (RMS over the
+    6 after rigid alignment of the microphones) is within 1.5x the median receiver-gauge CRLB of
+    the same configurations (measured 0.82-0.84x)."""
+    runs = _fig3_runs(sigma, rng)
+    errors = np.array([r.mic_error for r in runs])
+    bounds = np.array([r.mic_crlb for r in runs])
+    assert np.median(errors) <= 1.5 * np.median(bounds), (np.median(errors), np.median(bounds))
+    assert np.mean([r.result.converged for r in runs]) >= 0.9
+
+
+def test_mask_with_missing_ranges_is_still_exact(rng):
+    """Ten receivers and eight sources in 3-D with 15% of the ranges missing."""
+    x, s = rng.uniform(0, 2, (10, 3)), rng.uniform(-2, 4, (8, 3))
+    mask = rng.random((10, 8)) > 0.15
+    ranges = np.where(mask, range_matrix(x, s), np.nan)
+    out = calibrate(ranges, mask=mask, noise_std=0.0, rng=rng)
+    assert out.converged
+    assert align(out.receivers, x, reflection=True).rmse < 1e-6
+    assert np.all(np.isnan(out.residuals[~mask]))
+    np.testing.assert_array_equal(out.observed, mask)
+
+
+def test_two_dimensional_calibration(rng):
+    x, s = rng.uniform(0, 2, (7, 2)), rng.uniform(-2, 4, (6, 2))
+    out = calibrate(range_matrix(x, s), dim=2, noise_std=0.0, rng=rng)
+    assert out.converged and out.receivers.shape == (7, 2) and out.sources.shape == (6, 2)
+    assert align(out.receivers, x, reflection=True).rmse < 1e-6
+    assert align(out.sources, s, reflection=True).rmse < 1e-6
+
+
+def test_invariances_units_and_order(rng):
+    """Ranges in millimetres give the same configuration scaled by 1000; permuting receivers and
+    sources permutes the answer."""
+    scene = fig3_scene(rng)
+    a = calibrate(scene.ranges, noise_std=0.0, rng=rng)
+    b = calibrate(scene.ranges * 1000, noise_std=0.0, rng=rng)
+    assert a.converged and b.converged
+    assert align(b.receivers / 1000, a.receivers, reflection=True).rmse < 1e-9
+    pr, ps = rng.permutation(6), rng.permutation(6)
+    c = calibrate(scene.ranges[pr][:, ps], noise_std=0.0, rng=rng)
+    assert c.converged
+    assert align(c.receivers, scene.mics[pr], reflection=True).rmse < 1e-6
+    assert align(c.sources, scene.sources[ps], reflection=True).rmse < 1e-6
+
+
+def test_frame_is_the_receivers_principal_axes(rng):
+    scene = fig3_scene(rng)
+    out = calibrate(scene.ranges, noise_std=0.0, rng=rng)
+    np.testing.assert_allclose(out.receivers.mean(axis=0), 0, atol=1e-12)
+    cov = np.cov(out.receivers.T, bias=True)
+    np.testing.assert_allclose(cov, np.diag(np.diag(cov)), atol=1e-12)
+    assert np.all(np.diff(np.diag(cov)) <= 0)
+    np.testing.assert_allclose(range_matrix(out.receivers, out.sources), scene.ranges, atol=1e-9)
+
+
+def test_result_is_frozen_and_input_untouched(rng):
+    scene = fig3_scene(rng)
+    ranges = scene.ranges.copy()
+    out = calibrate(ranges, noise_std=0.0, rng=rng)
+    np.testing.assert_array_equal(ranges, scene.ranges)
+    with pytest.raises(ValueError):
+        out.receivers[0, 0] = 1.0
+    with pytest.raises(AttributeError):
+        out.converged = False  # type: ignore[misc]
+
+
+def test_minimal_configuration_is_not_claimed(rng):
+    """M = 4, K = 6 in 3-D: 24 ranges for 24 unknowns. The data fit exactly, but the unfolding
+    has many solutions (38, paper section 3.1), so the answer is not reported as converged."""
+    x, s = rng.uniform(0, 2, (4, 3)), rng.uniform(-2, 4, (6, 3))
+    out = calibrate(range_matrix(x, s), noise_std=0.0, max_attempts=1, rng=rng)
+    assert not out.converged and "minimal configuration" in out.message
+    assert out.redundancy == 0
+
+
+def test_failure_is_reported_not_hidden(rng):
+    """Ranges with 1 cm noise checked against a claimed 1 um: nothing passes, and the best fit
+    found is returned with converged False and a message (never the input)."""
+    scene = fig3_scene(rng)
+    noisy = add_range_noise(scene.ranges, 0.01, rng=rng)
+    out = calibrate(noisy, noise_std=1e-6, max_attempts=2, random_starts=3, rng=rng)
+    assert not out.converged
+    assert "no start in 5 passed the residual test" in out.message
+    assert out.attempts == 2 and out.random_starts == 3
+    assert out.residual_rms > 1e-4
+
+
+def test_unknown_noise_runs_every_attempt_and_votes(rng):
+    """Without noise_std the answer must be reached twice; exact data still stop at once."""
+    scene = fig3_scene(rng)
+    exact = calibrate(scene.ranges, rng=rng)
+    assert exact.converged and align(exact.receivers, scene.mics, reflection=True).rmse < 1e-6
+    noisy = add_range_noise(scene.ranges, 1e-3, rng=rng)
+    out = calibrate(noisy, max_attempts=4, rng=rng)
+    assert out.attempts == 4 or out.random_starts > 0
+    if out.converged:
+        assert out.residual_rms <= 0.02 * np.median(noisy)
+
+
+def test_robust_calibration_drops_wrong_picks(rng):
+    """20 receivers, 12 sources, 2 mm noise and 5% wrong picks of 5-50 cm: the wrong picks are
+    found and the receivers are as good as without them (measured 1.7-2.8 mm on 10 draws)."""
+    x, s = rng.uniform(0, 2, (20, 3)), rng.uniform(-2, 4, (12, 3))
+    clean = add_range_noise(range_matrix(x, s), 0.002, rng=rng)
+    ranges, wrong = add_outliers(clean, 0.05, min_error=0.05, max_error=0.5, rng=rng)
+    out = calibrate(
+        ranges, noise_std=0.002, robust=True, max_attempts=2, max_iterations=10, rng=rng
+    )
+    assert out.converged, out.message
+    assert align(out.receivers, x, reflection=True).rmse < 0.006
+    caught = np.sum(wrong & ~out.inliers)
+    assert caught >= 0.9 * wrong.sum()
+    assert out.n_outliers <= wrong.sum() + 3
+
+
+def test_solver_failure_propagates(rng, monkeypatch):
+    from rangeslam import sdp
+
+    def broken(self, z):
+        raise SolverError("EDM completion SDP failed", status="CLARABEL: error; SCS: error")
+
+    monkeypatch.setattr(sdp.EDMCompletionSDP, "solve", broken)
+    with pytest.raises(SolverError, match="solver status"):
+        calibrate(fig3_scene(rng).ranges, noise_std=0.0)
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "match"),
+    [
+        ((np.ones(5),), {}, r"ranges must be an \(M, K\) array"),
+        ((np.ones((6, 6)),), {"dim": 4}, "dim must be 2 or 3"),
+        ((np.ones((6, 6)),), {"mask": np.ones((6, 6))}, "mask must be a boolean array"),
+        ((np.ones((6, 6)),), {"mask": np.ones((5, 6), dtype=bool)}, r"mask must have shape"),
+        ((-np.ones((6, 6)),), {}, "non-negative"),
+        ((np.full((6, 6), np.nan),), {}, "finite where observed"),
+        ((np.ones((6, 6)),), {"noise_std": -1.0}, "noise_std must be"),
+        ((np.ones((6, 6)),), {"max_attempts": 0}, "max_attempts must be an integer >= 1"),
+        ((np.ones((6, 6)),), {"random_starts": -1}, "random_starts must be an integer >= 0"),
+        ((np.ones((3, 6)),), {}, "under-determined: 18 observed ranges for 21 unknowns"),
+        ((np.zeros((6, 6)),), {}, "must not all be zero"),
+    ],
+)
+def test_bad_input(args, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        calibrate(*args, **kwargs)
+
+
+def test_under_determined_point_is_named():
+    mask = np.ones((6, 6), dtype=bool)
+    mask[2, :4] = False  # receiver 2 keeps 2 ranges
+    with pytest.raises(InvalidInputError, match="receiver 2 has 2 observed ranges"):
+        calibrate(np.ones((6, 6)), mask=mask)
+    mask = np.ones((8, 6), dtype=bool)
+    mask[:6, 4] = False  # source 4 keeps 2 ranges
+    with pytest.raises(InvalidInputError, match="source 4 has 2 observed ranges"):
+        calibrate(np.ones((8, 6)), mask=mask)

@@ -1,0 +1,174 @@
+"""EDM completion SDP and Dattorro's convex iteration (eqs. 8-11)."""
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError, SolverError, edm
+from rangeslam.calibration import mdu_edm, mdu_mask
+from rangeslam.sdp import (
+    EDMCompletionSDP,
+    complete_edm,
+    eigen_gap,
+    low_rank_direction,
+    random_direction,
+)
+from rangeslam.simulation import range_matrix
+
+
+def _random_mask(rng, n, fraction):
+    upper = np.triu(rng.random((n, n)) < fraction, 1)
+    return upper | upper.T
+
+
+def test_full_edm_trace_minimisation_bias_shrinks_as_one_over_lambda(rng):
+    """All distances observed. The penalty form of eq. (10) trades the fit against <G, Z>, so the
+    completion is biased by O(1/lambda) (exactness comes from the refinement that follows)."""
+    x = rng.uniform(-1, 1, (9, 3))
+    d = edm(x)
+    mask = ~np.eye(9, dtype=bool)
+    errors = []
+    for lam in (10.0, 1e3):
+        out = complete_edm(d, mask, 3, method="trace_min", fit_weight=lam)
+        errors.append(np.abs(out.edm - d).max() / d.max())
+        assert out.iterations == 1 and out.status in ("optimal", "optimal_inaccurate")
+    assert errors[1] < 1e-4  # measured about 3e-5
+    assert errors[1] < errors[0] / 30  # measured 100x for 100x lambda
+
+
+def test_convex_iteration_reaches_rank_d_on_a_partial_edm(rng):
+    """70% of the pairs of 12 points in 3-D: the convex iteration drives the N - d smallest
+    eigenvalues to zero and, with a large fit weight, matches the truth on the missing pairs."""
+    x = rng.uniform(-1, 1, (12, 3))
+    d = edm(x)
+    mask = _random_mask(rng, 12, 0.7)
+    out = complete_edm(d, mask, 3, fit_weight=1e4)
+    assert out.converged and out.eigen_gap <= 1e-6
+    assert out.gaps[0] >= out.gaps[-1]
+    np.testing.assert_allclose(out.edm, d, atol=1e-3 * d.max())  # measured about 1e-5
+
+
+def test_trace_maximisation_is_available_and_differs(rng):
+    x, s = rng.uniform(0, 1, (6, 3)), rng.uniform(-2, 3, (6, 3))
+    w = mdu_mask(np.ones((6, 6), dtype=bool))
+    d = mdu_edm(range_matrix(x, s))
+    tmin = complete_edm(d, w, 3, method="trace_min")
+    tmax = complete_edm(d, w, 3, method="trace_max")
+    assert np.trace(tmax.gram) > np.trace(tmin.gram)
+    assert tmax.method == "trace_max" and tmax.converged
+
+
+def test_units_do_not_change_the_answer(rng):
+    """Data in metres or millimetres: the same configuration (squared distances scale by 1e6)."""
+    x = rng.uniform(-1, 1, (10, 3))
+    mask = _random_mask(rng, 10, 0.8)
+    a = complete_edm(edm(x), mask, 3, max_iterations=10)
+    b = complete_edm(edm(x) * 1e6, mask, 3, max_iterations=10)
+    np.testing.assert_allclose(b.edm, a.edm * 1e6, rtol=1e-5, atol=1e-6 * b.edm.max())
+    assert b.iterations == a.iterations
+
+
+def test_direction_matrices():
+    """Step (ii) of eq. (10) in closed form: the projector on the N - d smallest eigenvectors;
+    <G, Z> is then the sum of the N - d smallest eigenvalues."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((8, 8))
+    g = a @ a.T
+    z = low_rank_direction(g, 3)
+    np.testing.assert_allclose(z @ z, z, atol=1e-12)
+    assert np.trace(z) == pytest.approx(5)
+    eig = np.linalg.eigvalsh(g)
+    assert np.sum(z * g) == pytest.approx(eig[:5].sum())
+    assert eigen_gap(g, 3) == pytest.approx(eig[:5].sum() / eig.sum())
+    zr = random_direction(8, 3, rng)
+    np.testing.assert_allclose(zr @ zr, zr, atol=1e-12)
+    np.testing.assert_allclose(zr @ np.ones(8), np.ones(8), atol=1e-12)  # keeps the null space
+
+
+def test_distance_bounds_are_enforced(rng):
+    """Eq. (11): bounds on chosen pairs hold in the completed EDM, even against the data."""
+    x = rng.uniform(-1, 1, (8, 3))
+    d = edm(x)
+    mask = _random_mask(rng, 8, 0.6)
+    pairs = np.array([[0, 1], [2, 3]])
+    true = np.sqrt(d[pairs[:, 0], pairs[:, 1]])
+    lower, upper = 1.1 * true, 1.2 * true  # deliberately excluding the truth
+    out = complete_edm(d, mask, 3, bounded_pairs=pairs, bounds=(lower, upper), max_iterations=5)
+    got = np.sqrt(out.edm[pairs[:, 0], pairs[:, 1]])
+    assert np.all(got >= lower * (1 - 1e-5)) and np.all(got <= upper * (1 + 1e-5))
+
+
+def test_problem_is_built_once_and_reused(rng):
+    x = rng.uniform(-1, 1, (8, 3))
+    mask = _random_mask(rng, 8, 0.8)
+    problem = EDMCompletionSDP(mask)
+    built = problem._problem
+    a = complete_edm(edm(x), mask, 3, problem=problem, max_iterations=5)
+    b = complete_edm(edm(2 * x), mask, 3, problem=problem, max_iterations=5)
+    assert problem._problem is built
+    np.testing.assert_allclose(b.edm, 4 * a.edm, rtol=1e-4, atol=1e-6)
+
+
+def test_fallback_solver_is_used_and_recorded(rng, monkeypatch):
+    x = rng.uniform(-1, 1, (6, 2))
+    mask = ~np.eye(6, dtype=bool)
+    original = cp.Problem.solve
+
+    def clarabel_breaks(self, *args, solver=None, **kwargs):
+        if solver == "CLARABEL":
+            raise cp.error.SolverError("simulated failure")
+        return original(self, *args, solver=solver, **kwargs)
+
+    monkeypatch.setattr(cp.Problem, "solve", clarabel_breaks)
+    out = complete_edm(edm(x), mask, 2, method="trace_min", fit_weight=100.0)
+    assert out.solver == "SCS"
+    np.testing.assert_allclose(out.edm, edm(x), atol=1e-3 * edm(x).max())
+
+
+def test_solver_failure_raises_with_the_statuses(rng, monkeypatch):
+    def always_fails(self, *args, **kwargs):
+        raise cp.error.SolverError("simulated failure")
+
+    monkeypatch.setattr(cp.Problem, "solve", always_fails)
+    x = rng.uniform(-1, 1, (6, 2))
+    with pytest.raises(SolverError, match=r"CLARABEL: error.*SCS: error") as info:
+        complete_edm(edm(x), ~np.eye(6, dtype=bool), 2)
+    assert "simulated failure" in info.value.status
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"method": "nuclear"}, "method must be one of"),
+        ({"fit_weight": 0.0}, "fit_weight must be positive"),
+        ({"max_iterations": 0}, "max_iterations must be a positive integer"),
+        ({"z0": np.eye(3)}, r"z0 must have shape \(6, 6\)"),
+    ],
+)
+def test_bad_arguments(kwargs, match):
+    x = np.random.default_rng(1).uniform(-1, 1, (6, 2))
+    with pytest.raises(InvalidInputError, match=match):
+        complete_edm(edm(x), ~np.eye(6, dtype=bool), 2, **kwargs)
+
+
+def test_bad_masks_and_data():
+    x = np.random.default_rng(1).uniform(-1, 1, (6, 2))
+    full = ~np.eye(6, dtype=bool)
+    with pytest.raises(InvalidInputError, match="square boolean"):
+        EDMCompletionSDP(full.astype(int))
+    lopsided = full.copy()
+    lopsided[0, 1] = False
+    with pytest.raises(InvalidInputError, match="symmetric"):
+        EDMCompletionSDP(lopsided)
+    with pytest.raises(InvalidInputError, match="observes no pair"):
+        EDMCompletionSDP(np.zeros((6, 6), dtype=bool))
+    with pytest.raises(InvalidInputError, match="bounded_pairs"):
+        EDMCompletionSDP(full, bounded_pairs=[[0, 9]])
+    with pytest.raises(InvalidInputError, match="dim must be smaller"):
+        complete_edm(edm(x), full, 6)
+    bad = edm(x)
+    bad[0, 1] = bad[1, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="finite and non-negative"):
+        complete_edm(bad, full, 2)
+    with pytest.raises(InvalidInputError, match=r"edm_matrix must have shape \(6, 6\)"):
+        complete_edm(edm(x)[:5, :5], full, 2)
