@@ -291,6 +291,7 @@ def calibrate(
     random_starts: int = 100,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
+    gap_tol: float = 1e-6,
     rng: np.random.Generator | int | None = None,
 ) -> Calibration:
     """Locate M receivers and K sources, all unknown, from their ranges (MDU, eqs. 8-10).
@@ -321,6 +322,8 @@ def calibrate(
             configurations the runs miss; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per convex-iteration run.
+        gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
+            fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.
 
     Returns a :class:`Calibration`; ``converged`` is False (with a message) when no attempt passed
@@ -359,6 +362,8 @@ def calibrate(
         )
     if not (np.isfinite(fit_weight) and fit_weight > 0):
         raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
+    if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
+        raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
     rng = np.random.default_rng(rng)
 
     scale = float(np.median(r[observed]))
@@ -386,6 +391,7 @@ def calibrate(
                     dim,
                     fit_weight=fit_weight * factor,
                     max_iterations=max_iterations,
+                    tol=gap_tol,
                     z0=z0,
                     problem=problem,
                 )

@@ -208,6 +208,7 @@ def test_integer_seed_is_accepted():
         ((np.ones((3, 6)),), {}, "under-determined: 18 observed ranges for 21 unknowns"),
         ((np.zeros((6, 6)),), {}, "must not all be zero"),
         ((np.ones((6, 6)),), {"fit_weight": -1.0}, "fit_weight must be positive"),
+        ((np.ones((6, 6)),), {"gap_tol": 0.0}, "gap_tol must be in"),
         ((np.ones((6, 6)),), {"robust": True, "refine": False}, "robust=True needs refine=True"),
     ],
 )
