@@ -177,6 +177,19 @@ def rigid_motion_basis(points: np.ndarray) -> np.ndarray:
     return q
 
 
+def receiver_gauge_projection(receivers: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """((M + K) d, (M + K) d) P = I - T (T_r^T T_r)^-1 T_r^T S_r: removes from a perturbation of the
+    stacked points the rigid motion (basis T) least-squares fitted to its receiver rows. An error
+    or covariance C in any gauge maps to the receiver gauge as P C P^T."""
+    m, d = receivers.shape
+    basis = rigid_motion_basis(np.vstack([receivers, sources]))
+    t_r = basis[: m * d]
+    fit = np.linalg.solve(t_r.T @ t_r, t_r.T)
+    proj = np.eye(basis.shape[0])
+    proj[:, : m * d] -= basis @ fit
+    return proj
+
+
 def mdu_crlb(
     receivers: ArrayLike,
     sources: ArrayLike,
@@ -229,12 +242,7 @@ def mdu_crlb(
         )
     cov = (vec[:, ~null] / eig[~null]) @ vec[:, ~null].T  # F^+ (eigh, no explicit inverse)
     if gauge == "receivers":
-        basis = rigid_motion_basis(np.vstack([x, s]))
-        t_r = basis[: m * d]
-        # Oblique projection: subtract the rigid motion least-squares fitted to the receiver rows.
-        fit = np.linalg.solve(t_r.T @ t_r, t_r.T)
-        proj = np.eye((m + k) * d)
-        proj[:, : m * d] -= basis @ fit
+        proj = receiver_gauge_projection(x, s)
         cov = proj @ cov @ proj.T
     blocks = np.array([cov[i * d : (i + 1) * d, i * d : (i + 1) * d] for i in range(m + k)])
     rec, src = blocks[:m], blocks[m:]
