@@ -1,0 +1,141 @@
+"""GTSAM back end: range-factor graph, dead-zone step priors, gauge, robust kernels, marginals."""
+
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError, align, mdu_crlb
+from rangeslam.gtsam_backend import refine_graph
+from rangeslam.simulation import add_outliers, range_matrix
+from rangeslam.trajectories import lemniscate, step_lengths
+
+
+def _scene(rng, dim=3, m=8, k=8):
+    return rng.uniform(0, 2, (m, dim)), rng.uniform(-2, 4, (k, dim))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_exact_recovery_from_a_perturbed_start(rng, dim):
+    x, s = _scene(rng, dim)
+    start_x = x + 0.05 * rng.standard_normal(x.shape)
+    start_s = s + 0.05 * rng.standard_normal(s.shape)
+    fit = refine_graph(start_x, start_s, range_matrix(x, s), noise_std=0.01)
+    assert fit.converged, fit.message
+    assert align(fit.receivers, x).rmse < 1e-6
+    assert align(fit.sources, s).rmse < 1e-6
+    np.testing.assert_allclose(fit.residuals, 0, atol=1e-6)
+    assert fit.error < fit.initial_error
+
+
+def test_gauge_priors_do_not_move_the_solution(rng):
+    """Started at the truth with exact ranges, nothing moves: the gauge priors pin only the
+    unobservable rigid motion."""
+    x, s = _scene(rng)
+    fit = refine_graph(x, s, range_matrix(x, s), noise_std=0.01)
+    np.testing.assert_allclose(fit.receivers, x, atol=1e-9)
+    np.testing.assert_allclose(fit.sources, s, atol=1e-9)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_marginals_are_the_crlb_in_the_receiver_gauge(rng, dim):
+    """At the truth, GTSAM's marginals (mapped to the receiver gauge) equal the anchor-free
+    CRLB of mdu_crlb: the same Fisher information, the same gauge."""
+    x, s = _scene(rng, dim)
+    fit = refine_graph(x, s, range_matrix(x, s), noise_std=0.01)
+    bound = mdu_crlb(x, s, 0.01)
+    np.testing.assert_allclose(fit.receiver_cov, bound.receiver_cov, rtol=1e-5, atol=1e-12)
+    np.testing.assert_allclose(fit.source_cov, bound.source_cov, rtol=1e-5, atol=1e-12)
+
+
+def test_covariances_are_honest_over_trials(rng):
+    """200 noisy trials from the truth: RMSE matches the marginals within 10% and the mean NEES of
+    the receivers (M d - 6 degrees of freedom after the receiver gauge) is inside the 95% band."""
+    x, s = _scene(rng)
+    true = range_matrix(x, s)
+    sigma = 0.01
+    errs, nees = [], []
+    for _ in range(200):
+        z = true + sigma * rng.standard_normal(true.shape)
+        fit = refine_graph(x, s, z, noise_std=sigma)
+        a = align(fit.receivers, x)
+        e = (a.aligned - x).ravel()
+        cov = fit.joint_cov[: x.size, : x.size]
+        nees.append(e @ np.linalg.pinv(cov, rcond=1e-9, hermitian=True) @ e)
+        errs.append(a.rmse**2)
+    rmse = np.sqrt(np.mean(errs))
+    predicted = np.sqrt(np.mean(np.trace(fit.receiver_cov, axis1=1, axis2=2)))
+    assert abs(rmse / predicted - 1) < 0.1
+    dof = x.size - 6
+    # mean of 200 chi-square(dof) draws: 95% band dof +- 1.96 sqrt(2 dof / 200)
+    assert abs(np.mean(nees) - dof) < 1.96 * np.sqrt(2 * dof / 200) + 0.05 * dof
+
+
+def test_dead_zone_step_prior(rng):
+    """Bounds that hold cost nothing; bounds that the ranges violate pull the steps towards them,
+    and the answer is then a compromise inside the range fit's noise."""
+    traj = lemniscate(10, step=0.3, phase=0.4)
+    s = rng.uniform([0, 0, 0], [5, 4, 2.6], (7, 3))
+    ranges = range_matrix(traj, s)
+    steps = step_lengths(traj)
+    free = refine_graph(traj, s, ranges, noise_std=0.01)
+    inside = refine_graph(traj, s, ranges, noise_std=0.01, step_bounds=(0.8 * steps, 1.2 * steps))
+    np.testing.assert_allclose(inside.receivers, free.receivers, atol=1e-9)
+    assert inside.error == pytest.approx(free.error, abs=1e-12)
+    tight = refine_graph(
+        traj, s, ranges, noise_std=0.01, step_bounds=(1.5 * steps, 1.6 * steps), step_sigma=1e-3
+    )
+    assert np.all(step_lengths(tight.receivers) > steps)
+    assert tight.error > 1.0
+
+
+def test_robust_kernel_resists_a_wrong_range(rng):
+    x, s = _scene(rng, m=10, k=8)
+    true = range_matrix(x, s)
+    bad, _ = add_outliers(true, 0.05, min_error=0.3, max_error=1.0, rng=rng)
+    plain = refine_graph(x, s, bad, noise_std=0.005)
+    errors = {}
+    for kernel in ("huber", "cauchy", "tukey"):
+        fit = refine_graph(x, s, bad, noise_std=0.005, robust=kernel)
+        errors[kernel] = align(fit.receivers, x).rmse
+    plain_error = align(plain.receivers, x).rmse
+    assert errors["cauchy"] < plain_error / 5 and errors["tukey"] < plain_error / 5
+    assert errors["huber"] < plain_error
+
+
+def test_odometry_priors(rng):
+    """Step vectors fix the orientation (no gauge priors); step lengths add information."""
+    traj = lemniscate(12, step=0.3, phase=1.0)
+    s = rng.uniform([0, 0, 0], [5, 4, 2.6], (7, 3))
+    ranges = range_matrix(traj, s)
+    start = traj + 0.03 * rng.standard_normal(traj.shape)
+    fit = refine_graph(
+        start, s, ranges, noise_std=0.01, step_vectors=np.diff(traj, axis=0), odometry_sigma=0.01
+    )
+    assert fit.converged
+    np.testing.assert_allclose(fit.receivers - fit.receivers[0], traj - traj[0], atol=1e-6)
+    with_len = refine_graph(
+        traj, s, ranges, noise_std=0.01, step_lengths=step_lengths(traj), odometry_sigma=0.001
+    )
+    without = refine_graph(traj, s, ranges, noise_std=0.01)
+    assert np.trace(with_len.joint_cov) < np.trace(without.joint_cov)
+
+
+def test_bad_input(rng):
+    x, s = _scene(rng)
+    r = range_matrix(x, s)
+    m = len(x)
+    with pytest.raises(InvalidInputError, match="noise_std must be positive"):
+        refine_graph(x, s, r, noise_std=0.0)
+    with pytest.raises(InvalidInputError, match="robust must be None or one of"):
+        refine_graph(x, s, r, noise_std=0.01, robust="l1")
+    with pytest.raises(InvalidInputError, match=r"lower must have shape \(7,\)"):
+        refine_graph(x, s, r, noise_std=0.01, step_bounds=(np.ones(5), np.ones(7)))
+    with pytest.raises(InvalidInputError, match="lower <= upper; step 2"):
+        lo, hi = np.ones(m - 1), 2 * np.ones(m - 1)
+        lo[2] = 3.0
+        refine_graph(x, s, r, noise_std=0.01, step_bounds=(lo, hi))
+    with pytest.raises(InvalidInputError, match="lower must be >= 0"):
+        refine_graph(x, s, r, noise_std=0.01, step_bounds=(-np.ones(m - 1), np.ones(m - 1)))
+    with pytest.raises(InvalidInputError, match="odometry_sigma"):
+        refine_graph(x, s, r, noise_std=0.01, step_lengths=np.ones(m - 1))
+    with pytest.raises(InvalidInputError, match="sources must have shape"):
+        refine_graph(x, s[:, :2], r, noise_std=0.01)
