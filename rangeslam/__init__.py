@@ -18,6 +18,7 @@ from .errors import (
 from .geometry import ImageSources, Room
 from .multilateration import MultilaterationResult, multilaterate
 from .room_reconstruction import RoomReconstruction, reconstruct_room
+from .slam import SlamResult, slam
 
 __version__ = "0.1.0"
 
@@ -33,6 +34,7 @@ __all__ = [
     "RangeSlamError",
     "Room",
     "RoomReconstruction",
+    "SlamResult",
     "SolverError",
     "__version__",
     "align",
@@ -46,5 +48,6 @@ __all__ = [
     "multilaterate",
     "multilateration_crlb",
     "reconstruct_room",
+    "slam",
     "wall_crlb",
 ]

@@ -1,0 +1,267 @@
+"""Acoustic range-only SLAM (paper, section 4): one moving microphone, a loudspeaker and its images.
+
+The microphone's positions r_1..r_M along an unknown trajectory are the receivers, the loudspeaker
+and its image sources the landmarks: the same unfolding as zero-knowledge calibration (eq. 9).
+Bounds on the step length |r_{i+1} - r_i| enter the convex iteration as constraints on
+K(G)_{i,i+1} (eq. 11), and the EDM solution initialises a GTSAM range-factor graph with dead-zone
+step-length priors (:mod:`rangeslam.gtsam_backend`), which refines it and gives covariances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
+from .calibration import (
+    _WEIGHT_FACTORS,
+    _canonical_frame,
+    _check_determined,
+    mdu_edm,
+    mdu_mask,
+    unknowns_up_to_rigid_motion,
+)
+from .errors import InvalidInputError, SolverError
+from .gtsam_backend import GraphFit, _check_bounds, refine_graph
+
+__all__ = ["SlamResult", "slam"]
+
+_CHI2_LEVEL = 0.999
+
+
+@dataclass(frozen=True)
+class SlamResult:
+    """Result of :func:`slam`. M steps, K landmarks, d = 2 or 3.
+
+    Attributes:
+        receivers: (M, d) the trajectory, metres (frame: its centroid at 0, principal axes).
+        sources: (K, d) the landmarks (loudspeaker and image sources), same frame.
+        receiver_cov: (M, d, d) covariances of the positions in the receiver gauge, m^2 (None
+            without refinement).
+        source_cov: (K, d, d) the same for the landmarks.
+        residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
+        edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame.
+        edm_sources: (K, d) likewise.
+        residual_rms: RMS range residual, metres.
+        converged: the answer passed the residual test (chi-square against ``noise_std``).
+        message: why not, when ``converged`` is False.
+        attempts: convex-iteration runs made.
+        eigen_gap: eigen-gap of the SDP answer used.
+    """
+
+    receivers: np.ndarray
+    sources: np.ndarray
+    receiver_cov: np.ndarray | None
+    source_cov: np.ndarray | None
+    residuals: np.ndarray
+    edm_receivers: np.ndarray
+    edm_sources: np.ndarray
+    residual_rms: float
+    converged: bool
+    message: str
+    attempts: int
+    eigen_gap: float
+
+
+def _frame(receivers, sources, cov_r=None, cov_s=None):
+    """The canonical frame of :mod:`rangeslam.calibration`, covariances rotated along."""
+    centre = receivers.mean(axis=0)
+    rec, src = _canonical_frame(receivers, sources)
+    rot, *_ = np.linalg.lstsq(receivers - centre, rec, rcond=None)
+    if cov_r is not None:
+        cov_r = np.einsum("ij,njk,kl->nil", rot.T, cov_r, rot)
+        cov_s = np.einsum("ij,njk,kl->nil", rot.T, cov_s, rot)
+    return rec, src, cov_r, cov_s
+
+
+def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
+    """Refuse step bounds that no positions can meet: by the triangle inequality, for every
+    landmark k heard at steps i and i + 1, |r_ik - r_(i+1)k| <= |x_(i+1) - x_i| <= r_ik + r_(i+1)k
+    (with 4 sigma of slack for the noise, or 1% of the range when noise_std is unknown)."""
+    lower, upper = bounds
+    both = observed[:-1] & observed[1:]
+    slack_abs = 0.0 if noise_std is None else 4 * np.sqrt(2) * noise_std
+    for i in np.flatnonzero(both.any(axis=1)):
+        a, b = r[i, both[i]], r[i + 1, both[i]]
+        slack = slack_abs if noise_std is not None else 0.01 * float(np.max(a + b))
+        least, most = float(np.max(np.abs(a - b))), float(np.min(a + b))
+        if upper[i] < least - slack or lower[i] > most + slack:
+            raise InvalidInputError(
+                f"step_bounds contradict the ranges at step {i}: [{lower[i]:.4g}, {upper[i]:.4g}] m "
+                f"lies outside [{least:.4g}, {most:.4g}] m, what the ranges to the same landmarks "
+                "allow (triangle inequality)"
+            )
+
+
+def slam(
+    ranges: ArrayLike,
+    *,
+    step_bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    mask: ArrayLike | None = None,
+    dim: int = 3,
+    refine: bool = True,
+    noise_std: float | None = None,
+    robust: str | None = None,
+    max_attempts: int = 8,
+    fit_weight: float = 10.0,
+    max_iterations: int = 50,
+    rng: np.random.Generator | int | None = None,
+) -> SlamResult:
+    """Trajectory (M, d) and landmarks (K, d) from the ranges (M, K) of a moving microphone.
+
+    Args:
+        ranges: (M, K) range from step m to landmark k, metres.
+        step_bounds: (lower, upper), each (M - 1,), bounds on |r_{i+1} - r_i| in metres: eq. (11)
+            constraints in the SDP and dead-zone priors in the GTSAM refinement.
+        mask: (M, K) boolean, True where observed.
+        dim: 2 or 3.
+        refine: refine the EDM answer with GTSAM (and compute covariances).
+        noise_std: range noise standard deviation, metres. Weighs the graph and sets the residual
+            test; when None it is estimated from the residuals of the EDM answer.
+        robust: GTSAM kernel against wrong echoes: None, "huber", "cauchy" or "tukey".
+        max_attempts: convex-iteration runs at most (fit weights x1, x10, x0.1, x100 from Z = I,
+            then random Z), until one passes the residual test.
+        fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
+        rng: Generator or seed for the random restarts.
+
+    Raises InvalidInputError for bad input: step bounds of the wrong length, lower > upper,
+    negative bounds, bounds the ranges contradict (triangle inequality, named by step), an
+    under-determined mask. SolverError when the SDP fails in every run.
+    """
+    from .sdp import EDMCompletionSDP, complete_edm, random_direction
+
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    r_in = _as_float_array(ranges, "ranges")
+    if r_in.ndim != 2:
+        raise InvalidInputError(
+            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
+        )
+    observed = as_mask(mask, "mask", shape=r_in.shape)
+    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    m, k = r.shape
+    _check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    bounds = None if step_bounds is None else _check_bounds(step_bounds, m)
+    if bounds is not None:
+        _check_bounds_against_ranges(bounds, r, observed, noise_std)
+    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
+    if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
+        raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
+    rng = np.random.default_rng(rng)
+    n = m + k
+    scale = float(np.median(r[observed]))
+    if not scale > 0:
+        raise InvalidInputError("ranges must not all be zero where observed")
+    w = mdu_mask(observed)
+    d_tilde = mdu_edm(r)
+    pairs = np.column_stack([np.arange(m - 1), np.arange(1, m)]) if bounds else None
+    problem = EDMCompletionSDP(w, bounded_pairs=pairs)
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(n, dim)
+
+    from scipy.stats import chi2
+
+    failures: list[str] = []
+    best = None
+    attempts = 0
+    for attempt in range(max_attempts):
+        factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
+        z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
+        try:
+            completion = complete_edm(
+                d_tilde,
+                w,
+                dim,
+                fit_weight=fit_weight * factor,
+                max_iterations=max_iterations,
+                z0=z0,
+                bounds=bounds,
+                problem=problem,
+            )
+        except SolverError as exc:
+            failures.append(str(exc.status))
+            continue
+        attempts += 1
+        pts = completion.points
+        sigma = noise_std
+        if sigma is None:  # from the EDM answer's residuals
+            res = np.linalg.norm(pts[:m, None] - pts[None, m:], axis=2) - r
+            sigma = float(np.sqrt(np.mean(res[observed] ** 2)))
+        # The graph's weights need a floor for exact data: at 1e-6 of the scale GTSAM's LM made no
+        # step at all; at 1e-4 it recovers exact data to round-off.
+        sigma = max(sigma, 1e-4 * scale)
+        fit: GraphFit | None = None
+        if refine:
+            fit = refine_graph(
+                pts[:m],
+                pts[m:],
+                r,
+                noise_std=sigma,
+                mask=observed,
+                step_bounds=bounds,
+                robust=robust,
+                # a planar trajectory leaves landmarks near its plane in a flat valley (their
+                # mirror images meet there): hundreds of LM iterations are normal
+                max_iterations=2000,
+            )
+            rec, src = fit.receivers, fit.sources
+        else:
+            rec, src = pts[:m], pts[m:]
+        res = np.linalg.norm(rec[:, None] - src[None], axis=2) - r
+        ssr = float(np.sum(res[observed] ** 2))
+        if best is None or ssr < best[0]:
+            best = (ssr, rec, src, fit, completion, res, sigma)
+        if ssr <= (1e-8 * scale) ** 2 * observed.sum():
+            break
+        if noise_std and redundancy > 0 and ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2:
+            break
+    if best is None:
+        raise SolverError(
+            "SLAM found no solution: the SDP failed in every run (with step bounds, they may "
+            "not hold together with the ranges)",
+            status="; ".join(dict.fromkeys(failures)),
+        )
+    ssr, rec, src, fit, completion, res, _ = best
+    rms = float(np.sqrt(ssr / observed.sum()))
+    message = ""
+    if failures:
+        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
+    exact = ssr <= (1e-8 * scale) ** 2 * observed.sum()
+    if noise_std is not None and redundancy > 0:
+        converged = exact or bool(ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2)
+        if not converged:
+            message += (
+                f"no run passed the residual test: RMS residual {rms:.3g} m for noise_std "
+                f"{noise_std:.3g} m; "
+            )
+    else:
+        converged = rms <= 0.02 * scale
+        if not converged:
+            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
+    if redundancy <= 0 and bounds is None:
+        converged = False
+        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    if fit is not None and not fit.converged:
+        converged = False
+        message += f"GTSAM: {fit.message}; "
+    rec_f, src_f, cov_r, cov_s = _frame(
+        rec, src, None if fit is None else fit.receiver_cov, None if fit is None else fit.source_cov
+    )
+    pts = completion.points
+    edm_rec, edm_src = _canonical_frame(pts[:m], pts[m:])
+    return SlamResult(
+        receivers=frozen(rec_f),
+        sources=frozen(src_f),
+        receiver_cov=None if cov_r is None else frozen(cov_r),
+        source_cov=None if cov_s is None else frozen(cov_s),
+        residuals=frozen(np.where(observed, res, np.nan)),
+        edm_receivers=frozen(edm_rec),
+        edm_sources=frozen(edm_src),
+        residual_rms=rms,
+        converged=bool(converged),
+        message=message.rstrip("; "),
+        attempts=attempts,
+        eigen_gap=completion.eigen_gap,
+    )

@@ -1,0 +1,79 @@
+"""Acoustic range-only SLAM (section 4): eq. (11) step bounds, EDM + GTSAM (issue 4, first part)."""
+
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError, align, slam
+from rangeslam.geometry import Room
+from rangeslam.simulation import random_points_in_room, range_matrix
+from rangeslam.trajectories import lemniscate, step_lengths
+
+
+def _scene(rng, m):
+    room = Room.shoebox([5.0, 4.0, 2.6])
+    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
+    src = random_points_in_room(room, 1, rng=rng)[0]
+    landmarks = np.vstack([src, room.image_sources(src, 1).positions])
+    return traj, landmarks
+
+
+def test_exact_recovery_with_step_bounds(rng):
+    """Ten steps of the lemniscate, the loudspeaker and its 6 first-order images, exact ranges,
+    +-20% step bounds: EDM + GTSAM recovers trajectory and landmarks to round-off."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    out = slam(range_matrix(traj, landmarks), step_bounds=(0.8 * steps, 1.2 * steps), rng=rng)
+    assert out.converged, out.message
+    a = align(out.receivers, traj, reflection=True)
+    assert a.rmse < 1e-6
+    # The lemniscate of eq. (12) is planar (z = 0.9): each landmark is only determined up to its
+    # mirror image in that plane, so compare in-plane position and distance to the plane.
+    got = a.apply(out.sources)
+    np.testing.assert_allclose(got[:, :2], landmarks[:, :2], atol=1e-6)
+    np.testing.assert_allclose(np.abs(got[:, 2] - 0.9), np.abs(landmarks[:, 2] - 0.9), atol=1e-6)
+    assert out.receivers.shape == (10, 3) and out.sources.shape == (7, 3)
+    assert out.receiver_cov.shape == (10, 3, 3) and out.source_cov.shape == (7, 3, 3)
+    with pytest.raises(ValueError):
+        out.receivers[0, 0] = 0.0
+
+
+def test_edm_answer_respects_the_bounds(rng):
+    """The convex iteration's points keep the steps within the bounds (up to the rank-3
+    truncation of G), which the unbounded run does not have to."""
+    traj, landmarks = _scene(rng, 8)
+    steps = step_lengths(traj)
+    out = slam(
+        range_matrix(traj, landmarks), step_bounds=(0.9 * steps, 1.1 * steps), refine=False, rng=rng
+    )
+    got = step_lengths(out.edm_receivers)
+    assert np.all(got >= 0.9 * steps * 0.97) and np.all(got <= 1.1 * steps * 1.03)
+
+
+def test_bad_step_bounds(rng):
+    traj, landmarks = _scene(rng, 8)
+    r = range_matrix(traj, landmarks)
+    steps = step_lengths(traj)
+    with pytest.raises(InvalidInputError, match=r"lower must have shape \(7,\)"):
+        slam(r, step_bounds=(steps[:5], steps))
+    with pytest.raises(InvalidInputError, match="lower <= upper; step 3"):
+        lo = 0.8 * steps
+        lo[3] = 2 * steps[3]
+        slam(r, step_bounds=(lo, 1.2 * steps))
+    with pytest.raises(InvalidInputError, match="lower must be >= 0"):
+        slam(r, step_bounds=(-steps, steps))
+    with pytest.raises(InvalidInputError, match="noise_std must be non-negative"):
+        slam(r, noise_std=-1.0)
+
+
+def test_bounds_that_contradict_the_ranges_are_reported(rng):
+    """Steps forced to 3-4 m while the ranges allow about 0.3 m: the triangle inequality
+    |r_ik - r_(i+1)k| <= |x_(i+1) - x_i| <= r_ik + r_(i+1)k rules them out, and the error names
+    the step."""
+    traj, landmarks = _scene(rng, 8)
+    r = range_matrix(traj, landmarks)
+    with pytest.raises(InvalidInputError, match="step_bounds contradict the ranges at step 0"):
+        slam(r, step_bounds=(np.full(7, 100.0), np.full(7, 101.0)), max_attempts=1)
+    with pytest.raises(InvalidInputError, match="step_bounds contradict the ranges at step 2"):
+        hi = 1.2 * step_lengths(traj)
+        hi[2] = 0.0
+        slam(r, step_bounds=(np.zeros(7), hi), max_attempts=1)
