@@ -13,7 +13,7 @@ import numpy as np
 from .alignment import align
 from .calibration import Calibration, calibrate
 from .crlb import mdu_crlb
-from .errors import DegenerateGeometryError
+from .errors import DegenerateGeometryError, SolverError
 from .geometry import Room
 from .room_reconstruction import RoomReconstruction, reconstruct_room
 from .simulation import (
@@ -28,10 +28,12 @@ __all__ = [
     "CalibrationExperiment",
     "CalibrationScene",
     "RoomExperiment",
+    "SlamExperiment",
     "calibration_experiment",
     "demo_rooms",
     "fig3_scene",
     "room_experiment",
+    "slam_experiment",
     "wall_errors",
 ]
 
@@ -222,3 +224,120 @@ def calibration_experiment(
         except DegenerateGeometryError:  # a flexible configuration: no finite bound
             bound = float("inf")
     return CalibrationExperiment(scene, ranges, sigma, result, error, bound)
+
+
+#: The room of the paper's Fig. 5, metres.
+FIG5_ROOM_SIZE = (5.0, 4.0, 2.6)
+
+
+@dataclass(frozen=True)
+class SlamExperiment:
+    """One simulated Fig. 5 run: errors of the EDM answer, EDM + GTSAM, and GTSAM alone.
+
+    Attributes:
+        trajectory: (M, 3) true positions; landmarks: (7, 3) loudspeaker and first-order images.
+        ranges: (M, 7) noisy ranges; sigma: their noise, metres; bounds: whether +-20% step bounds
+            were given.
+        result: what :func:`rangeslam.slam` returned.
+        baseline_receivers / baseline_sources: GTSAM from a GTSAM-style start (no EDM).
+        edm_error, error, baseline_error: trajectory RMS error after rigid alignment (with
+            reflection), metres.
+        source_error: landmark RMS error of EDM + GTSAM after the trajectory's alignment, each
+            landmark taken up to its mirror image in the trajectory's plane (eq. 12 is planar).
+        crlb: receiver-gauge CRLB of the trajectory error from the ranges alone (inf when the
+            ranges alone do not determine it).
+        converged: ``result.converged``.
+    """
+
+    trajectory: np.ndarray
+    landmarks: np.ndarray
+    ranges: np.ndarray
+    sigma: float
+    bounds: bool
+    result: object
+    baseline_receivers: np.ndarray
+    baseline_sources: np.ndarray
+    edm_error: float
+    error: float
+    baseline_error: float
+    source_error: float
+    crlb: float
+    converged: bool
+
+
+def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
+    got = alignment.apply(sources)
+    mirrored = got.copy()
+    mirrored[:, 2] = 2 * height - got[:, 2]
+    d = np.minimum(
+        np.linalg.norm(got - landmarks, axis=1), np.linalg.norm(mirrored - landmarks, axis=1)
+    )
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def gtsam_style_start(m: int, k: int, step: float, scale: float, rng: np.random.Generator):
+    """The start GTSAM's range-only examples use when nothing better is known: a random walk of
+    the nominal step for the trajectory and landmarks uniform in a box of the ranges' size."""
+    steps = rng.standard_normal((m - 1, 3))
+    steps *= step / np.linalg.norm(steps, axis=1, keepdims=True)
+    traj = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
+    landmarks = rng.uniform(-scale, scale, size=(k, 3))
+    return traj, landmarks
+
+
+def slam_experiment(
+    m: int, sigma: float, bounds: bool, rng: np.random.Generator, **slam_options
+) -> SlamExperiment:
+    """Fig. 5: the lemniscate of eq. (12) from a random phase, M steps of t_n = 0.3 n, a
+    loudspeaker uniform in the 5 x 4 x 2.6 m room and its 6 first-order images; ranges with
+    N(0, sigma^2) noise; +-20% step bounds or none."""
+    from .gtsam_backend import refine_graph
+    from .slam import slam
+    from .trajectories import lemniscate, step_lengths
+
+    room = Room.shoebox(FIG5_ROOM_SIZE)
+    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
+    source = random_points_in_room(room, 1, rng=rng)[0]
+    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
+    ranges = range_matrix(traj, landmarks)
+    if sigma > 0:
+        ranges = add_range_noise(ranges, sigma, rng=rng)
+    steps = step_lengths(traj)
+    step_bounds = (0.8 * steps, 1.2 * steps) if bounds else None
+    slam_options.setdefault("noise_std", sigma)
+    result = slam(ranges, step_bounds=step_bounds, rng=rng, **slam_options)
+    a = align(result.receivers, traj, reflection=True)
+    start_x, start_s = gtsam_style_start(m, len(landmarks), 0.3, float(np.max(ranges)), rng)
+    try:
+        base = refine_graph(
+            start_x,
+            start_s,
+            ranges,
+            noise_std=max(sigma, 1e-4),
+            step_bounds=step_bounds,
+            covariances=False,
+            max_iterations=2000,
+        )
+        base_x, base_s = base.receivers, base.sources
+    except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
+        base_x, base_s = start_x, start_s
+    try:
+        bound = mdu_crlb(traj, landmarks, sigma).receiver_rmse if sigma > 0 else float("nan")
+    except DegenerateGeometryError:
+        bound = float("inf")
+    return SlamExperiment(
+        trajectory=traj,
+        landmarks=landmarks,
+        ranges=ranges,
+        sigma=sigma,
+        bounds=bounds,
+        result=result,
+        baseline_receivers=base_x,
+        baseline_sources=base_s,
+        edm_error=align(result.edm_receivers, traj, reflection=True).rmse,
+        error=a.rmse,
+        baseline_error=align(base_x, traj, reflection=True).rmse,
+        source_error=_planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
+        crlb=bound,
+        converged=result.converged,
+    )

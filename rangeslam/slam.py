@@ -104,6 +104,7 @@ def slam(
     refine: bool = True,
     noise_std: float | None = None,
     robust: str | None = None,
+    step_sigma: float | None = None,
     max_attempts: int = 8,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
@@ -201,6 +202,7 @@ def slam(
                 noise_std=sigma,
                 mask=observed,
                 step_bounds=bounds,
+                step_sigma=None if step_sigma is None else step_sigma,
                 robust=robust,
                 # a planar trajectory leaves landmarks near its plane in a flat valley (their
                 # mirror images meet there): hundreds of LM iterations are normal
