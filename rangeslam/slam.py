@@ -213,8 +213,11 @@ def slam(
             rec, src = pts[:m], pts[m:]
         res = np.linalg.norm(rec[:, None] - src[None], axis=2) - r
         ssr = float(np.sum(res[observed] ** 2))
-        if best is None or ssr < best[0]:
-            best = (ssr, rec, src, fit, completion, res, sigma)
+        # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges alone:
+        # a low range residual bought by breaking the step bounds is no better answer.
+        key = ssr if fit is None else fit.error
+        if best is None or key < best[-1]:
+            best = (ssr, rec, src, fit, completion, res, sigma, key)
         if ssr <= (1e-8 * scale) ** 2 * observed.sum():
             break
         if noise_std and redundancy > 0 and ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2:
@@ -225,7 +228,7 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(failures)),
         )
-    ssr, rec, src, fit, completion, res, _ = best
+    ssr, rec, src, fit, completion, res, _, _ = best
     rms = float(np.sqrt(ssr / observed.sum()))
     message = ""
     if failures:
