@@ -23,9 +23,11 @@ from numpy.typing import ArrayLike
 
 from ._robust import mad_sigma, studentized
 from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
+from .edm import edm
 from .errors import DegenerateGeometryError, InvalidInputError, SolverError
 from .multilateration import multilaterate
 from .refinement import UnfoldingFit, refine_unfolding, unfolding_jacobian, unfolding_residuals
+from .simulation import range_matrix
 
 if TYPE_CHECKING:
     from .sdp import EDMCompletion
@@ -147,12 +149,15 @@ def _check_determined(mask: np.ndarray, dim: int, name: str) -> None:
 def _canonical_frame(receivers: np.ndarray, sources: np.ndarray):
     """Move the receivers' centroid to 0 and their principal axes (largest variance first) onto
     the coordinates, each pointing so that the receivers' third moment along it is >= 0. Ranges
-    cannot tell a reflection, so the frame may be left-handed; it is unique for generic arrays."""
+    cannot tell a reflection, so the frame may be left-handed; it is unique for generic arrays.
+
+    Returns (receivers, sources, rotation): new coordinates are (p - centroid) @ rotation.
+    """
     centre = receivers.mean(axis=0)
     _, vec = np.linalg.eigh(np.cov((receivers - centre).T, bias=True))
     rot = vec[:, ::-1]
     rot *= np.where(np.sum(((receivers - centre) @ rot) ** 3, axis=0) < 0, -1.0, 1.0)
-    return (receivers - centre) @ rot, (sources - centre) @ rot
+    return (receivers - centre) @ rot, (sources - centre) @ rot, rot
 
 
 @dataclass
@@ -165,15 +170,12 @@ class _Candidate:
     message: str
 
     def edm(self) -> np.ndarray:
-        pts = np.vstack([self.fit.receivers, self.fit.sources])
-        sq = np.sum(pts**2, axis=1)
-        return sq[:, None] + sq[None, :] - 2 * pts @ pts.T
+        return edm(np.vstack([self.fit.receivers, self.fit.sources]))
 
 
 def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
     """The SDP's points as an UnfoldingFit (used when refine=False)."""
-    dist = np.linalg.norm(points[:m, None, :] - points[None, m:, :], axis=2)
-    residuals = np.where(mask, dist - ranges, np.nan)
+    residuals = np.where(mask, range_matrix(points[:m], points[m:]) - ranges, np.nan)
     return UnfoldingFit(
         receivers=points[:m],
         sources=points[m:],
@@ -185,6 +187,71 @@ def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndar
     )
 
 
+def _validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_std):
+    """Check the inputs shared by :func:`calibrate` and :func:`rangeslam.slam`.
+
+    Returns (ranges (M, K) with unobserved entries 0, observed mask (M, K), median observed range).
+    """
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    r_in = _as_float_array(ranges, "ranges")
+    if r_in.ndim != 2:
+        raise InvalidInputError(
+            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
+        )
+    observed = as_mask(mask, "mask", shape=r_in.shape)
+    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    _check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
+    scale = float(np.median(r[observed]))
+    if not scale > 0:
+        raise InvalidInputError("ranges must not all be zero where observed")
+    return r, observed, scale
+
+
+def _convex_iteration_runs(
+    problem,
+    d_tilde: np.ndarray,
+    w: np.ndarray,
+    dim: int,
+    *,
+    max_attempts: int,
+    fit_weight: float,
+    max_iterations: int,
+    gap_tol: float,
+    rng: np.random.Generator,
+    failures: list[str],
+    bounds=None,
+):
+    """Yield the EDMCompletion of up to ``max_attempts`` convex-iteration runs (eq. 10).
+
+    "Several weights": the first runs start from Z = I (trace minimisation) with the fit weight
+    scaled by each of _WEIGHT_FACTORS in turn; later runs start from random Z, cycling them. A
+    run whose SDP fails with every solver is lost: its status is appended to ``failures``.
+    """
+    from .sdp import complete_edm, random_direction
+
+    n = w.shape[0]
+    for attempt in range(max_attempts):
+        factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
+        z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
+        try:
+            yield complete_edm(
+                d_tilde,
+                w,
+                dim,
+                fit_weight=fit_weight * factor,
+                max_iterations=max_iterations,
+                tol=gap_tol,
+                z0=z0,
+                bounds=bounds,
+                problem=problem,
+            )
+        except SolverError as exc:
+            failures.append(str(exc.status))
+
+
 def _reject_outliers(fit, ranges, mask, dim, noise_std):
     """Studentized-residual test (3 sigma), refit without the outliers, until the set is stable.
 
@@ -193,14 +260,12 @@ def _reject_outliers(fit, ranges, mask, dim, noise_std):
     """
     m = mask.shape[0]
     use = mask.copy()
+    pairs = np.argwhere(mask)
     seen: list[np.ndarray] = []
     for _ in range(20):
         pts = np.vstack([fit.receivers, fit.sources])
-        all_pairs = np.argwhere(mask)
-        jac = unfolding_jacobian(pts, m, all_pairs)
-        dist = np.linalg.norm(pts[all_pairs[:, 0]] - pts[m + all_pairs[:, 1]], axis=1)
-        abs_res = np.abs(dist - ranges[mask])
-        stud = studentized(abs_res, jac, use[mask])
+        abs_res = np.abs(unfolding_residuals(pts, m, ranges[mask], pairs))
+        stud = studentized(abs_res, unfolding_jacobian(pts, m, pairs), use[mask])
         sigma = noise_std if noise_std else mad_sigma(stud)
         new = mask.copy()
         new[mask] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay in
@@ -235,9 +300,12 @@ def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: flo
         obs = observed[i] if is_receiver else observed[:, i - m]
         if obs.sum() < dim + 2:
             continue
-        current = np.sum(
-            np.abs(np.linalg.norm(anchors[obs] - points[i], axis=1) - r[obs]) <= threshold
-        )
+
+        def agreeing(p, anchors=anchors, r=r, obs=obs):
+            return int(
+                np.sum(np.abs(np.linalg.norm(anchors[obs] - p, axis=1) - r[obs]) <= threshold)
+            )
+
         try:
             cand = multilaterate(
                 anchors,
@@ -250,10 +318,7 @@ def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: flo
             )
         except (DegenerateGeometryError, InvalidInputError):
             continue
-        agree = np.sum(
-            np.abs(np.linalg.norm(anchors[obs] - cand.position, axis=1) - r[obs]) <= threshold
-        )
-        if agree > current:
+        if agreeing(cand.position) > agreeing(points[i]):
             points[i] = cand.position
             moved += 1
     if moved:
@@ -331,21 +396,8 @@ def calibrate(
     fails with both Clarabel and the SCS fallback is noted in the message and the others go on;
     SolverError (with the statuses) when no run gives a usable answer.
     """
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    r_in = _as_float_array(ranges, "ranges")
-    if r_in.ndim != 2:
-        raise InvalidInputError(
-            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
-        )
-    observed = as_mask(mask, "mask", shape=r_in.shape)
-    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    r, observed, scale = _validated_ranges(ranges, mask, dim, noise_std)
     m, k = r.shape
-    _check_determined(observed, dim, "mask" if mask is not None else "ranges")
-    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InvalidInputError(
-            f"noise_std must be a non-negative number or None; got {noise_std!r}"
-        )
     for name, value, low in (
         ("max_attempts", max_attempts, 1),
         ("max_iterations", max_iterations, 1),
@@ -354,7 +406,7 @@ def calibrate(
         if not (isinstance(value, int | np.integer) and value >= low):
             raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
     # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
-    from .sdp import EDMCompletionSDP, complete_edm, random_direction
+    from .sdp import EDMCompletionSDP
 
     if robust and not refine:
         raise InvalidInputError(
@@ -365,10 +417,6 @@ def calibrate(
     if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
         raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
     rng = np.random.default_rng(rng)
-
-    scale = float(np.median(r[observed]))
-    if not scale > 0:
-        raise InvalidInputError("ranges must not all be zero where observed")
     n = m + k
     w = mdu_mask(observed)
     d_tilde = mdu_edm(r)
@@ -379,25 +427,18 @@ def calibrate(
 
     def starting_points():
         """Yield (points (N, d), completion or None): convex-iteration runs, then random starts."""
-        for attempt in range(max_attempts):
-            # "Several weights": the first runs start from Z = I (trace minimisation) with the fit
-            # weight scaled by each factor in turn; later runs start from random Z, cycling them.
-            factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
-            z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
-            try:
-                completion = complete_edm(
-                    d_tilde,
-                    w,
-                    dim,
-                    fit_weight=fit_weight * factor,
-                    max_iterations=max_iterations,
-                    tol=gap_tol,
-                    z0=z0,
-                    problem=problem,
-                )
-            except SolverError as exc:  # this run is lost; the others may still succeed
-                solver_failures.append(str(exc.status))
-                continue
+        for completion in _convex_iteration_runs(
+            problem,
+            d_tilde,
+            w,
+            dim,
+            max_attempts=max_attempts,
+            fit_weight=fit_weight,
+            max_iterations=max_iterations,
+            gap_tol=gap_tol,
+            rng=rng,
+            failures=solver_failures,
+        ):
             yield completion.points, completion
         if len(solver_failures) == max_attempts:
             return  # the SDP failed every time: raise below rather than guess
@@ -499,7 +540,7 @@ def calibrate(
     if (refine or robust) and not fit.converged:
         converged = False
         message += f"least squares failed: {fit.message}; "
-    receivers, sources = _canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
+    receivers, sources, _ = _canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
     residuals = np.where(observed, fit.residuals, np.nan)
     return Calibration(
         receivers=frozen(receivers),
@@ -534,13 +575,20 @@ def _same(a: _Candidate, b: _Candidate, scale: float) -> bool:
     return bool(np.max(np.abs(a.edm() - b.edm())) <= _SAME_RTOL * scale**2)
 
 
-def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, dim: int) -> bool:
-    n_in = int(c.inliers.sum())
-    if c.ssr <= exact_rms**2 * n_in:
+def _passes_residual_test(
+    ssr: float, n_ranges: int, n_points: int, dim: int, noise_std: float | None, exact_rms: float
+) -> bool:
+    """Exact data (RMS residual <= exact_rms), or a sum of squared range residuals below the
+    0.999 chi-square quantile for the redundancy, in units of noise_std^2."""
+    if ssr <= exact_rms**2 * n_ranges:
         return True
-    redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
+    redundancy = n_ranges - unknowns_up_to_rigid_motion(n_points, dim)
     if noise_std is None or redundancy <= 0 or noise_std == 0:
         return False
     from scipy.stats import chi2
 
-    return c.ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2
+    return bool(ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2)
+
+
+def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, dim: int) -> bool:
+    return _passes_residual_test(c.ssr, int(c.inliers.sum()), n, dim, noise_std, exact_rms)

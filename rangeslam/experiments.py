@@ -217,13 +217,19 @@ def calibration_experiment(
     calibrate_options.setdefault("rng", rng)
     result = calibrate(ranges, **calibrate_options)
     error = align(result.receivers, scene.mics, reflection=True).rmse
-    bound = float("nan")
-    if sigma > 0:
-        try:
-            bound = mdu_crlb(scene.mics, scene.sources, sigma).receiver_rmse
-        except DegenerateGeometryError:  # a flexible configuration: no finite bound
-            bound = float("inf")
+    bound = _receiver_crlb(scene.mics, scene.sources, sigma)
     return CalibrationExperiment(scene, ranges, sigma, result, error, bound)
+
+
+def _receiver_crlb(receivers: np.ndarray, sources: np.ndarray, sigma: float) -> float:
+    """Receiver-gauge CRLB of the RMS receiver error: NaN at sigma = 0, inf when the configuration
+    is flexible to first order (the ranges alone do not determine it)."""
+    if sigma <= 0:
+        return float("nan")
+    try:
+        return mdu_crlb(receivers, sources, sigma).receiver_rmse
+    except DegenerateGeometryError:
+        return float("inf")
 
 
 #: The room of the paper's Fig. 5, metres.
@@ -321,10 +327,7 @@ def slam_experiment(
         base_x, base_s = base.receivers, base.sources
     except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
         base_x, base_s = start_x, start_s
-    try:
-        bound = mdu_crlb(traj, landmarks, sigma).receiver_rmse if sigma > 0 else float("nan")
-    except DegenerateGeometryError:
-        bound = float("inf")
+    bound = _receiver_crlb(traj, landmarks, sigma)
     return SlamExperiment(
         trajectory=traj,
         landmarks=landmarks,

@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike
 from ._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from .crlb import receiver_gauge_projection
 from .errors import InvalidInputError, SolverError
+from .simulation import range_matrix
 
 __all__ = ["ROBUST_KERNELS", "GraphFit", "refine_graph"]
 
@@ -345,8 +346,7 @@ def refine_graph(
         rec_cov, src_cov = frozen(blocks[:m]), frozen(blocks[m:])
         joint = frozen(full)
 
-    dist = np.linalg.norm(est[:m, None, :] - est[None, m:, :], axis=2)
-    residuals = np.where(observed, dist - r, np.nan)
+    residuals = np.where(observed, range_matrix(est[:m], est[m:]) - r, np.nan)
     return GraphFit(
         receivers=frozen(est[:m]),
         sources=frozen(est[m:]),

@@ -152,6 +152,7 @@ class EDMCompletionSDP:
             raise InvalidInputError("mask observes no pair of distinct points")
         self.n = n
         self.pairs = pairs
+        self.mask = w & ~np.eye(n, dtype=bool)  # the observed pattern, diagonal ignored
         self.solver = solver
         self._gram = cp.Variable((n, n), PSD=True)
         self._z = cp.Parameter((n, n), symmetric=True, name="Z")
@@ -339,7 +340,7 @@ def complete_edm(
     if problem is None:
         problem = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, loss=loss, solver=solver)
     elif not np.array_equal(
-        np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), _pattern(problem)
+        np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), problem.mask
     ):
         raise InvalidInputError("mask differs from the mask the given problem was built for")
     n = problem.n
@@ -395,9 +396,3 @@ def complete_edm(
         solver=used,
         method=method,
     )
-
-
-def _pattern(problem: EDMCompletionSDP) -> np.ndarray:
-    w = np.zeros((problem.n, problem.n), dtype=bool)
-    w[problem.pairs[:, 0], problem.pairs[:, 1]] = True
-    return w | w.T

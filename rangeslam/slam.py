@@ -14,21 +14,24 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
+from ._validation import frozen
 from .calibration import (
-    _WEIGHT_FACTORS,
     _canonical_frame,
-    _check_determined,
+    _convex_iteration_runs,
+    _passes_residual_test,
+    _validated_ranges,
     mdu_edm,
     mdu_mask,
     unknowns_up_to_rigid_motion,
 )
 from .errors import InvalidInputError, SolverError
 from .gtsam_backend import GraphFit, _check_bounds, refine_graph
+from .simulation import range_matrix
 
 __all__ = ["SlamResult", "slam"]
 
-_CHI2_LEVEL = 0.999
+# Exact data: RMS range residual at most this fraction of the median range (as in calibrate).
+_EXACT_RTOL = 1e-8
 
 
 @dataclass(frozen=True)
@@ -63,17 +66,6 @@ class SlamResult:
     message: str
     attempts: int
     eigen_gap: float
-
-
-def _frame(receivers, sources, cov_r=None, cov_s=None):
-    """The canonical frame of :mod:`rangeslam.calibration`, covariances rotated along."""
-    centre = receivers.mean(axis=0)
-    rec, src = _canonical_frame(receivers, sources)
-    rot, *_ = np.linalg.lstsq(receivers - centre, rec, rcond=None)
-    if cov_r is not None:
-        cov_r = np.einsum("ij,njk,kl->nil", rot.T, cov_r, rot)
-        cov_s = np.einsum("ij,njk,kl->nil", rot.T, cov_s, rot)
-    return rec, src, cov_r, cov_s
 
 
 def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
@@ -131,64 +123,46 @@ def slam(
     negative bounds, bounds the ranges contradict (triangle inequality, named by step), an
     under-determined mask. SolverError when the SDP fails in every run.
     """
-    from .sdp import EDMCompletionSDP, complete_edm, random_direction
+    from .sdp import EDMCompletionSDP
 
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    r_in = _as_float_array(ranges, "ranges")
-    if r_in.ndim != 2:
-        raise InvalidInputError(
-            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
-        )
-    observed = as_mask(mask, "mask", shape=r_in.shape)
-    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    r, observed, scale = _validated_ranges(ranges, mask, dim, noise_std)
     m, k = r.shape
-    _check_determined(observed, dim, "mask" if mask is not None else "ranges")
     bounds = None if step_bounds is None else _check_bounds(step_bounds, m)
     if bounds is not None:
         _check_bounds_against_ranges(bounds, r, observed, noise_std)
-    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
     if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
         raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
     rng = np.random.default_rng(rng)
     n = m + k
-    scale = float(np.median(r[observed]))
-    if not scale > 0:
-        raise InvalidInputError("ranges must not all be zero where observed")
+    n_obs = int(observed.sum())
+    exact_rms = _EXACT_RTOL * scale
     w = mdu_mask(observed)
     d_tilde = mdu_edm(r)
     pairs = np.column_stack([np.arange(m - 1), np.arange(1, m)]) if bounds else None
     problem = EDMCompletionSDP(w, bounded_pairs=pairs)
-    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(n, dim)
-
-    from scipy.stats import chi2
+    redundancy = n_obs - unknowns_up_to_rigid_motion(n, dim)
 
     failures: list[str] = []
     best = None
     attempts = 0
-    for attempt in range(max_attempts):
-        factor = _WEIGHT_FACTORS[attempt % len(_WEIGHT_FACTORS)]
-        z0 = None if attempt < len(_WEIGHT_FACTORS) else random_direction(n, dim, rng)
-        try:
-            completion = complete_edm(
-                d_tilde,
-                w,
-                dim,
-                fit_weight=fit_weight * factor,
-                max_iterations=max_iterations,
-                z0=z0,
-                bounds=bounds,
-                problem=problem,
-            )
-        except SolverError as exc:
-            failures.append(str(exc.status))
-            continue
+    for completion in _convex_iteration_runs(
+        problem,
+        d_tilde,
+        w,
+        dim,
+        max_attempts=max_attempts,
+        fit_weight=fit_weight,
+        max_iterations=max_iterations,
+        gap_tol=1e-6,
+        rng=rng,
+        failures=failures,
+        bounds=bounds,
+    ):
         attempts += 1
         pts = completion.points
         sigma = noise_std
         if sigma is None:  # from the EDM answer's residuals
-            res = np.linalg.norm(pts[:m, None] - pts[None, m:], axis=2) - r
+            res = range_matrix(pts[:m], pts[m:]) - r
             sigma = float(np.sqrt(np.mean(res[observed] ** 2)))
         # The graph's weights need a floor for exact data: at 1e-6 of the scale GTSAM's LM made no
         # step at all; at 1e-4 it recovers exact data to round-off.
@@ -202,7 +176,7 @@ def slam(
                 noise_std=sigma,
                 mask=observed,
                 step_bounds=bounds,
-                step_sigma=None if step_sigma is None else step_sigma,
+                step_sigma=step_sigma,
                 robust=robust,
                 # a planar trajectory leaves landmarks near its plane in a flat valley (their
                 # mirror images meet there): hundreds of LM iterations are normal
@@ -211,16 +185,14 @@ def slam(
             rec, src = fit.receivers, fit.sources
         else:
             rec, src = pts[:m], pts[m:]
-        res = np.linalg.norm(rec[:, None] - src[None], axis=2) - r
+        res = range_matrix(rec, src) - r
         ssr = float(np.sum(res[observed] ** 2))
         # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges alone:
         # a low range residual bought by breaking the step bounds is no better answer.
         key = ssr if fit is None else fit.error
         if best is None or key < best[-1]:
             best = (ssr, rec, src, fit, completion, res, sigma, key)
-        if ssr <= (1e-8 * scale) ** 2 * observed.sum():
-            break
-        if noise_std and redundancy > 0 and ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2:
+        if _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms):
             break
     if best is None:
         raise SolverError(
@@ -229,13 +201,12 @@ def slam(
             status="; ".join(dict.fromkeys(failures)),
         )
     ssr, rec, src, fit, completion, res, _, _ = best
-    rms = float(np.sqrt(ssr / observed.sum()))
+    rms = float(np.sqrt(ssr / n_obs))
     message = ""
     if failures:
         message += f"{len(failures)} SDP runs failed ({failures[0]}); "
-    exact = ssr <= (1e-8 * scale) ** 2 * observed.sum()
     if noise_std is not None and redundancy > 0:
-        converged = exact or bool(ssr <= chi2.ppf(_CHI2_LEVEL, redundancy) * noise_std**2)
+        converged = _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
         if not converged:
             message += (
                 f"no run passed the residual test: RMS residual {rms:.3g} m for noise_std "
@@ -251,11 +222,13 @@ def slam(
     if fit is not None and not fit.converged:
         converged = False
         message += f"GTSAM: {fit.message}; "
-    rec_f, src_f, cov_r, cov_s = _frame(
-        rec, src, None if fit is None else fit.receiver_cov, None if fit is None else fit.source_cov
-    )
+    rec_f, src_f, rot = _canonical_frame(rec, src)
+    cov_r = cov_s = None
+    if fit is not None:  # covariances rotate with the frame (translation leaves them unchanged)
+        cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
+        cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
     pts = completion.points
-    edm_rec, edm_src = _canonical_frame(pts[:m], pts[m:])
+    edm_rec, edm_src, _ = _canonical_frame(pts[:m], pts[m:])
     return SlamResult(
         receivers=frozen(rec_f),
         sources=frozen(src_f),
