@@ -6,6 +6,7 @@ echo ranges with noise and wrong picks, the reconstruction, and its errors again
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,7 +14,7 @@ import numpy as np
 from .alignment import align
 from .calibration import Calibration, calibrate
 from .crlb import mdu_crlb
-from .errors import DegenerateGeometryError, SolverError
+from .errors import DegenerateGeometryError, InvalidInputError, SolverError
 from .geometry import Room
 from .room_reconstruction import RoomReconstruction, reconstruct_room
 from .simulation import (
@@ -252,7 +253,11 @@ class SlamExperiment:
             landmark taken up to its mirror image in the trajectory's plane (eq. 12 is planar).
         crlb: receiver-gauge CRLB of the trajectory error from the ranges alone (inf when the
             ranges alone do not determine it).
+        nees: normalised estimation error squared of the whole trajectory against
+            ``result.trajectory_cov`` (NaN without it); nees_dof: its degrees of freedom
+            (M d - 6), the mean NEES of a consistent estimator.
         converged: ``result.converged``.
+        seconds: wall time of the :func:`rangeslam.slam` call (the whole pipeline).
     """
 
     trajectory: np.ndarray
@@ -268,7 +273,25 @@ class SlamExperiment:
     baseline_error: float
     source_error: float
     crlb: float
+    nees: float
+    nees_dof: int
     converged: bool
+    seconds: float
+
+
+def trajectory_nees(alignment, cov: np.ndarray | None, truth: np.ndarray) -> tuple[float, int]:
+    """NEES of an aligned trajectory: e^T P^+ e with e (M d,) the error after ``alignment`` and
+    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ drops the rigid
+    motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
+    m, d = truth.shape
+    dof = m * d - d * (d + 1) // 2
+    if cov is None:
+        return float("nan"), dof
+    rot = np.kron(np.eye(m), alignment.rotation)
+    w, v = np.linalg.eigh(rot @ cov @ rot.T)
+    w, v = w[-dof:], v[:, -dof:]
+    proj = v.T @ (alignment.aligned - truth).ravel()
+    return float(np.sum(proj**2 / w)), dof
 
 
 def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
@@ -292,11 +315,22 @@ def gtsam_style_start(m: int, k: int, step: float, scale: float, rng: np.random.
 
 
 def slam_experiment(
-    m: int, sigma: float, bounds: bool, rng: np.random.Generator, **slam_options
+    m: int,
+    sigma: float,
+    bounds: bool,
+    rng: np.random.Generator,
+    *,
+    bounds_placement: str = "centred",
+    **slam_options,
 ) -> SlamExperiment:
     """Fig. 5: the lemniscate of eq. (12) from a random phase, M steps of t_n = 0.3 n, a
     loudspeaker uniform in the 5 x 4 x 2.6 m room and its 6 first-order images; ranges with
-    N(0, sigma^2) noise; +-20% step bounds or none."""
+    N(0, sigma^2) noise; step bounds of width 40% of the true step, or none.
+
+    ``bounds_placement``: "centred" (the paper's +-20% of the true step) or "random" (the true
+    step uniform inside bounds of the same width: the model the "uniform" step prior assumes, so
+    the one in which its covariances can be judged, and a check that nothing relies on the truth
+    sitting in the middle)."""
     from .gtsam_backend import refine_graph
     from .slam import slam
     from .trajectories import lemniscate, step_lengths
@@ -309,9 +343,20 @@ def slam_experiment(
     if sigma > 0:
         ranges = add_range_noise(ranges, sigma, rng=rng)
     steps = step_lengths(traj)
-    step_bounds = (0.8 * steps, 1.2 * steps) if bounds else None
+    step_prior = slam_options.get("step_prior", "uniform")
+    if bounds_placement == "centred":
+        lower = 0.8 * steps
+    elif bounds_placement == "random":
+        lower = steps * (1 - 0.4 * rng.uniform(size=m - 1))
+    else:
+        raise InvalidInputError(
+            f"bounds_placement must be 'centred' or 'random'; got {bounds_placement!r}"
+        )
+    step_bounds = (lower, lower + 0.4 * steps) if bounds else None
     slam_options.setdefault("noise_std", sigma)
+    t0 = time.perf_counter()
     result = slam(ranges, step_bounds=step_bounds, rng=rng, **slam_options)
+    seconds = time.perf_counter() - t0
     a = align(result.receivers, traj, reflection=True)
     start_x, start_s = gtsam_style_start(m, len(landmarks), 0.3, float(np.max(ranges)), rng)
     try:
@@ -321,13 +366,15 @@ def slam_experiment(
             ranges,
             noise_std=max(sigma, 1e-4),
             step_bounds=step_bounds,
+            step_prior=step_prior,
             covariances=False,
-            max_iterations=2000,
+            max_iterations=5000,
         )
         base_x, base_s = base.receivers, base.sources
     except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
         base_x, base_s = start_x, start_s
     bound = _receiver_crlb(traj, landmarks, sigma)
+    nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
     return SlamExperiment(
         trajectory=traj,
         landmarks=landmarks,
@@ -342,5 +389,8 @@ def slam_experiment(
         baseline_error=align(base_x, traj, reflection=True).rmse,
         source_error=_planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
         crlb=bound,
+        nees=nees,
+        nees_dof=dof,
         converged=result.converged,
+        seconds=seconds,
     )

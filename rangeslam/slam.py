@@ -25,13 +25,20 @@ from .calibration import (
     unknowns_up_to_rigid_motion,
 )
 from .errors import InvalidInputError, SolverError
-from .gtsam_backend import GraphFit, _check_bounds, refine_graph
+from .gtsam_backend import STEP_PRIORS, GraphFit, _check_bounds, refine_graph
 from .simulation import range_matrix
 
 __all__ = ["SlamResult", "slam"]
 
 # Exact data: RMS range residual at most this fraction of the median range (as in calibrate).
 _EXACT_RTOL = 1e-8
+# The range sigma of the graph never goes below this fraction of the median range: from the EDM
+# answer, GTSAM's LM made no step at all at 1e-6 and recovers exact data at 1e-4 ...
+_SIGMA_FLOOR = 1e-4
+# ... after which exact data are finished at this fraction of the floor.
+_EXACT_POLISH = 1e-3
+# Unknown noise: at most this many re-estimates of sigma from the refined fit.
+_NOISE_ROUNDS = 3
 
 
 @dataclass(frozen=True)
@@ -44,6 +51,9 @@ class SlamResult:
         receiver_cov: (M, d, d) covariances of the positions in the receiver gauge, m^2 (None
             without refinement).
         source_cov: (K, d, d) the same for the landmarks.
+        trajectory_cov: (M d, M d) joint covariance of all positions (rows of ``receivers``
+            stacked), receiver gauge, m^2 (None without refinement): for the NEES of the whole
+            trajectory, rank M d - 3 (2-D) or M d - 6 (3-D).
         residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
         edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame.
         edm_sources: (K, d) likewise.
@@ -58,6 +68,7 @@ class SlamResult:
     sources: np.ndarray
     receiver_cov: np.ndarray | None
     source_cov: np.ndarray | None
+    trajectory_cov: np.ndarray | None
     residuals: np.ndarray
     edm_receivers: np.ndarray
     edm_sources: np.ndarray
@@ -97,6 +108,7 @@ def slam(
     noise_std: float | None = None,
     robust: str | None = None,
     step_sigma: float | None = None,
+    step_prior: str = "uniform",
     max_attempts: int = 8,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
@@ -114,6 +126,11 @@ def slam(
         noise_std: range noise standard deviation, metres. Weighs the graph and sets the residual
             test; when None it is estimated from the residuals of the EDM answer.
         robust: GTSAM kernel against wrong echoes: None, "huber", "cauchy" or "tukey".
+        step_sigma: scale of the step prior outside the bounds, metres (default: the noise).
+        step_prior: how GTSAM reads the bounds: "uniform" (default: the step length uniform on
+            [lower, upper], as a dead zone plus its moment-matched Gaussian) or "dead_zone" (no
+            cost inside the bounds; its MAP runs to the bounds where the ranges leave the shape
+            free, about 2.5x the error at M = 5 to 8 in the Fig. 5 setting).
         max_attempts: convex-iteration runs at most (fit weights x1, x10, x0.1, x100 from Z = I,
             then random Z), until one passes the residual test.
         fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
@@ -130,6 +147,8 @@ def slam(
     bounds = None if step_bounds is None else _check_bounds(step_bounds, m)
     if bounds is not None:
         _check_bounds_against_ranges(bounds, r, observed, noise_std)
+    if step_prior not in STEP_PRIORS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
     if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
         raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
     rng = np.random.default_rng(rng)
@@ -142,9 +161,59 @@ def slam(
     problem = EDMCompletionSDP(w, bounded_pairs=pairs)
     redundancy = n_obs - unknowns_up_to_rigid_motion(n, dim)
 
+    floor = _SIGMA_FLOOR * scale
+
+    def graph(pts: np.ndarray, sigma: float, max_iterations: int = 5000) -> GraphFit:
+        return refine_graph(
+            pts[:m],
+            pts[m:],
+            r,
+            noise_std=sigma,
+            mask=observed,
+            step_bounds=bounds,
+            step_sigma=step_sigma,
+            step_prior=step_prior,
+            robust=robust,
+            covariances=max_iterations > 1,
+            # a planar trajectory leaves landmarks near its plane in a flat valley (their mirror
+            # images meet there), and few steps leave the shape itself in one: at M = 5 and
+            # 1 mm, 1000 LM iterations are typical
+            max_iterations=max_iterations,
+        )
+
+    def noise_from(pts: np.ndarray, dof: int) -> float:
+        res = (range_matrix(pts[:m], pts[m:]) - r)[observed]
+        if robust is not None:  # wrong echoes must not set the scale: MAD
+            return float(1.4826 * np.median(np.abs(res)) * np.sqrt(n_obs / dof))
+        return float(np.sqrt(np.sum(res**2) / dof))
+
+    def refine_run(pts: np.ndarray) -> tuple[GraphFit, float]:
+        """GTSAM from the EDM points; the range sigma it used."""
+        if noise_std is not None:
+            sigma = max(noise_std, floor)
+            fit = graph(pts, sigma)
+        else:
+            # Unknown noise: first the EDM answer's RMS residual (biased by the SDP's penalty),
+            # then the refined fit's (sum of squares over the redundancy) until it settles. The
+            # weight of the step prior against the ranges depends on it.
+            sigma = max(noise_from(pts, n_obs), floor)
+            fit = graph(pts, sigma)
+            for _ in range(_NOISE_ROUNDS if redundancy > 0 else 0):
+                new = max(noise_from(np.vstack([fit.receivers, fit.sources]), redundancy), floor)
+                if abs(new - sigma) <= 0.1 * sigma:
+                    break
+                sigma = new
+                fit = graph(np.vstack([fit.receivers, fit.sources]), sigma)
+        if sigma <= floor:
+            # Exact data: the floor (which LM needs to move from the EDM answer at all) would let
+            # the step prior pull by up to mm; from there, ranges weighed as exact finish it.
+            fit = graph(np.vstack([fit.receivers, fit.sources]), _EXACT_POLISH * floor)
+        return fit, sigma
+
     failures: list[str] = []
     best = None
     attempts = 0
+    sigma_ref = None  # runs are compared on one graph: the first run's sigma
     for completion in _convex_iteration_runs(
         problem,
         d_tilde,
@@ -160,38 +229,25 @@ def slam(
     ):
         attempts += 1
         pts = completion.points
-        sigma = noise_std
-        if sigma is None:  # from the EDM answer's residuals
-            res = range_matrix(pts[:m], pts[m:]) - r
-            sigma = float(np.sqrt(np.mean(res[observed] ** 2)))
-        # The graph's weights need a floor for exact data: at 1e-6 of the scale GTSAM's LM made no
-        # step at all; at 1e-4 it recovers exact data to round-off.
-        sigma = max(sigma, 1e-4 * scale)
         fit: GraphFit | None = None
+        key = None
         if refine:
-            fit = refine_graph(
-                pts[:m],
-                pts[m:],
-                r,
-                noise_std=sigma,
-                mask=observed,
-                step_bounds=bounds,
-                step_sigma=step_sigma,
-                robust=robust,
-                # a planar trajectory leaves landmarks near its plane in a flat valley (their
-                # mirror images meet there): hundreds of LM iterations are normal
-                max_iterations=2000,
-            )
+            fit, sigma = refine_run(pts)
             rec, src = fit.receivers, fit.sources
+            if sigma_ref is None:
+                sigma_ref = sigma
+            # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges
+            # alone: a low range residual bought by breaking the step bounds is no better answer.
+            key = fit.error
+            if sigma != sigma_ref:
+                key = graph(np.vstack([rec, src]), sigma_ref, max_iterations=1).initial_error
         else:
             rec, src = pts[:m], pts[m:]
         res = range_matrix(rec, src) - r
         ssr = float(np.sum(res[observed] ** 2))
-        # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges alone:
-        # a low range residual bought by breaking the step bounds is no better answer.
-        key = ssr if fit is None else fit.error
+        key = ssr if key is None else key
         if best is None or key < best[-1]:
-            best = (ssr, rec, src, fit, completion, res, sigma, key)
+            best = (ssr, rec, src, fit, completion, res, key)
         if _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms):
             break
     if best is None:
@@ -200,7 +256,7 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(failures)),
         )
-    ssr, rec, src, fit, completion, res, _, _ = best
+    ssr, rec, src, fit, completion, res, _ = best
     rms = float(np.sqrt(ssr / n_obs))
     message = ""
     if failures:
@@ -223,10 +279,12 @@ def slam(
         converged = False
         message += f"GTSAM: {fit.message}; "
     rec_f, src_f, rot = _canonical_frame(rec, src)
-    cov_r = cov_s = None
+    cov_r = cov_s = cov_traj = None
     if fit is not None:  # covariances rotate with the frame (translation leaves them unchanged)
         cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
         cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
+        rot_all = np.kron(np.eye(m), rot)
+        cov_traj = rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
     pts = completion.points
     edm_rec, edm_src, _ = _canonical_frame(pts[:m], pts[m:])
     return SlamResult(
@@ -234,6 +292,7 @@ def slam(
         sources=frozen(src_f),
         receiver_cov=None if cov_r is None else frozen(cov_r),
         source_cov=None if cov_s is None else frozen(cov_s),
+        trajectory_cov=None if cov_traj is None else frozen(cov_traj),
         residuals=frozen(np.where(observed, res, np.nan)),
         edm_receivers=frozen(edm_rec),
         edm_sources=frozen(edm_src),

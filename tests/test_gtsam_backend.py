@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError, align, mdu_crlb
-from rangeslam.gtsam_backend import refine_graph
+from rangeslam.gtsam_backend import STEP_PRIORS, refine_graph
 from rangeslam.simulation import add_outliers, range_matrix
 from rangeslam.trajectories import lemniscate, step_lengths
 
@@ -70,21 +70,60 @@ def test_covariances_are_honest_over_trials(rng):
 
 
 def test_dead_zone_step_prior(rng):
-    """Bounds that hold cost nothing; bounds that the ranges violate pull the steps towards them,
-    and the answer is then a compromise inside the range fit's noise."""
+    """Bounds that hold cost nothing, even with the truth off their centre; bounds that the ranges
+    violate pull the steps towards them, and the answer is then a compromise inside the range
+    fit's noise."""
     traj = lemniscate(10, step=0.3, phase=0.4)
     s = rng.uniform([0, 0, 0], [5, 4, 2.6], (7, 3))
     ranges = range_matrix(traj, s)
     steps = step_lengths(traj)
     free = refine_graph(traj, s, ranges, noise_std=0.01)
-    inside = refine_graph(traj, s, ranges, noise_std=0.01, step_bounds=(0.8 * steps, 1.2 * steps))
+    inside = refine_graph(
+        traj,
+        s,
+        ranges,
+        noise_std=0.01,
+        step_bounds=(0.7 * steps, 1.1 * steps),
+        step_prior="dead_zone",
+    )
     np.testing.assert_allclose(inside.receivers, free.receivers, atol=1e-9)
     assert inside.error == pytest.approx(free.error, abs=1e-12)
-    tight = refine_graph(
-        traj, s, ranges, noise_std=0.01, step_bounds=(1.5 * steps, 1.6 * steps), step_sigma=1e-3
-    )
-    assert np.all(step_lengths(tight.receivers) > steps)
-    assert tight.error > 1.0
+    for prior in STEP_PRIORS:
+        tight = refine_graph(
+            traj,
+            s,
+            ranges,
+            noise_std=0.01,
+            step_bounds=(1.5 * steps, 1.6 * steps),
+            step_sigma=1e-3,
+            step_prior=prior,
+        )
+        assert np.all(step_lengths(tight.receivers) > steps)
+        assert tight.error > 1.0
+
+
+def test_uniform_step_prior(rng):
+    """The default reads the bounds as a step length uniform on them: no cost when the steps sit
+    at the bounds' centres; off centre, a pull towards the centres that the ranges resist, so it
+    shrinks with the range noise (the prior's weight is fixed, the ranges' grows as 1/sigma^2)."""
+    traj = lemniscate(10, step=0.3, phase=0.4)
+    s = rng.uniform([0, 0, 0], [5, 4, 2.6], (7, 3))
+    ranges = range_matrix(traj, s)
+    steps = step_lengths(traj)
+    centred = refine_graph(traj, s, ranges, noise_std=0.01, step_bounds=(0.8 * steps, 1.2 * steps))
+    assert centred.initial_error == pytest.approx(0.0, abs=1e-20)
+    np.testing.assert_allclose(centred.receivers, traj, atol=1e-9)
+    # Every step 0.1 step below the centre (0.87 sigma of the uniform): each factor costs
+    # 0.5 * 0.87^2 at the truth, and the fit trades some of it for range residuals. The pull is
+    # the worst case, all steps off the same way (measured: 1.8-2.1 cm at 1 cm, 0.6-1.4 mm at
+    # 1 mm), and always less than the 3 cm the steps are off.
+    moved = []
+    for sigma in (0.01, 0.001):
+        off = refine_graph(traj, s, ranges, noise_std=sigma, step_bounds=(0.9 * steps, 1.3 * steps))
+        assert off.initial_error == pytest.approx(9 * 0.5 * 0.1**2 / (0.4**2 / 12), rel=1e-9)
+        assert 0 < off.error < off.initial_error
+        moved.append(align(off.receivers, traj, reflection=True).rmse)
+    assert moved[0] < 0.03 and moved[1] < 0.1 * moved[0]
 
 
 def test_robust_kernel_resists_a_wrong_range(rng):
@@ -137,5 +176,8 @@ def test_bad_input(rng):
         refine_graph(x, s, r, noise_std=0.01, step_bounds=(-np.ones(m - 1), np.ones(m - 1)))
     with pytest.raises(InvalidInputError, match="odometry_sigma"):
         refine_graph(x, s, r, noise_std=0.01, step_lengths=np.ones(m - 1))
+    with pytest.raises(InvalidInputError, match="step_prior must be one of"):
+        bounds = (np.ones(m - 1), 2 * np.ones(m - 1))
+        refine_graph(x, s, r, noise_std=0.01, step_bounds=bounds, step_prior="gaussian")
     with pytest.raises(InvalidInputError, match="sources must have shape"):
         refine_graph(x, s[:, :2], r, noise_std=0.01)

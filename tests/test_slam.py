@@ -5,7 +5,7 @@ import pytest
 
 from rangeslam import InvalidInputError, align, slam
 from rangeslam.geometry import Room
-from rangeslam.simulation import random_points_in_room, range_matrix
+from rangeslam.simulation import add_range_noise, random_points_in_room, range_matrix
 from rangeslam.trajectories import lemniscate, step_lengths
 
 
@@ -77,3 +77,42 @@ def test_bounds_that_contradict_the_ranges_are_reported(rng):
         hi = 1.2 * step_lengths(traj)
         hi[2] = 0.0
         slam(r, step_bounds=(np.zeros(7), hi), max_attempts=1)
+
+
+def test_exact_recovery_with_bounds_off_centre(rng):
+    """Exact ranges and bounds that do not centre on the true steps: the step prior must not pull
+    the answer (the ranges are weighed as exact once the noise is found to be nil), whether the
+    noise is given as 0 or left unknown."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    for noise_std in (0.0, None):
+        out = slam(
+            range_matrix(traj, landmarks),
+            step_bounds=(0.9 * steps, 1.3 * steps),
+            noise_std=noise_std,
+            rng=rng,
+        )
+        assert out.converged, out.message
+        assert align(out.receivers, traj, reflection=True).rmse < 1e-6
+
+
+def test_trajectory_covariance(rng):
+    """The joint covariance of the positions: symmetric, positive semi-definite with the 6 rigid
+    motions as its null space, and its diagonal blocks are ``receiver_cov``."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    ranges = add_range_noise(range_matrix(traj, landmarks), 0.01, rng=rng)
+    out = slam(ranges, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=0.01, rng=rng)
+    cov = out.trajectory_cov
+    assert cov.shape == (30, 30)
+    np.testing.assert_allclose(cov, cov.T, atol=1e-12)
+    w = np.linalg.eigvalsh(cov)
+    assert np.all(w[:6] < 1e-9 * w[-1]) and np.all(w[6:] > 1e-9 * w[-1])
+    for i in range(10):
+        np.testing.assert_allclose(cov[3 * i : 3 * i + 3, 3 * i : 3 * i + 3], out.receiver_cov[i])
+
+
+def test_unknown_step_prior_is_refused(rng):
+    traj, landmarks = _scene(rng, 8)
+    with pytest.raises(InvalidInputError, match="step_prior must be one of"):
+        slam(range_matrix(traj, landmarks), step_prior="x")
