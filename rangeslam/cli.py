@@ -96,8 +96,163 @@ def _demo(args: argparse.Namespace) -> int:
             f"| {name} | {res.converged} | {', '.join(f'{e * 1e3:.2f}' for e in exp.source_errors)} | "
             f"{injected} | {res.n_outliers} | {res.residual_rms * 1e3:.2f} |"
         )
+    rooms_ok = all(exp.result.converged for _, exp, _ in summaries)
+    print("\nFig. 3 (paper, section 3): zero-knowledge array calibration, a small run\n")
+    _run_bench("fig3", trials=10, seed=args.seed, out=args.out, sigmas=(0.0, 1e-3, 5e-3))
+    print("\nFig. 5 (paper, section 4): range-only SLAM, every method on the same trials\n")
+    _run_bench(
+        "compare",
+        trials=5,
+        seed=args.seed,
+        out=args.out,
+        sigmas=(1e-2,),
+        steps=(5, 10, 20),
+        bounds=(True,),
+    )
+    _demo_slam_example(args)
     print(f"\nplots written to {args.out}/")
-    return 0 if all(exp.result.converged for _, exp, _ in summaries) else 1
+    return 0 if rooms_ok else 1
+
+
+def _demo_slam_example(args: argparse.Namespace) -> None:
+    """One Fig. 5 walk: the estimate with its GTSAM ellipses, and the walk's RIRs (Fig. 4C)."""
+    import numpy as np
+
+    from .alignment import align
+    from .experiments import FIG5_ROOM_SIZE, slam_experiment
+    from .plotting import plot_rir_matrix, plot_slam_estimate
+    from .rir import shoebox_rirs
+    from .trajectories import lemniscate
+
+    rng = np.random.default_rng(args.seed)
+    e = slam_experiment(15, 1e-2, True, rng)
+    a = align(e.result.receivers, e.trajectory, reflection=True)
+    plot_slam_estimate(
+        args.out / "slam_estimate.png",
+        trajectory=e.trajectory,
+        landmarks=e.landmarks,
+        receivers=e.result.receivers,
+        sources=e.result.sources,
+        receiver_cov=e.result.receiver_cov,
+        source_cov=e.result.source_cov,
+        rotation=a.rotation,
+        translation=a.translation,
+        title=f"EDM + GTSAM, 15 steps, sigma 1 cm, +-20% bounds: trajectory error "
+        f"{e.error * 100:.1f} cm",
+    )
+    walk = lemniscate(60, step=0.1, phase=0.0)
+    rirs = shoebox_rirs(FIG5_ROOM_SIZE, e.landmarks[0], walk, fs=16000, max_order=2)
+    plot_rir_matrix(
+        args.out / "rir_matrix.png",
+        rirs[:, : int(0.04 * 16000)],
+        16000,
+        title="RIRs along the lemniscate (60 steps of 10 cm; Fig. 4C)",
+    )
+
+
+def _run_bench(
+    which: str,
+    *,
+    trials: int,
+    seed: int,
+    out: Path,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    sigmas=None,
+    steps=None,
+    bounds=(True, False),
+    tum: bool = False,
+) -> int:
+    """Plan, run and write a benchmark: CSV per trial, timings, JSON and Markdown summaries, a
+    plot, optionally TUM trajectories. Prints the Markdown table."""
+    import time
+
+    from . import benchmarking as bm
+    from .plotting import plot_fig3, plot_fig5
+
+    plan = bm.plan(which, trials, seed, sigmas=sigmas, steps=steps, bounds=bounds)
+    t0 = time.perf_counter()
+    outcomes = bm.run_trials(
+        plan, jobs=jobs, scheduler=scheduler, keep_trajectories=tum, progress=sys.stderr.isatty()
+    )
+    wall = time.perf_counter() - t0
+    rows = [o.row for o in outcomes]
+    seconds = [o.seconds for o in outcomes]
+    written = [bm.write_csv(out / f"{which}_trials.csv", rows)]
+    written.append(
+        bm.write_csv(
+            out / f"{which}_timings.csv",
+            [
+                {"cell": r["cell"], "trial": r["trial"], **t}
+                for r, t in zip(rows, seconds, strict=True)
+            ],
+        )
+    )
+    header, table, records = bm.summary_table(which, rows, seconds)
+    text = bm.markdown(header, table)
+    (out / f"{which}_summary.md").write_text(text + "\n")
+    failed = sum(r["status"] != "ok" for r in rows)
+    written.append(
+        bm.write_summary(
+            out / f"{which}_summary.json",
+            bench=which,
+            seed=seed,
+            trials_per_cell=trials,
+            jobs=jobs,
+            scheduler=scheduler,
+            failed_trials=failed,
+            wall_seconds=wall,
+            versions=bm.versions(),
+            cells=records,
+        )
+    )
+    if which == "fig3":
+        written.append(plot_fig3(out / "fig3.png", rows))
+    else:
+        keys = [m for m in bm.SLAM_METHODS if which == "compare" or not m.startswith("ekf")]
+        names = {m: bm.METHOD_NAMES[m] for m in keys}
+        written.append(plot_fig5(out / f"{which}.png", rows, names))
+    if tum:
+        folder = out / "tum"
+        folder.mkdir(exist_ok=True)
+        for o in outcomes:
+            for name, x in (o.trajectories or {}).items():
+                bm.write_tum(
+                    folder / f"{which}_cell{o.row['cell']}_trial{o.row['trial']}_{name}.tum", x
+                )
+        written.append(folder)
+    print(text)
+    print(
+        f"\n{len(rows)} trials ({failed} failed) in {wall:.1f} s; seed {seed}; written: "
+        + ", ".join(str(p) for p in written)
+    )
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    bounds = {"both": (True, False), "with": (True,), "without": (False,)}[args.bounds]
+    return _run_bench(
+        args.which,
+        trials=args.trials,
+        seed=args.seed,
+        out=args.out,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        sigmas=args.sigmas,
+        steps=args.steps,
+        bounds=bounds,
+        tum=args.tum,
+    )
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -140,6 +295,40 @@ def build_parser() -> argparse.ArgumentParser:
         help="fraction of echo picks made wrong (default 0.05)",
     )
     demo.set_defaults(func=_demo)
+
+    bench = sub.add_parser(
+        "bench", help="run the paper's experiments: fig3, fig5, or every SLAM method (compare)"
+    )
+    bench.add_argument("which", choices=("fig3", "fig5", "compare"), help="what to run")
+    bench.add_argument("--trials", type=_positive_int, default=50, help="trials per cell (50)")
+    bench.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    bench.add_argument(
+        "--jobs", type=_positive_int, default=1, help="trials in parallel processes (default 1)"
+    )
+    bench.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="submit the trials to this Dask distributed scheduler (needs rangeslam[dask])",
+    )
+    bench.add_argument(
+        "--out", type=_writable_dir, default=Path("rangeslam-bench"), help="output directory"
+    )
+    bench.add_argument(
+        "--sigmas", type=_non_negative, nargs="+", help="range noise levels in metres"
+    )
+    bench.add_argument(
+        "--steps", type=_positive_int, nargs="+", help="numbers of steps M (fig5, compare)"
+    )
+    bench.add_argument(
+        "--bounds",
+        choices=("both", "with", "without"),
+        default="both",
+        help="+-20%% step bounds, none, or both (fig5, compare)",
+    )
+    bench.add_argument(
+        "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
+    )
+    bench.set_defaults(func=_bench)
     return parser
 
 
@@ -153,6 +342,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except RangeSlamError as exc:
+        print(f"rangeslam: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # an output that cannot be written: one line, no traceback
         print(f"rangeslam: error: {exc}", file=sys.stderr)
         return 1
 

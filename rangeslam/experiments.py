@@ -243,8 +243,8 @@ class SlamExperiment:
 
     Attributes:
         trajectory: (M, 3) true positions; landmarks: (7, 3) loudspeaker and first-order images.
-        ranges: (M, 7) noisy ranges; sigma: their noise, metres; bounds: whether +-20% step bounds
-            were given.
+        ranges: (M, 7) noisy ranges; sigma: their noise, metres; bounds: whether step bounds
+            were given; step_bounds: (lower, upper), each (M - 1,), or None.
         result: what :func:`rangeslam.slam` returned.
         baseline_receivers / baseline_sources: GTSAM from a GTSAM-style start (no EDM).
         edm_error, error, baseline_error: trajectory RMS error after rigid alignment (with
@@ -265,6 +265,7 @@ class SlamExperiment:
     ranges: np.ndarray
     sigma: float
     bounds: bool
+    step_bounds: tuple[np.ndarray, np.ndarray] | None
     result: object
     baseline_receivers: np.ndarray
     baseline_sources: np.ndarray
@@ -381,6 +382,7 @@ def slam_experiment(
         ranges=ranges,
         sigma=sigma,
         bounds=bounds,
+        step_bounds=step_bounds,
         result=result,
         baseline_receivers=base_x,
         baseline_sources=base_s,

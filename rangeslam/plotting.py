@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
@@ -13,7 +14,13 @@ from scipy.spatial import ConvexHull
 
 from .geometry import Room
 
-__all__ = ["plot_room_reconstruction"]
+__all__ = [
+    "plot_fig3",
+    "plot_fig5",
+    "plot_rir_matrix",
+    "plot_room_reconstruction",
+    "plot_slam_estimate",
+]
 
 _VIEWS = (("top view", (0, 1), ("x [m]", "y [m]")), ("side view", (0, 2), ("x [m]", "z [m]")))
 
@@ -92,3 +99,148 @@ def plot_room_reconstruction(
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return out
+
+
+def _save(fig, path: str | Path) -> Path:
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
+def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
+    """The Fig. 3 analogue: microphone error after alignment against the range noise, every trial
+    as a dot, the median as a line, and the median CRLB (``rows`` of a ``bench fig3`` run)."""
+    ok = [r for r in rows if r["status"] == "ok" and r["sigma"] > 0]
+    sigmas = sorted({r["sigma"] for r in ok})
+    fig, ax = plt.subplots(figsize=(6.0, 4.5))
+    if sigmas:
+        x = np.array([r["sigma"] for r in ok]) * 1e3
+        jitter = np.exp(np.random.default_rng(0).uniform(-0.08, 0.08, len(x)))
+        ax.scatter(x * jitter, [r["mic_error_m"] * 1e3 for r in ok], s=6, alpha=0.3, c="tab:blue")
+        med = [np.median([r["mic_error_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
+        crlb = [np.median([r["crlb_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
+        s_mm = np.array(sigmas) * 1e3
+        ax.plot(s_mm, med, "o-", c="tab:blue", label="median error (calibrate)")
+        ax.plot(s_mm, crlb, "k--", label="median CRLB")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    ax.set_xlabel("range noise sigma [mm]")
+    ax.set_ylabel("microphone RMS error after alignment [mm]")
+    ax.set_title("Fig. 3: zero-knowledge array calibration")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Path:
+    """The Fig. 5 analogue: trajectory error against the number of steps, with and without step
+    bounds (columns) and per noise level (rows); median per method, inter-quartile band."""
+    rows = [r for r in rows if r["status"] == "ok"]
+    sigmas = sorted({r["sigma"] for r in rows})
+    bounds = sorted({r["bounds"] for r in rows}, reverse=True)
+    fig, axs = plt.subplots(
+        len(sigmas), len(bounds), figsize=(5.5 * len(bounds), 4.0 * len(sigmas)), squeeze=False
+    )
+    for i, sigma in enumerate(sigmas):
+        for j, b in enumerate(bounds):
+            ax = axs[i][j]
+            cell = [r for r in rows if r["sigma"] == sigma and r["bounds"] == b]
+            steps = sorted({r["m"] for r in cell})
+            for key, name in methods.items():
+                per_m = [
+                    np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m]) * 100
+                    for m in steps
+                ]
+                if not any(np.isfinite(v).any() for v in per_m):
+                    continue
+                q = np.array([np.nanpercentile(v, [25, 50, 75]) for v in per_m])
+                ax.plot(steps, q[:, 1], "o-", label=name)
+                ax.fill_between(steps, q[:, 0], q[:, 2], alpha=0.15)
+            crlb = [
+                np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100
+                for m in steps
+            ]
+            ax.plot(steps, crlb, "k--", label="CRLB (ranges alone)")
+            ax.set_yscale("log")
+            ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+            ax.set_xlabel("number of steps M")
+            ax.set_ylabel("trajectory RMS error [cm]")
+            ax.set_title(
+                f"sigma = {sigma * 1e3:g} mm, " + ("+-20% step bounds" if b else "no bounds")
+            )
+            ax.grid(alpha=0.3, which="both")
+    axs[0][0].legend(fontsize=7)
+    fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (median, 25-75%)")
+    return _save(fig, path)
+
+
+def _ellipse(ax, centre, cov2, nsig: float = 2.0, **style) -> None:
+    from matplotlib.patches import Ellipse
+
+    w, v = np.linalg.eigh(cov2)
+    w = np.clip(w, 0, None)
+    angle = np.degrees(np.arctan2(v[1, 1], v[0, 1]))
+    ax.add_patch(
+        Ellipse(centre, 2 * nsig * np.sqrt(w[1]), 2 * nsig * np.sqrt(w[0]), angle=angle, **style)
+    )
+
+
+def plot_slam_estimate(
+    path: str | Path,
+    *,
+    trajectory: np.ndarray,
+    landmarks: np.ndarray,
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    receiver_cov: np.ndarray,
+    source_cov: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    title: str = "",
+) -> Path:
+    """Top view of a SLAM answer mapped onto the truth by (rotation, translation), with the 2-sigma
+    ellipses of its covariances (rotated alike): trajectory on the left, landmarks on the right."""
+    rec = receivers @ rotation.T + translation
+    src = sources @ rotation.T + translation
+    rot_cov = lambda c: np.einsum("ij,njk,lk->nil", rotation, c, rotation)  # noqa: E731
+    fig, axs = plt.subplots(1, 2, figsize=(12.0, 5.0))
+    for ax, true, est, cov, name in (
+        (axs[0], trajectory, rec, rot_cov(receiver_cov), "trajectory"),
+        (axs[1], landmarks, src, rot_cov(source_cov), "landmarks"),
+    ):
+        style = "o-" if name == "trajectory" else "s"
+        ax.plot(true[:, 0], true[:, 1], style, c="k", mfc="none", ms=5, label=f"{name} (true)")
+        ax.plot(est[:, 0], est[:, 1], style.replace("s", "x"), c="tab:red", ms=5, label="estimate")
+        for p, c in zip(est, cov, strict=True):
+            _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        ax.set_title(f"{name}, top view, 2-sigma ellipses (GTSAM)")
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_rir_matrix(path: str | Path, rirs: np.ndarray, fs: float, title: str = "") -> Path:
+    """The "RIR matrix" of Fig. 4C: steps along x, time along y, magnitude in dB as colour."""
+    mag = 20 * np.log10(np.abs(rirs) / np.max(np.abs(rirs)) + 1e-6)
+    fig, ax = plt.subplots(figsize=(7.0, 5.0))
+    im = ax.imshow(
+        mag.T,
+        aspect="auto",
+        origin="lower",
+        extent=(0.5, len(rirs) + 0.5, 0, rirs.shape[1] / fs * 1e3),
+        vmin=-60,
+        vmax=0,
+        cmap="magma",
+    )
+    fig.colorbar(im, ax=ax, label="magnitude [dB]")
+    ax.set_xlabel("step")
+    ax.set_ylabel("time [ms]")
+    ax.set_title(title or "RIR at each step of the walk (Fig. 4C)")
+    return _save(fig, path)

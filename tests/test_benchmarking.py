@@ -1,0 +1,152 @@
+"""The benchmark runner and `rangeslam bench`: files, determinism across parallelism, Dask, failing
+trials, bad input."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError
+from rangeslam import benchmarking as bm
+from rangeslam.cli import main
+
+SMALL = ["--trials", "2", "--steps", "5", "--sigmas", "0.01", "--bounds", "with"]
+
+
+def _csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_bench_compare_end_to_end(tmp_path, capsys):
+    """2 trials of `bench compare`: CSV rows, JSON summary with seed and versions, Markdown table
+    with every method, the plot and TUM files evo can read."""
+    code = main(["bench", "compare", *SMALL, "--out", str(tmp_path), "--seed", "4", "--tum"])
+    assert code == 0
+    out = capsys.readouterr().out
+    for name in ("EDM only", "EDM + GTSAM", "GTSAM without EDM", "EKF", "EKF + RTS"):
+        assert name in out
+    rows = _csv(tmp_path / "compare_trials.csv")
+    assert len(rows) == 2 and all(r["status"] == "ok" for r in rows)
+    for method in bm.SLAM_METHODS:
+        errors = [float(r[f"{method}_error_m"]) for r in rows]
+        assert all(np.isfinite(errors)) and all(e < 5.0 for e in errors)
+    summary = json.loads((tmp_path / "compare_summary.json").read_text())
+    assert summary["seed"] == 4 and summary["failed_trials"] == 0
+    assert {"numpy", "cvxpy", "clarabel", "gtsam", "filterpy"} <= set(summary["versions"])
+    assert summary["cells"][0]["m"] == 5 and summary["cells"][0]["trials"] == 2
+    assert (tmp_path / "compare_summary.md").read_text().startswith("| sigma (mm) |")
+    assert (tmp_path / "compare.png").read_bytes()[:4] == b"\x89PNG"
+    tum = sorted((tmp_path / "tum").glob("*.tum"))
+    assert len(tum) == 2 * 6  # truth and five methods per trial
+    data = np.loadtxt(tum[0])
+    assert data.shape == (5, 8)
+    np.testing.assert_array_equal(data[:, 7], 1.0)
+
+
+def test_bench_fig3_end_to_end(tmp_path):
+    code = main(
+        ["bench", "fig3", "--trials", "2", "--sigmas", "0", "0.001", "--out", str(tmp_path)]
+    )
+    assert code == 0
+    rows = _csv(tmp_path / "fig3_trials.csv")
+    assert [r["sigma"] for r in rows] == ["0", "0", "0.001", "0.001"]
+    assert all(float(r["mic_error_m"]) < 1e-3 for r in rows if r["sigma"] == "0")
+    assert (tmp_path / "fig3.png").stat().st_size > 10_000
+
+
+def test_jobs_do_not_change_the_numbers(tmp_path):
+    """The same seed gives the same CSV serially and over 2 processes."""
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert main(["bench", "fig5", *SMALL, "--seed", "9", "--jobs", "1", "--out", str(one)]) == 0
+    assert main(["bench", "fig5", *SMALL, "--seed", "9", "--jobs", "2", "--out", str(two)]) == 0
+    assert (one / "fig5_trials.csv").read_bytes() == (two / "fig5_trials.csv").read_bytes()
+
+
+def test_dask_cluster_gives_the_same_csv(tmp_path):
+    """Trials submitted to a (local, in-process) Dask cluster come back in order and write the
+    serial run's CSV (values agree to round-off: the last bits depend on the BLAS's threads)."""
+    distributed = pytest.importorskip("dask.distributed")
+    trials = bm.plan("fig3", 2, 5, sigmas=(1e-3,))
+    serial = [o.row for o in bm.run_trials(trials, progress=False)]
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        remote = [
+            o.row
+            for o in bm.run_trials(trials, scheduler=cluster.scheduler_address, progress=False)
+        ]
+    for a, b in zip(remote, serial, strict=True):
+        assert a.keys() == b.keys()
+        np.testing.assert_allclose(a["mic_error_m"], b["mic_error_m"], rtol=1e-9)
+    csv_remote = bm.write_csv(tmp_path / "remote.csv", remote).read_bytes()
+    assert csv_remote == bm.write_csv(tmp_path / "serial.csv", serial).read_bytes()
+
+
+def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
+    code = main(["bench", "fig3", "--trials", "1", "--sigmas", "0", "--out", str(tmp_path),
+                 "--scheduler", "tcp://127.0.0.1:9"])  # fmt: skip
+    assert code == 1
+    err = capsys.readouterr().err
+    assert err.startswith("rangeslam: error: cannot reach the Dask scheduler")
+
+
+def test_a_failing_trial_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch):
+    import rangeslam.experiments as ex
+
+    real = ex.slam_experiment
+    calls = []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("injected failure\nsecond line")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ex, "slam_experiment", flaky)
+    assert main(["bench", "fig5", *SMALL, "--out", str(tmp_path)]) == 0
+    rows = _csv(tmp_path / "fig5_trials.csv")
+    assert rows[0]["status"] == "failed: RuntimeError: injected failure"
+    assert rows[1]["status"] == "ok" and float(rows[1]["edm_gtsam_error_m"]) < 0.2
+    summary = json.loads((tmp_path / "fig5_summary.json").read_text())
+    assert summary["failed_trials"] == 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["bench", "fig4"], "invalid choice"),
+        (["bench", "fig5", "--trials", "0"], "must be a positive integer"),
+        (["bench", "fig5", "--jobs", "-2"], "must be a positive integer"),
+        (["bench", "fig3", "--sigmas", "-0.1"], "must be >= 0"),
+        (["bench", "fig5", "--bounds", "maybe"], "invalid choice"),
+    ],
+)
+def test_bad_bench_options(argv, match, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rangeslam: error:") and err.count("\n") == 1 and match in err
+
+
+def test_library_bad_input():
+    with pytest.raises(InvalidInputError, match="bench must be one of"):
+        bm.plan("fig7", 2, 0)
+    with pytest.raises(InvalidInputError, match="trials must be a positive integer"):
+        bm.plan("fig3", 0, 0)
+    with pytest.raises(InvalidInputError, match="steps must be >= 3"):
+        bm.plan("fig5", 1, 0, steps=(2,))
+    with pytest.raises(InvalidInputError, match="jobs must be a positive integer"):
+        bm.run_trials([], jobs=0)
+    with pytest.raises(InvalidInputError, match=r"positions must have shape \(M, 2\) or \(M, 3\)"):
+        bm.write_tum("/tmp/x.tum", np.zeros(4))
+
+
+def test_trial_seeds_do_not_depend_on_the_order():
+    """Trial (cell, index) draws the same numbers wherever it runs and whatever ran before."""
+    trials = bm.plan("fig5", 3, 11, sigmas=(0.01,), steps=(5, 6), bounds=(True,))
+    a = [t.rng().uniform() for t in trials]
+    b = [t.rng().uniform() for t in reversed(trials)][::-1]
+    assert a == b and len(set(a)) == len(a)
