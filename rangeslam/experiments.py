@@ -305,14 +305,18 @@ def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
     return float(np.sqrt(np.mean(d**2)))
 
 
-def gtsam_style_start(m: int, k: int, step: float, scale: float, rng: np.random.Generator):
+def gtsam_style_start(
+    ranges: np.ndarray, step_bounds, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """The start GTSAM's range-only examples use when nothing better is known: a random walk of
-    the nominal step for the trajectory and landmarks uniform in a box of the ranges' size."""
-    steps = rng.standard_normal((m - 1, 3))
-    steps *= step / np.linalg.norm(steps, axis=1, keepdims=True)
-    traj = np.vstack([np.zeros(3), np.cumsum(steps, axis=0)])
-    landmarks = rng.uniform(-scale, scale, size=(k, 3))
-    return traj, landmarks
+    the nominal steps (the bounds' midpoints, else what the ranges imply) and landmarks uniform in
+    a box of the largest range; the same draw as :func:`rangeslam.slam`'s extra starts."""
+    from .slam import _nominal_steps, _random_start
+
+    observed = np.isfinite(ranges)
+    bounds = None if step_bounds is None else tuple(np.asarray(b) for b in step_bounds)
+    steps = _nominal_steps(bounds, ranges, observed)
+    return _random_start(steps, ranges.shape[1], 3, float(np.max(ranges)), rng)
 
 
 def slam_experiment(
@@ -359,7 +363,7 @@ def slam_experiment(
     result = slam(ranges, step_bounds=step_bounds, rng=rng, **slam_options)
     seconds = time.perf_counter() - t0
     a = align(result.receivers, traj, reflection=True)
-    start_x, start_s = gtsam_style_start(m, len(landmarks), 0.3, float(np.max(ranges)), rng)
+    start_x, start_s = gtsam_style_start(ranges, step_bounds, rng)
     try:
         base = refine_graph(
             start_x,

@@ -158,10 +158,7 @@ def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Pa
                 q = np.array([np.nanpercentile(v, [25, 50, 75]) for v in per_m])
                 ax.plot(steps, q[:, 1], "o-", label=name)
                 ax.fill_between(steps, q[:, 0], q[:, 2], alpha=0.15)
-            crlb = [
-                np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100
-                for m in steps
-            ]
+            crlb = [np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100 for m in steps]
             ax.plot(steps, crlb, "k--", label="CRLB (ranges alone)")
             ax.set_yscale("log")
             ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())

@@ -55,12 +55,15 @@ class SlamResult:
             stacked), receiver gauge, m^2 (None without refinement): for the NEES of the whole
             trajectory, rank M d - 3 (2-D) or M d - 6 (3-D).
         residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
-        edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame.
+        edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame (None
+            for methods without an EDM step, such as the EKF baseline).
         edm_sources: (K, d) likewise.
         residual_rms: RMS range residual, metres.
         converged: the answer passed the residual test (chi-square against ``noise_std``).
         message: why not, when ``converged`` is False.
         attempts: convex-iteration runs made.
+        start: where the answer's GTSAM run started: "edm" or "random start j" ("filter" for
+            the EKF baseline).
         eigen_gap: eigen-gap of the SDP answer used.
     """
 
@@ -70,12 +73,13 @@ class SlamResult:
     source_cov: np.ndarray | None
     trajectory_cov: np.ndarray | None
     residuals: np.ndarray
-    edm_receivers: np.ndarray
-    edm_sources: np.ndarray
+    edm_receivers: np.ndarray | None
+    edm_sources: np.ndarray | None
     residual_rms: float
     converged: bool
     message: str
     attempts: int
+    start: str
     eigen_gap: float
 
 
@@ -98,6 +102,30 @@ def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
             )
 
 
+def _nominal_steps(bounds, r: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(M - 1,) step lengths for a start: the bounds' midpoints, or without bounds the least
+    each step must be by the triangle inequality, max_k |r_(i+1)k - r_ik| (its median where no
+    landmark is heard at both steps)."""
+    if bounds is not None:
+        return 0.5 * (bounds[0] + bounds[1])
+    both = observed[:-1] & observed[1:]
+    least = np.where(both, np.abs(np.diff(r, axis=0)), 0.0).max(axis=1)
+    heard = both.any(axis=1)
+    fill = float(np.median(least[heard])) if heard.any() else 1.0
+    return np.where(heard & (least > 0), least, fill)
+
+
+def _random_start(
+    steps: np.ndarray, k: int, dim: int, size: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The start GTSAM's range-only examples use when nothing better is known: a random walk with
+    the given step lengths, landmarks uniform in [-size, size]^d."""
+    directions = rng.standard_normal((len(steps), dim))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    walk = np.vstack([np.zeros(dim), np.cumsum(directions * steps[:, None], axis=0)])
+    return walk, rng.uniform(-size, size, size=(k, dim))
+
+
 def slam(
     ranges: ArrayLike,
     *,
@@ -110,6 +138,7 @@ def slam(
     step_sigma: float | None = None,
     step_prior: str = "uniform",
     max_attempts: int = 8,
+    extra_starts: int = 2,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
     rng: np.random.Generator | int | None = None,
@@ -133,6 +162,8 @@ def slam(
             free, about 2.5x the error at M = 5 to 8 in the Fig. 5 setting).
         max_attempts: convex-iteration runs at most (fit weights x1, x10, x0.1, x100 from Z = I,
             then random Z), until one passes the residual test.
+        extra_starts: GTSAM runs from GTSAM-style random starts besides the EDM answer's; the
+            lowest graph cost wins (``SlamResult.start`` says which). 0: the EDM answer only.
         fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
         rng: Generator or seed for the random restarts.
 
@@ -149,6 +180,8 @@ def slam(
         _check_bounds_against_ranges(bounds, r, observed, noise_std)
     if step_prior not in STEP_PRIORS:
         raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
+    if not (isinstance(extra_starts, int | np.integer) and extra_starts >= 0):
+        raise InvalidInputError(f"extra_starts must be an integer >= 0; got {extra_starts!r}")
     if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
         raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
     rng = np.random.default_rng(rng)
@@ -187,10 +220,10 @@ def slam(
             return float(1.4826 * np.median(np.abs(res)) * np.sqrt(n_obs / dof))
         return float(np.sqrt(np.sum(res**2) / dof))
 
-    def refine_run(pts: np.ndarray) -> tuple[GraphFit, float]:
-        """GTSAM from the EDM points; the range sigma it used."""
-        if noise_std is not None:
-            sigma = max(noise_std, floor)
+    def refine_run(pts: np.ndarray, sigma: float | None = None) -> tuple[GraphFit, float]:
+        """GTSAM from ``pts``; the range sigma it used (given, or found as below)."""
+        if sigma is not None or noise_std is not None:
+            sigma = max(noise_std, floor) if sigma is None else sigma
             fit = graph(pts, sigma)
         else:
             # Unknown noise: first the EDM answer's RMS residual (biased by the SDP's penalty),
@@ -256,11 +289,33 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(failures)),
         )
+    start = "edm"
+    start_failures: list[str] = []
+    if refine and extra_starts:
+        # GTSAM also from GTSAM-style starts (random walk of the nominal step, landmarks uniform
+        # in a box of the largest range); the graph's cost decides. Where the ranges leave the
+        # shape nearly free (few steps, no bounds, a planar path) LM from the EDM answer can stop
+        # in a valley another start avoids.
+        nominal = _nominal_steps(bounds, r, observed)
+        for j in range(extra_starts):
+            x0, s0 = _random_start(nominal, k, dim, float(np.max(r[observed])), rng)
+            try:
+                fit_j, _ = refine_run(np.vstack([x0, s0]), sigma_ref)
+            except SolverError as exc:
+                start_failures.append(f"random start {j}: {exc}")
+                continue
+            if fit_j.error < best[-1]:
+                res_j = range_matrix(fit_j.receivers, fit_j.sources) - r
+                ssr_j = float(np.sum(res_j[observed] ** 2))
+                best = (ssr_j, fit_j.receivers, fit_j.sources, fit_j, best[4], res_j, fit_j.error)
+                start = f"random start {j}"
     ssr, rec, src, fit, completion, res, _ = best
     rms = float(np.sqrt(ssr / n_obs))
     message = ""
     if failures:
         message += f"{len(failures)} SDP runs failed ({failures[0]}); "
+    if start_failures:
+        message += f"GTSAM diverged from {'; '.join(start_failures)}; "
     if noise_std is not None and redundancy > 0:
         converged = _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
         if not converged:
@@ -300,5 +355,6 @@ def slam(
         converged=bool(converged),
         message=message.rstrip("; "),
         attempts=attempts,
+        start=start,
         eigen_gap=completion.eigen_gap,
     )
