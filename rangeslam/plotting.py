@@ -126,6 +126,8 @@ def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
         ax.plot(s_mm, crlb, "k--", label="median CRLB")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax.set_xlabel("range noise sigma [mm]")
     ax.set_ylabel("microphone RMS error after alignment [mm]")
     ax.set_title("Fig. 3: zero-knowledge array calibration")

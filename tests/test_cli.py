@@ -11,12 +11,22 @@ from rangeslam.cli import main
 
 
 def test_demo_end_to_end(tmp_path, capsys):
-    """`rangeslam demo` prints the wall table and the summary, writes one plot per room, exits 0."""
+    """`rangeslam demo` prints the wall table, a small Fig. 3 and Fig. 5 comparison, writes every
+    plot (rooms, Fig. 3, Fig. 5, the SLAM estimate with its ellipses, the RIR matrix), exits 0."""
     code = main(["demo", "--out", str(tmp_path), "--seed", "3"])
     out = capsys.readouterr().out
     assert code == 0
     assert "| room | wall | true offset [m]" in out and "| shoebox | True |" in out
-    for name in ("room_shoebox.png", "room_cut_corner.png"):
+    assert "| sigma (mm) | trials | failed | median error (mm)" in out
+    assert "EKF + RTS mean / median (cm)" in out
+    for name in (
+        "room_shoebox.png",
+        "room_cut_corner.png",
+        "fig3.png",
+        "compare.png",
+        "slam_estimate.png",
+        "rir_matrix.png",
+    ):
         path = tmp_path / name
         assert path.stat().st_size > 10_000
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
