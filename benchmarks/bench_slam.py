@@ -2,7 +2,7 @@
 
     python benchmarks/bench_slam.py [--trials 50] [--seed 0] [--steps 4 5 6 8 10 15 20]
         [--sigmas 0.001 0.01] [--bounds both|with|without] [--step-prior uniform|dead_zone]
-        [--placement centred|random]
+        [--placement centred|random] [--extra-starts 0]
 
 The lemniscate of eq. (12) from a random phase, steps t_n = 0.3 n (about 30 cm), room 5 x 4 x 2.6 m,
 a loudspeaker uniform in the room, landmarks = the loudspeaker and its 6 first-order images. Range
@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("--bounds", choices=["both", "with", "without"], default="both")
     ap.add_argument("--step-prior", choices=["uniform", "dead_zone"], default="uniform")
     ap.add_argument("--placement", choices=["centred", "random"], default="centred")
+    ap.add_argument("--extra-starts", type=int, default=0, help="slam's extra_starts")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     header = [
@@ -66,7 +67,8 @@ def main() -> None:
     ]
     print(
         f"# Fig. 5: range-only SLAM ({args.trials} trials per row, seed {args.seed}, step prior "
-        f"{args.step_prior}, bounds {args.placement}; {machine()})\n"
+        f"{args.step_prior}, bounds {args.placement}, extra starts {args.extra_starts}; "
+        f"{machine()})\n"
     )
     print(markdown_table(header, []), flush=True)  # rows follow as they are measured
     with_bounds = {"both": (True, False), "with": (True,), "without": (False,)}[args.bounds]
@@ -81,6 +83,7 @@ def main() -> None:
                         rng,
                         bounds_placement=args.placement,
                         step_prior=args.step_prior,
+                        extra_starts=args.extra_starts,
                     )
                     for _ in range(args.trials)
                 ]
