@@ -58,12 +58,12 @@ fit's mean and covariance. A weak prior N(0, (3 max range)^2 I) on each landmark
 information matrix invertible when a landmark lies in the plane of a planar trajectory (its offset
 from that plane is then unobservable to first order).
 
-Gauge: p_1 = 0, the first step along +x and (3-D) the second position in the xy-plane; these
+Gauge: p_1 = 0, the first step along +x and (3-D) the third position in the xy-plane; these
 coordinates are fixed in the window fit and have zero variance. The result is returned in the
 frame of :func:`rangeslam.slam` (the trajectory's centroid at 0, its principal axes), and the
 covariances are rotated with it; they still describe the uncertainty in the gauge above.
 
-Smoothing (``smooth=True``): a Rauch-Tung-Striebel pass over the filtered steps W - 1 .. M - 1 of
+Smoothing (``smooth=True``): a Rauch-Tung-Striebel pass over the filtered steps W .. M - 1 of
 the whole state, with the stored priors, posteriors and transition matrices (the motion model is
 linear, so F is exact; the measurement linearisations are those of the forward pass). The
 positions and their covariances are the smoothed ones; the landmarks and window clones are static
@@ -185,7 +185,7 @@ def ekf_slam(
     # spread of a uniform law on [lower, upper], floored so exact bounds keep R > 0
     spread = np.maximum((upper - lower) / np.sqrt(12.0), 1e-6 * max(scale, 1e-12))
     max_range = float(np.max(r[observed]))
-    sigma = max(noise_std, _SIGMA_FLOOR * scale) if noise_std else None
+    sigma = max(noise_std, _SIGMA_FLOOR * scale) if noise_std is not None else None
 
     window = _initial_window(
         r,
@@ -231,11 +231,12 @@ def ekf_slam(
         src = x_end[lay.landmarks].reshape(k, dim)
         src_cov = _blocks(p_end, lay.landmarks.start, k, dim)
         if not diverged:
-            try:
-                np.linalg.cholesky(p_end[np.ix_(lay.free, lay.free)])
-            except np.linalg.LinAlgError:
+            # Positive semi-definite, not definite: with one filtered step p - v is exactly the
+            # last clone, a structural zero direction of P.
+            eig = np.linalg.eigvalsh(p_end[np.ix_(lay.free, lay.free)])
+            if not (np.all(np.isfinite(eig)) and eig[0] >= -1e-9 * max(eig[-1], 0.0)):
                 diverged = True
-                message += "the final covariance is not positive definite; "
+                message += "the final covariance is not positive semi-definite; "
 
     finite = bool(np.all(np.isfinite(rec)) and np.all(np.isfinite(src)))
     if not finite:

@@ -77,9 +77,17 @@ class Trial:
     seed: int
 
     def rng(self) -> np.random.Generator:
-        return np.random.default_rng(
-            np.random.SeedSequence(self.seed, spawn_key=(self.cell, self.index))
+        """The trial's Generator, keyed on the bench, the setting's values and the index (not on
+        the cell's place in the plan): M = 5 draws the same scenes alone or in a full run."""
+        p = dict(self.params)
+        key = (
+            BENCHES.index(self.bench),
+            round(p["sigma"] * 1e9),  # nanometres
+            int(p.get("bounds", 0)),
+            int(p.get("m", 0)),
+            self.index,
         )
+        return np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=key))
 
 
 @dataclass(frozen=True)
@@ -101,18 +109,23 @@ def plan(
     sigmas: Sequence[float] | None = None,
     steps: Sequence[int] | None = None,
     bounds: Sequence[bool] = (True, False),
+    placement: str = "centred",
 ) -> list[Trial]:
     """The trials of a run, cell by cell. fig3: one cell per sigma (default FIG3_SIGMAS); fig5 and
-    compare: one per (sigma, bounds, M) (defaults FIG5_SIGMAS, both, FIG5_STEPS)."""
+    compare: one per (sigma, bounds, M) (defaults FIG5_SIGMAS, both, FIG5_STEPS), the bounds
+    centred on the true steps (the paper's +-20%) or placed at random around them (see
+    :func:`rangeslam.experiments.slam_experiment`)."""
     if bench not in BENCHES:
         raise InvalidInputError(f"bench must be one of {BENCHES}; got {bench!r}")
     if not (isinstance(trials, int) and trials >= 1):
         raise InvalidInputError(f"trials must be a positive integer; got {trials!r}")
+    if placement not in ("centred", "random"):
+        raise InvalidInputError(f"placement must be 'centred' or 'random'; got {placement!r}")
     if bench == "fig3":
         cells = [(("sigma", float(s)),) for s in (FIG3_SIGMAS if sigmas is None else sigmas)]
     else:
         cells = [
-            (("sigma", float(s)), ("bounds", bool(b)), ("m", int(m)))
+            (("sigma", float(s)), ("bounds", bool(b)), ("m", int(m)), ("placement", placement))
             for s in (FIG5_SIGMAS if sigmas is None else sigmas)
             for b in bounds
             for m in (FIG5_STEPS if steps is None else steps)
@@ -144,7 +157,9 @@ def _slam_trial(
 ) -> None:
     from .experiments import slam_experiment
 
-    e = slam_experiment(params["m"], params["sigma"], params["bounds"], rng)
+    e = slam_experiment(
+        params["m"], params["sigma"], params["bounds"], rng, bounds_placement=params["placement"]
+    )
     outcome.seconds["edm_gtsam"] = e.seconds
     outcome.row.update(
         crlb_m=e.crlb,
@@ -221,7 +236,7 @@ def run_trials(
     jobs: int = 1,
     scheduler: str | None = None,
     keep_trajectories: bool = False,
-    progress: bool = True,
+    progress: bool = False,
 ) -> list[TrialOutcome]:
     """Run ``trials`` in order (``jobs`` = 1), over ``jobs`` processes, or on the Dask cluster at
     ``scheduler`` (needs the ``dask`` extra). Outcomes come back in the order of ``trials``."""
@@ -229,6 +244,8 @@ def run_trials(
 
     if not (isinstance(jobs, int) and jobs >= 1):
         raise InvalidInputError(f"jobs must be a positive integer; got {jobs!r}")
+    if scheduler is not None and jobs != 1:
+        raise InvalidInputError("give either jobs (local processes) or scheduler (Dask), not both")
     bar = tqdm(total=len(trials), disable=not progress, unit="trial", leave=False)
     try:
         if scheduler is not None:
@@ -308,6 +325,13 @@ def versions() -> dict[str, str]:
     return out
 
 
+def _nanmedian(values) -> float:
+    """Median of the finite values (failed trials have no time), NaN when there are none."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else float("nan")
+
+
 def _stats(values: np.ndarray) -> tuple[float, float]:
     finite = values[np.isfinite(values)]
     if finite.size == 0:
@@ -372,7 +396,7 @@ def summary_table(
                 else float(np.sum(err < 1e-3)) / n
             )
             conv = float(np.sum(col("converged"))) / n
-            t = np.median([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
+            t = _nanmedian([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
             rec.update(
                 median_error_m=med_e,
                 median_crlb_m=med_c,
@@ -414,7 +438,7 @@ def summary_table(
             kept = float(np.mean(col("edm_start_kept"))) if ok else float("nan")
             rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
             t = {
-                m: float(np.median([times[id(r)].get(m, np.nan) for r in cell_rows]))
+                m: float(_nanmedian([times[id(r)].get(m, np.nan) for r in cell_rows]))
                 for m in ("edm_gtsam", "ekf")
                 if m in methods
             }

@@ -286,6 +286,8 @@ def trajectory_nees(alignment, cov: np.ndarray | None, truth: np.ndarray) -> tup
     motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
     m, d = truth.shape
     dof = m * d - d * (d + 1) // 2
+    if dof <= 0:
+        raise InvalidInputError(f"{m} points in {d}-D leave nothing beyond a rigid motion")
     if cov is None:
         return float("nan"), dof
     rot = np.kron(np.eye(m), alignment.rotation)
@@ -349,7 +351,7 @@ def slam_experiment(
         ranges = add_range_noise(ranges, sigma, rng=rng)
     steps = step_lengths(traj)
     step_prior = slam_options.get("step_prior", "uniform")
-    if bounds_placement == "centred":
+    if bounds_placement == "centred" or (bounds_placement == "random" and not bounds):
         lower = 0.8 * steps
     elif bounds_placement == "random":
         lower = steps * (1 - 0.4 * rng.uniform(size=m - 1))

@@ -240,6 +240,8 @@ def refine_graph(
         raise InvalidInputError(
             f"max_iterations must be a positive integer; got {max_iterations!r}"
         )
+    if step_prior not in STEP_PRIORS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
     odometry = step_lengths is not None or step_vectors is not None
     if odometry and not (odometry_sigma is not None and odometry_sigma > 0):
         raise InvalidInputError("odometry_sigma (> 0) is required with step_lengths/step_vectors")
@@ -278,8 +280,6 @@ def refine_graph(
         sig = noise_std if step_sigma is None else float(step_sigma)
         if not (np.isfinite(sig) and sig > 0):
             raise InvalidInputError(f"step_sigma must be positive; got {step_sigma!r}")
-        if step_prior not in STEP_PRIORS:
-            raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
         for i in range(m - 1):
             half = 0.5 * (upper[i] - lower[i])
             model = gtsam.noiseModel.Robust.Create(

@@ -19,7 +19,7 @@ def shoebox_rirs(
     source: ArrayLike,
     receivers: ArrayLike,
     *,
-    fs: float = 16000.0,
+    fs: int = 16000,
     absorption: float = 0.2,
     max_order: int = 3,
     duration: float | None = None,
@@ -49,9 +49,13 @@ def shoebox_rirs(
             )
     if not 0 < absorption <= 1:
         raise InvalidInputError(f"absorption must be in (0, 1]; got {absorption!r}")
-    if not (fs > 0 and np.isfinite(fs)):
-        raise InvalidInputError(f"fs must be positive; got {fs!r}")
-    room = pra.ShoeBox(size, fs=fs, materials=pra.Material(absorption), max_order=int(max_order))
+    if not (np.isfinite(fs) and fs > 0 and float(fs).is_integer()):
+        raise InvalidInputError(f"fs must be a positive whole number of Hz; got {fs!r}")
+    if not (isinstance(max_order, int | np.integer) and max_order >= 0):
+        raise InvalidInputError(f"max_order must be an integer >= 0; got {max_order!r}")
+    room = pra.ShoeBox(
+        size, fs=int(fs), materials=pra.Material(absorption), max_order=int(max_order)
+    )
     room.add_source(src)
     room.add_microphone_array(rec.T)
     room.compute_rir()

@@ -198,7 +198,9 @@ def slam(
 
     floor = _SIGMA_FLOOR * scale
 
-    def graph(pts: np.ndarray, sigma: float, max_iterations: int = 5000) -> GraphFit:
+    def graph(
+        pts: np.ndarray, sigma: float, *, covariances: bool = False, max_iterations: int = 5000
+    ) -> GraphFit:
         return refine_graph(
             pts[:m],
             pts[m:],
@@ -209,7 +211,7 @@ def slam(
             step_sigma=step_sigma,
             step_prior=step_prior,
             robust=robust,
-            covariances=max_iterations > 1,
+            covariances=covariances,
             # a planar trajectory leaves landmarks near its plane in a flat valley (their mirror
             # images meet there), and few steps leave the shape itself in one: at M = 5 and
             # 1 mm, 1000 LM iterations are typical
@@ -222,28 +224,37 @@ def slam(
             return float(1.4826 * np.median(np.abs(res)) * np.sqrt(n_obs / dof))
         return float(np.sqrt(np.sum(res**2) / dof))
 
+    def stacked(fit: GraphFit) -> np.ndarray:
+        return np.vstack([fit.receivers, fit.sources])
+
     def refine_run(pts: np.ndarray, sigma: float | None = None) -> tuple[GraphFit, float]:
-        """GTSAM from ``pts``; the range sigma it used (given, or found as below)."""
-        if sigma is not None or noise_std is not None:
-            sigma = max(noise_std, floor) if sigma is None else sigma
-            fit = graph(pts, sigma)
-        else:
+        """GTSAM from ``pts`` with covariances; the range sigma of its final graph. ``sigma``:
+        that of the graph (default: ``noise_std``, or found from the residuals when unknown)."""
+        if sigma is None and noise_std is None:
             # Unknown noise: first the EDM answer's RMS residual (biased by the SDP's penalty),
             # then the refined fit's (sum of squares over the redundancy) until it settles. The
             # weight of the step prior against the ranges depends on it.
             sigma = max(noise_from(pts, n_obs), floor)
             fit = graph(pts, sigma)
             for _ in range(_NOISE_ROUNDS if redundancy > 0 else 0):
-                new = max(noise_from(np.vstack([fit.receivers, fit.sources]), redundancy), floor)
+                new = max(noise_from(stacked(fit), redundancy), floor)
                 if abs(new - sigma) <= 0.1 * sigma:
                     break
                 sigma = new
-                fit = graph(np.vstack([fit.receivers, fit.sources]), sigma)
-        if sigma <= floor:
-            # Exact data: the floor (which LM needs to move from the EDM answer at all) would let
-            # the step prior pull by up to mm; from there, ranges weighed as exact finish it.
-            fit = graph(np.vstack([fit.receivers, fit.sources]), _EXACT_POLISH * floor)
-        return fit, sigma
+                fit = graph(stacked(fit), sigma)
+            pts = stacked(fit)
+            if sigma <= floor:  # no noise to be seen: exact data
+                sigma = 0.0
+        elif sigma is None:
+            sigma = noise_std
+        if sigma >= floor:
+            return graph(pts, sigma, covariances=True), sigma
+        # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
+        # step at all): first at the floor, then at sigma itself, or for exact data (where the
+        # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
+        target = sigma if sigma > 0 else _EXACT_POLISH * floor
+        fit = graph(pts, floor)
+        return graph(stacked(fit), target, covariances=True), target
 
     failures: list[str] = []
     best = None
@@ -273,17 +284,19 @@ def slam(
                 sigma_ref = sigma
             # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges
             # alone: a low range residual bought by breaking the step bounds is no better answer.
+            # All on one graph, the first run's.
             key = fit.error
             if sigma != sigma_ref:
-                key = graph(np.vstack([rec, src]), sigma_ref, max_iterations=1).initial_error
+                key = graph(stacked(fit), sigma_ref, max_iterations=1).initial_error
         else:
             rec, src = pts[:m], pts[m:]
         res = range_matrix(rec, src) - r
         ssr = float(np.sum(res[observed] ** 2))
         key = ssr if key is None else key
-        if best is None or key < best[-1]:
+        passes = _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
+        if best is None or key < best[-1] or passes:  # a run that passes is taken as it is
             best = (ssr, rec, src, fit, completion, res, key)
-        if _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms):
+        if passes:
             break
     if best is None:
         raise SolverError(
@@ -303,7 +316,7 @@ def slam(
             x0, s0 = _random_start(nominal, k, dim, float(np.max(r[observed])), rng)
             try:
                 fit_j, _ = refine_run(np.vstack([x0, s0]), sigma_ref)
-            except SolverError as exc:
+            except SolverError as exc:  # LM diverged, or the covariances are undefined there
                 start_failures.append(f"random start {j}: {exc}")
                 continue
             if fit_j.error < best[-1]:
@@ -317,7 +330,7 @@ def slam(
     if failures:
         message += f"{len(failures)} SDP runs failed ({failures[0]}); "
     if start_failures:
-        message += f"GTSAM diverged from {'; '.join(start_failures)}; "
+        message += f"GTSAM failed from {'; '.join(start_failures)}; "
     if noise_std is not None and redundancy > 0:
         converged = _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
         if not converged:

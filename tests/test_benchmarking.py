@@ -12,6 +12,8 @@ from rangeslam import benchmarking as bm
 from rangeslam.cli import main
 
 SMALL = ["--trials", "2", "--steps", "5", "--sigmas", "0.01", "--bounds", "with"]
+# 7 steps: the EKF's 5-step start-up window, then 2 filtered steps
+COMPARE = ["--trials", "2", "--steps", "7", "--sigmas", "0.01", "--bounds", "with"]
 
 
 def _csv(path):
@@ -22,7 +24,7 @@ def _csv(path):
 def test_bench_compare_end_to_end(tmp_path, capsys):
     """2 trials of `bench compare`: CSV rows, JSON summary with seed and versions, Markdown table
     with every method, the plot and TUM files evo can read."""
-    code = main(["bench", "compare", *SMALL, "--out", str(tmp_path), "--seed", "4", "--tum"])
+    code = main(["bench", "compare", *COMPARE, "--out", str(tmp_path), "--seed", "4", "--tum"])
     assert code == 0
     out = capsys.readouterr().out
     for name in ("EDM only", "EDM + GTSAM", "GTSAM without EDM", "EKF", "EKF + RTS"):
@@ -35,13 +37,13 @@ def test_bench_compare_end_to_end(tmp_path, capsys):
     summary = json.loads((tmp_path / "compare_summary.json").read_text())
     assert summary["seed"] == 4 and summary["failed_trials"] == 0
     assert {"numpy", "cvxpy", "clarabel", "gtsam", "filterpy"} <= set(summary["versions"])
-    assert summary["cells"][0]["m"] == 5 and summary["cells"][0]["trials"] == 2
+    assert summary["cells"][0]["m"] == 7 and summary["cells"][0]["trials"] == 2
     assert (tmp_path / "compare_summary.md").read_text().startswith("| sigma (mm) |")
     assert (tmp_path / "compare.png").read_bytes()[:4] == b"\x89PNG"
     tum = sorted((tmp_path / "tum").glob("*.tum"))
     assert len(tum) == 2 * 6  # truth and five methods per trial
     data = np.loadtxt(tum[0])
-    assert data.shape == (5, 8)
+    assert data.shape == (7, 8)
     np.testing.assert_array_equal(data[:, 7], 1.0)
 
 
@@ -143,8 +145,19 @@ def test_library_bad_input():
         bm.plan("fig5", 1, 0, steps=(2,))
     with pytest.raises(InvalidInputError, match="jobs must be a positive integer"):
         bm.run_trials([], jobs=0)
+    with pytest.raises(InvalidInputError, match="either jobs"):
+        bm.run_trials([], jobs=2, scheduler="tcp://127.0.0.1:9")
+    with pytest.raises(InvalidInputError, match="placement must be"):
+        bm.plan("fig5", 1, 0, placement="left")
     with pytest.raises(InvalidInputError, match=r"positions must have shape \(M, 2\) or \(M, 3\)"):
         bm.write_tum("/tmp/x.tum", np.zeros(4))
+
+
+def test_a_cell_draws_the_same_scenes_alone_or_in_a_full_plan():
+    alone = bm.plan("fig5", 2, 3, sigmas=(0.01,), steps=(8,), bounds=(True,))
+    full = bm.plan("fig5", 2, 3)
+    same = [t for t in full if dict(t.params) == dict(alone[0].params)]
+    assert [t.rng().uniform() for t in alone] == [t.rng().uniform() for t in same]
 
 
 def test_trial_seeds_do_not_depend_on_the_order():

@@ -123,7 +123,7 @@ def test_uniform_step_prior(rng):
         assert off.initial_error == pytest.approx(9 * 0.5 * 0.1**2 / (0.4**2 / 12), rel=1e-9)
         assert 0 < off.error < off.initial_error
         moved.append(align(off.receivers, traj, reflection=True).rmse)
-    assert moved[0] < 0.03 and moved[1] < 0.1 * moved[0]
+    assert moved[0] < 0.03 and moved[1] < 0.25 * moved[0]
 
 
 def test_robust_kernel_resists_a_wrong_range(rng):

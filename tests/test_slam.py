@@ -110,6 +110,28 @@ def test_trajectory_covariance(rng):
     assert np.all(w[:6] < 1e-9 * w[-1]) and np.all(w[6:] > 1e-9 * w[-1])
     for i in range(10):
         np.testing.assert_allclose(cov[3 * i : 3 * i + 3, 3 * i : 3 * i + 3], out.receiver_cov[i])
+    # the null space is the rigid motions of the positions in the result's own frame
+    x = out.receivers
+    motions = [np.tile(e, 10) for e in np.eye(3)] + [np.cross(a, x).ravel() for a in np.eye(3)]
+    for g in motions:
+        assert np.linalg.norm(cov @ g) < 1e-9 * np.linalg.norm(cov) * np.linalg.norm(g)
+
+
+def test_small_known_noise_keeps_honest_covariances(rng):
+    """A noise_std below the graph's sigma floor (1e-4 of the median range) is still the noise
+    the covariances describe: refined at the floor first, then at noise_std itself."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    bounds = (0.8 * steps, 1.2 * steps)
+    ranges = range_matrix(traj, landmarks)
+    sds = []
+    for sigma in (1e-5, 1e-4):
+        noisy = add_range_noise(ranges, sigma, rng=rng)
+        out = slam(noisy, step_bounds=bounds, noise_std=sigma, rng=rng)
+        assert out.converged, out.message
+        sds.append(np.sqrt(np.trace(out.trajectory_cov) / 10))
+    # covariances scale with the noise (ranges dominate the step prior at these levels)
+    assert sds[1] / sds[0] == pytest.approx(10, rel=0.05)
 
 
 def test_unknown_step_prior_is_refused(rng):
