@@ -321,6 +321,25 @@ def gtsam_style_start(
     return _random_start(steps, ranges.shape[1], 3, float(np.max(ranges)), rng)
 
 
+def _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior):
+    from .gtsam_backend import refine_graph
+
+    try:
+        base = refine_graph(
+            start_x,
+            start_s,
+            ranges,
+            noise_std=max(sigma, 1e-4),
+            step_bounds=step_bounds,
+            step_prior=step_prior,
+            covariances=False,
+            max_iterations=5000,
+        )
+    except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
+        return start_x, start_s
+    return base.receivers, base.sources
+
+
 def slam_experiment(
     m: int,
     sigma: float,
@@ -328,6 +347,7 @@ def slam_experiment(
     rng: np.random.Generator,
     *,
     bounds_placement: str = "centred",
+    baseline: bool = True,
     **slam_options,
 ) -> SlamExperiment:
     """Fig. 5: the lemniscate of eq. (12) from a random phase, M steps of t_n = 0.3 n, a
@@ -337,8 +357,7 @@ def slam_experiment(
     ``bounds_placement``: "centred" (the paper's +-20% of the true step) or "random" (the true
     step uniform inside bounds of the same width: the model the "uniform" step prior assumes, so
     the one in which its covariances can be judged, and a check that nothing relies on the truth
-    sitting in the middle)."""
-    from .gtsam_backend import refine_graph
+    sitting in the middle). ``baseline=False`` skips GTSAM alone (its fields are then NaN)."""
     from .slam import slam
     from .trajectories import lemniscate, step_lengths
 
@@ -366,20 +385,10 @@ def slam_experiment(
     seconds = time.perf_counter() - t0
     a = align(result.receivers, traj, reflection=True)
     start_x, start_s = gtsam_style_start(ranges, step_bounds, rng)
-    try:
-        base = refine_graph(
-            start_x,
-            start_s,
-            ranges,
-            noise_std=max(sigma, 1e-4),
-            step_bounds=step_bounds,
-            step_prior=step_prior,
-            covariances=False,
-            max_iterations=5000,
-        )
-        base_x, base_s = base.receivers, base.sources
-    except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
-        base_x, base_s = start_x, start_s
+    if not baseline:
+        base_x, base_s = np.full_like(traj, np.nan), np.full_like(landmarks, np.nan)
+    else:
+        base_x, base_s = _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior)
     bound = _receiver_crlb(traj, landmarks, sigma)
     nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
     return SlamExperiment(
@@ -394,7 +403,7 @@ def slam_experiment(
         baseline_sources=base_s,
         edm_error=align(result.edm_receivers, traj, reflection=True).rmse,
         error=a.rmse,
-        baseline_error=align(base_x, traj, reflection=True).rmse,
+        baseline_error=align(base_x, traj, reflection=True).rmse if baseline else float("nan"),
         source_error=_planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
         crlb=bound,
         nees=nees,

@@ -49,7 +49,9 @@ def test_covariances_are_honest_from_ten_steps(bounded_1cm):
 def test_1mm_twenty_steps_within_1_3_crlb(rng):
     """sigma = 1 mm, M = 20, bounds: median trajectory error within 1.3x the median CRLB of the
     ranges alone (the step prior can only add information)."""
-    runs = [slam_experiment(20, 0.001, True, rng) for _ in range(10)]
+    # 30 walks: over 30 the ratio was 0.98-1.07 on the seeds tried (0.77 over the benchmark's
+    # 50); over 10 the median moves by a factor of 2 between seeds.
+    runs = [slam_experiment(20, 0.001, True, rng, baseline=False) for _ in range(30)]
     error = np.median([r.error for r in runs])
     bound = np.median([r.crlb for r in runs])
     assert np.isfinite(bound)
