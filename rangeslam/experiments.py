@@ -318,7 +318,7 @@ def gtsam_style_start(
     observed = np.isfinite(ranges)
     bounds = None if step_bounds is None else tuple(np.asarray(b) for b in step_bounds)
     steps = _nominal_steps(bounds, ranges, observed)
-    return _random_start(steps, ranges.shape[1], 3, float(np.max(ranges)), rng)
+    return _random_start(steps, ranges.shape[1], 3, float(np.max(ranges[observed])), rng)
 
 
 def _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior):

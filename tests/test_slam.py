@@ -136,3 +136,19 @@ def test_unknown_step_prior_is_refused(rng):
     traj, landmarks = _scene(rng, 8)
     with pytest.raises(InvalidInputError, match="step_prior must be one of"):
         slam(range_matrix(traj, landmarks), step_prior="x")
+
+
+def test_gtsam_style_start_ignores_unobserved_ranges(rng):
+    """The baseline's start (random walk of the nominal steps, landmarks in a box of the largest
+    range) reads only observed ranges: NaN where an echo was missed."""
+    from rangeslam.experiments import gtsam_style_start
+
+    traj, landmarks = _scene(rng, 8)
+    r = range_matrix(traj, landmarks)
+    r[2, 3] = np.nan
+    steps = step_lengths(traj)
+    x0, s0 = gtsam_style_start(r, (0.8 * steps, 1.2 * steps), rng)
+    assert x0.shape == (8, 3) and s0.shape == (7, 3)
+    assert np.all(np.isfinite(x0)) and np.all(np.isfinite(s0))
+    np.testing.assert_allclose(step_lengths(x0), steps)
+    assert np.abs(s0).max() <= np.nanmax(r)
