@@ -207,7 +207,7 @@ def refine_graph(
         noise_std: standard deviation of the range noise, metres (> 0).
         mask: (M, K) boolean, True where observed.
         step_bounds: (lower, upper), each (M - 1,), bounds on |x_{i+1} - x_i| in metres: a
-            dead-zone step prior (no cost inside).
+            step prior as ``step_prior`` says.
         step_sigma: scale of the step prior outside the bounds, metres (default ``noise_std``).
         step_prior: "uniform" (dead zone plus the moment-matched Gaussian of a length uniform
             within the bounds) or "dead_zone" (no cost inside the bounds at all).

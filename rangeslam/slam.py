@@ -3,8 +3,9 @@
 The microphone's positions r_1..r_M along an unknown trajectory are the receivers, the loudspeaker
 and its image sources the landmarks: the same unfolding as zero-knowledge calibration (eq. 9).
 Bounds on the step length |r_{i+1} - r_i| enter the convex iteration as constraints on
-K(G)_{i,i+1} (eq. 11), and the EDM solution initialises a GTSAM range-factor graph with dead-zone
-step-length priors (:mod:`rangeslam.gtsam_backend`), which refines it and gives covariances.
+K(G)_{i,i+1} (eq. 11), and the EDM solution initialises a GTSAM range-factor graph with the same
+bounds as step-length priors (:mod:`rangeslam.gtsam_backend`), which refines it and gives
+covariances.
 """
 
 from __future__ import annotations
@@ -148,7 +149,7 @@ def slam(
     Args:
         ranges: (M, K) range from step m to landmark k, metres.
         step_bounds: (lower, upper), each (M - 1,), bounds on |r_{i+1} - r_i| in metres: eq. (11)
-            constraints in the SDP and dead-zone priors in the GTSAM refinement.
+            constraints in the SDP and step priors (``step_prior``) in the GTSAM refinement.
         mask: (M, K) boolean, True where observed.
         dim: 2 or 3.
         refine: refine the EDM answer with GTSAM (and compute covariances).
