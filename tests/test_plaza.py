@@ -48,7 +48,7 @@ def test_plaza1_counts(p1):
     assert span == pytest.approx(1933.25, abs=0.01)
     assert (len(p1.odometry_time) - 1) / span == pytest.approx(5.0, abs=0.01)
     assert np.median(np.diff(p1.odometry_time)) == pytest.approx(0.2, abs=0.001)
-    assert len(p1.ranges) == 3529 and p1.dropped_rows == 0
+    assert len(p1.ranges) == 3529  # every row kept: a bad row raises, none is skipped
     assert sorted(p1.beacon_ids.tolist()) == [0, 1, 5, 6]
     assert sorted(np.unique(p1.range_beacon).tolist()) == [0, 1, 5, 6]
     assert np.bincount(p1.range_beacon).tolist() == [902, 893, 0, 0, 0, 848, 886]
@@ -113,7 +113,6 @@ def test_plaza2_loads():
     d = plaza("Plaza2")
     assert len(d.odometry_time) == 4090 and len(d.ranges) == 1816 and len(d.truth_time) == 4091
     assert sorted(d.beacon_ids.tolist()) == [0, 1, 5, 6] and d.range_time_jumps == ()
-    assert d.dropped_rows == 0
 
 
 def test_frame_is_plausible(p1):
@@ -297,8 +296,18 @@ def test_truncated_text_file(copy_dir):
     data = path.read_bytes()
     last = data.rstrip(b"\r\n").rsplit(b"\r\n", 1)[1]
     start = len(data) - len(b"\r\n") - len(last)
-    path.write_bytes(data[: start + 30])  # the first number, a tab and the start of the second
+    path.write_bytes(data[: start + 30] + b"\r\n")  # first number, a tab, start of the second
     with pytest.raises(DataFormatError, match=r"Plaza1_DR.txt, row 9657: expected 3 numbers"):
+        plaza("Plaza1", data_dir=copy_dir)
+
+
+@pytest.mark.parametrize("name", ["Plaza1_DR.txt", "Plaza1_TD.txt"])
+def test_file_cut_inside_its_last_number(copy_dir, name):
+    """Cut inside the last number's exponent (4.6e-005 -> 4.6e-00 still parses): refused
+    because the last row has no line end."""
+    path = copy_dir / name
+    path.write_bytes(path.read_bytes()[:-4])
+    with pytest.raises(DataFormatError, match=name + r", row \d+: the last row has no line end"):
         plaza("Plaza1", data_dir=copy_dir)
 
 
