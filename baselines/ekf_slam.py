@@ -83,7 +83,6 @@ from scipy.optimize import least_squares
 from rangeslam._validation import frozen
 from rangeslam.calibration import (
     _canonical_frame,
-    _passes_residual_test,
     _validated_ranges,
     unknowns_up_to_rigid_motion,
 )
@@ -91,19 +90,15 @@ from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverE
 from rangeslam.gtsam_backend import _check_bounds
 from rangeslam.multilateration import multilaterate
 from rangeslam.simulation import range_matrix
-from rangeslam.slam import SlamResult
+from rangeslam.slam import _SIGMA_FLOOR, SlamResult, _least_steps, _residual_verdict
 
 __all__ = ["ekf_slam"]
 
 log = logging.getLogger(__name__)
 
-# Exact data: RMS residual at most this fraction of the median range passes the residual test.
-_EXACT_RTOL = 1e-8
-# Without noise_std: an answer whose RMS residual exceeds this fraction of the median range fails.
-_MAX_RELATIVE_RMS = 0.02
-# Floor of the range noise the filter is told, relative to the median range (exact data would
-# otherwise give R = 0, and the first updates with a poor linearisation would be trusted fully).
-_SIGMA_FLOOR = 1e-4
+# The floor of the range noise the filter is told is slam's _SIGMA_FLOOR (relative to the median
+# range): exact data would otherwise give R = 0, and the first updates with a poor linearisation
+# would be trusted fully.
 # Without noise_std, the window fit is first weighted with this guess (times the median range),
 # then refitted with the noise estimated from its residuals.
 _SIGMA_GUESS = 5e-3
@@ -249,19 +244,16 @@ def ekf_slam(
     n_obs = int(observed.sum())
     ssr = float(np.nansum(res**2)) if finite else float("inf")
     rms = float(np.sqrt(ssr / n_obs))
-    if noise_std is not None:
-        converged = _passes_residual_test(ssr, n_obs, m + k, dim, noise_std, _EXACT_RTOL * scale)
-        if not converged:
-            message += (
-                f"residual test failed: RMS residual {rms:.3g} m for noise_std {noise_std:.3g} m; "
-            )
-    else:
-        converged = rms <= _MAX_RELATIVE_RMS * scale
-        if not converged:
-            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
-    if n_obs - unknowns_up_to_rigid_motion(m + k, dim) <= 0 and bounds is None:
-        converged = False
-        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    converged, why = _residual_verdict(
+        ssr,
+        observed,
+        dim,
+        noise_std,
+        scale,
+        chi_square=noise_std is not None,
+        bounded=bounds is not None,
+    )
+    message += why
     converged = converged and not diverged
 
     if finite:
@@ -296,9 +288,7 @@ def ekf_slam(
 def _bounds_from_ranges(r: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Default step bounds without step_bounds: lower_i = max_k |r_(i+1)k - r_ik| over the
     landmarks heard at both steps (triangle inequality), upper_i = lower_i + median(lower)."""
-    both = observed[:-1] & observed[1:]
-    diff = np.where(both, np.abs(r[1:] - r[:-1]), 0.0)
-    lower = diff.max(axis=1)
+    lower = _least_steps(r, observed)
     return lower, lower + float(np.median(lower))
 
 

@@ -22,21 +22,15 @@ import argparse
 import numpy as np
 from _common import machine, markdown_table
 
-from rangeslam.experiments import slam_experiment
+from rangeslam.benchmarking import BOUND_SETTINGS
+from rangeslam.experiments import mean_nees, slam_experiment
 
 
 def nees_summary(runs) -> str:
     """Mean NEES / dof over the trials with covariances, and the 95% chi-square band of that mean
     for a consistent estimator."""
-    from scipy.stats import chi2
-
-    ok = [r for r in runs if np.isfinite(r.nees)]
-    if not ok:
-        return "-"
-    total = sum(r.nees_dof for r in ok)
-    lo, hi = chi2.ppf([0.025, 0.975], total) / total
-    mean = sum(r.nees for r in ok) / total
-    return f"{mean:.2f} [{lo:.2f}, {hi:.2f}]"
+    mean, lo, hi = mean_nees([r.nees for r in runs], [r.nees_dof for r in runs])
+    return "-" if np.isnan(mean) else f"{mean:.2f} [{lo:.2f}, {hi:.2f}]"
 
 
 def main() -> None:
@@ -45,7 +39,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, nargs="+", default=[4, 5, 6, 8, 10, 15, 20])
     ap.add_argument("--sigmas", type=float, nargs="+", default=[1e-3, 1e-2], help="metres")
-    ap.add_argument("--bounds", choices=["both", "with", "without"], default="both")
+    ap.add_argument("--bounds", choices=list(BOUND_SETTINGS), default="both")
     ap.add_argument("--step-prior", choices=["uniform", "dead_zone"], default="uniform")
     ap.add_argument("--placement", choices=["centred", "random"], default="centred")
     ap.add_argument("--extra-starts", type=int, default=0, help="slam's extra_starts")
@@ -71,7 +65,7 @@ def main() -> None:
         f"{machine()})\n"
     )
     print(markdown_table(header, []), flush=True)  # rows follow as they are measured
-    with_bounds = {"both": (True, False), "with": (True,), "without": (False,)}[args.bounds]
+    with_bounds = BOUND_SETTINGS[args.bounds]
     for sigma in args.sigmas:
         for bounds in with_bounds:
             for m in args.steps:

@@ -25,6 +25,7 @@ import numpy as np
 
 from .alignment import align
 from .errors import InvalidInputError
+from .experiments import mean_nees
 
 __all__ = [
     "BENCHES",
@@ -46,6 +47,8 @@ __all__ = [
 ]
 
 BENCHES = ("fig3", "fig5", "compare")
+#: The --bounds choices: which step-bound settings a SLAM run covers.
+BOUND_SETTINGS = {"both": (True, False), "with": (True,), "without": (False,)}
 FIG3_SIGMAS = (0.0, 1e-3, 5e-3, 1e-2)
 FIG5_STEPS = (4, 5, 6, 8, 10, 15, 20)
 FIG5_SIGMAS = (1e-3, 1e-2)
@@ -325,18 +328,13 @@ def versions() -> dict[str, str]:
     return out
 
 
-def _nanmedian(values) -> float:
-    """Median of the finite values (failed trials have no time), NaN when there are none."""
+def _stats(values) -> tuple[float, float]:
+    """(mean, median) of the finite values (failed trials have none), NaNs when there are none."""
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
-    return float(np.median(v)) if v.size else float("nan")
-
-
-def _stats(values: np.ndarray) -> tuple[float, float]:
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
+    if v.size == 0:
         return float("nan"), float("nan")
-    return float(np.mean(finite)), float(np.median(finite))
+    return float(np.mean(v)), float(np.median(v))
 
 
 def _cells(rows: Sequence[dict]) -> dict[int, list[dict]]:
@@ -396,7 +394,7 @@ def summary_table(
                 else float(np.sum(err < 1e-3)) / n
             )
             conv = float(np.sum(col("converged"))) / n
-            t = _nanmedian([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
+            _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
             rec.update(
                 median_error_m=med_e,
                 median_crlb_m=med_c,
@@ -432,13 +430,11 @@ def summary_table(
                 rec[m] = {"mean_error_m": mean, "median_error_m": med, "success": success}
                 cells.append(f"{mean * 100:.2f} / {med * 100:.2f}, {success * 100:.0f}%")
             crlb = float(np.median(col("crlb_m"))) if ok else float("nan")  # inf: not identifiable
-            nees, dof = col("nees"), col("nees_dof")
-            good = np.isfinite(nees)
-            ratio = float(nees[good].sum() / dof[good].sum()) if good.any() else float("nan")
+            ratio, _, _ = mean_nees(col("nees"), col("nees_dof"))
             kept = float(np.mean(col("edm_start_kept"))) if ok else float("nan")
             rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
             t = {
-                m: float(_nanmedian([times[id(r)].get(m, np.nan) for r in cell_rows]))
+                m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
                 for m in ("edm_gtsam", "ekf")
                 if m in methods
             }

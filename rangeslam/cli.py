@@ -233,7 +233,9 @@ def _run_bench(
 
 
 def _bench(args: argparse.Namespace) -> int:
-    bounds = {"both": (True, False), "with": (True,), "without": (False,)}[args.bounds]
+    from .benchmarking import BOUND_SETTINGS
+
+    bounds = BOUND_SETTINGS[args.bounds]
     return _run_bench(
         args.which,
         trials=args.trials,

@@ -297,6 +297,21 @@ def trajectory_nees(alignment, cov: np.ndarray | None, truth: np.ndarray) -> tup
     return float(np.sum(proj**2 / w)), dof
 
 
+def mean_nees(nees, dofs, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean NEES per degree of freedom over trials (those with a finite NEES), and the two-sided
+    ``level`` chi-square band of that mean for a consistent estimator: (mean, low, high); NaNs
+    when no trial has one."""
+    from scipy.stats import chi2
+
+    nees, dofs = np.asarray(nees, dtype=float), np.asarray(dofs, dtype=float)
+    good = np.isfinite(nees)
+    if not good.any():
+        return float("nan"), float("nan"), float("nan")
+    total = float(dofs[good].sum())
+    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], total) / total
+    return float(nees[good].sum() / total), float(lo), float(hi)
+
+
 def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
     got = alignment.apply(sources)
     mirrored = got.copy()

@@ -94,11 +94,7 @@ def plot_room_reconstruction(
     axs[0][0].legend(loc="best", fontsize=7)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, path)
 
 
 def _save(fig, path: str | Path) -> Path:

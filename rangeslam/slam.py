@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from ._validation import frozen
 from .calibration import (
+    _MAX_RELATIVE_RMS,
     _canonical_frame,
     _convex_iteration_runs,
     _passes_residual_test,
@@ -84,6 +85,48 @@ class SlamResult:
     eigen_gap: float
 
 
+def _least_steps(r: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(M - 1,) the least each step can be by the triangle inequality, max_k |r_(i+1)k - r_ik|
+    over the landmarks heard at both steps (0 where none is)."""
+    both = observed[:-1] & observed[1:]
+    return np.where(both, np.abs(np.diff(r, axis=0)), 0.0).max(axis=1)
+
+
+def _residual_verdict(
+    ssr: float,
+    observed: np.ndarray,
+    dim: int,
+    noise_std: float | None,
+    scale: float,
+    *,
+    chi_square: bool,
+    bounded: bool,
+) -> tuple[bool, str]:
+    """Whether a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
+    (M, K) ranges) is acceptable, and if not why: the chi-square test against ``noise_std`` when
+    ``chi_square``, else RMS <= 2% of the median range ``scale``; never without redundant ranges
+    unless step bounds are ``bounded``."""
+    n_obs = int(observed.sum())
+    n = sum(observed.shape)
+    rms = float(np.sqrt(ssr / n_obs))
+    message = ""
+    if chi_square:
+        ok = _passes_residual_test(ssr, n_obs, n, dim, noise_std, _EXACT_RTOL * scale)
+        if not ok:
+            message += (
+                f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
+                f"{noise_std:.3g} m; "
+            )
+    else:
+        ok = rms <= _MAX_RELATIVE_RMS * scale
+        if not ok:
+            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
+    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
+        ok = False
+        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    return ok, message
+
+
 def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
     """Refuse step bounds that no positions can meet: by the triangle inequality, for every
     landmark k heard at steps i and i + 1, |r_ik - r_(i+1)k| <= |x_(i+1) - x_i| <= r_ik + r_(i+1)k
@@ -91,10 +134,11 @@ def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
     lower, upper = bounds
     both = observed[:-1] & observed[1:]
     slack_abs = 0.0 if noise_std is None else 4 * np.sqrt(2) * noise_std
+    least_steps = _least_steps(r, observed)
     for i in np.flatnonzero(both.any(axis=1)):
         a, b = r[i, both[i]], r[i + 1, both[i]]
         slack = slack_abs if noise_std is not None else 0.01 * float(np.max(a + b))
-        least, most = float(np.max(np.abs(a - b))), float(np.min(a + b))
+        least, most = float(least_steps[i]), float(np.min(a + b))
         if upper[i] < least - slack or lower[i] > most + slack:
             raise InvalidInputError(
                 f"step_bounds contradict the ranges at step {i}: [{lower[i]:.4g}, {upper[i]:.4g}] m "
@@ -109,9 +153,8 @@ def _nominal_steps(bounds, r: np.ndarray, observed: np.ndarray) -> np.ndarray:
     landmark is heard at both steps)."""
     if bounds is not None:
         return 0.5 * (bounds[0] + bounds[1])
-    both = observed[:-1] & observed[1:]
-    least = np.where(both, np.abs(np.diff(r, axis=0)), 0.0).max(axis=1)
-    heard = both.any(axis=1)
+    least = _least_steps(r, observed)
+    heard = (observed[:-1] & observed[1:]).any(axis=1)
     fill = float(np.median(least[heard])) if heard.any() else 1.0
     return np.where(heard & (least > 0), least, fill)
 
@@ -290,7 +333,7 @@ def slam(
             # All on one graph, the first run's.
             key = fit.error
             if sigma != sigma_ref:
-                key = graph(stacked(fit), sigma_ref, max_iterations=1).initial_error
+                key = graph(stacked(fit), sigma_ref, max_iterations=0).error
         else:
             rec, src = pts[:m], pts[m:]
         res = range_matrix(rec, src) - r
@@ -334,20 +377,16 @@ def slam(
         message += f"{len(failures)} SDP runs failed ({failures[0]}); "
     if start_failures:
         message += f"GTSAM failed from {'; '.join(start_failures)}; "
-    if noise_std is not None and redundancy > 0:
-        converged = _passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
-        if not converged:
-            message += (
-                f"no run passed the residual test: RMS residual {rms:.3g} m for noise_std "
-                f"{noise_std:.3g} m; "
-            )
-    else:
-        converged = rms <= 0.02 * scale
-        if not converged:
-            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
-    if redundancy <= 0 and bounds is None:
-        converged = False
-        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    converged, why = _residual_verdict(
+        ssr,
+        observed,
+        dim,
+        noise_std,
+        scale,
+        chi_square=noise_std is not None and redundancy > 0,
+        bounded=bounds is not None,
+    )
+    message += why
     if fit is not None and not fit.converged:
         converged = False
         message += f"GTSAM: {fit.message}; "

@@ -159,6 +159,19 @@ def test_odometry_priors(rng):
     assert np.trace(with_len.joint_cov) < np.trace(without.joint_cov)
 
 
+def test_zero_iterations_evaluate_the_graph(rng):
+    """max_iterations=0 leaves the points where they are and returns the graph's cost there (what
+    slam uses to compare runs on one graph)."""
+    x, s = _scene(rng)
+    z = range_matrix(x, s) + 0.01 * rng.standard_normal((len(x), len(s)))
+    start = x + 0.02 * rng.standard_normal(x.shape)
+    fit = refine_graph(start, s, z, noise_std=0.01, max_iterations=0, covariances=False)
+    np.testing.assert_array_equal(fit.receivers, start)
+    assert fit.iterations == 0 and fit.error == fit.initial_error > 0
+    moved = refine_graph(start, s, z, noise_std=0.01, max_iterations=1, covariances=False)
+    assert moved.initial_error == fit.error and moved.error < fit.error
+
+
 def test_bad_input(rng):
     x, s = _scene(rng)
     r = range_matrix(x, s)
@@ -177,6 +190,8 @@ def test_bad_input(rng):
         refine_graph(x, s, r, noise_std=0.01, step_bounds=(-np.ones(m - 1), np.ones(m - 1)))
     with pytest.raises(InvalidInputError, match="odometry_sigma"):
         refine_graph(x, s, r, noise_std=0.01, step_lengths=np.ones(m - 1))
+    with pytest.raises(InvalidInputError, match="max_iterations must be an integer >= 0"):
+        refine_graph(x, s, r, noise_std=0.01, max_iterations=-1)
     with pytest.raises(InvalidInputError, match="step_prior must be one of"):
         bounds = (np.ones(m - 1), 2 * np.ones(m - 1))
         refine_graph(x, s, r, noise_std=0.01, step_bounds=bounds, step_prior="gaussian")
