@@ -111,6 +111,25 @@ class PlazaDataset:
         order = np.argsort(self.beacon_ids)
         return order[np.searchsorted(self.beacon_ids, self.range_beacon, sorter=order)]
 
+    @property
+    def pose_time(self) -> np.ndarray:
+        """(N + 1,) time of each pose: the start (``truth_time[0]``), then each odometry step.
+
+        Pose k is the robot after odometry step k (row k of :meth:`dead_reckoning`).
+        """
+        return frozen(np.concatenate([[self.truth_time[0]], self.odometry_time]))
+
+    @property
+    def range_pose(self) -> np.ndarray:
+        """(R,) index of the pose each range is attached to: the first pose at or after its time.
+
+        The convention of GTSAM's RangeISAMExample_plaza2 (a range joins the graph with the first
+        odometry step whose time is not earlier). Ranges after the last step (none in either
+        file) go to the last pose.
+        """
+        idx = np.searchsorted(self.pose_time, self.range_time, side="left")
+        return frozen(np.minimum(idx, len(self.pose_time) - 1))
+
     def truth_at(self, times: ArrayLike) -> np.ndarray:
         """(n, 2) ground-truth positions at ``times`` (a scalar or 1-D), linearly interpolated.
 
