@@ -24,6 +24,7 @@ from .edm import gram_to_edm
 from .errors import InvalidInputError, SolverError
 
 __all__ = [
+    "RANGE_MODELS",
     "EDMCompletion",
     "EDMCompletionSDP",
     "complete_edm",
@@ -60,6 +61,9 @@ class EDMCompletion:
         status: status of the last SDP solve ("optimal" or "optimal_inaccurate").
         solver: the solver that produced the last solve (the fallback is recorded here).
         method: "convex_iteration", "trace_min" or "trace_max".
+        range_scale: (G,) for problems with range groups: the estimated scale k of each group's
+            ranges (measured range = k * distance + offset); None otherwise.
+        range_offset: (G,) likewise, the offset in the caller's units (0 for the "scale" model).
     """
 
     gram: np.ndarray
@@ -72,6 +76,13 @@ class EDMCompletion:
     status: str
     solver: str
     method: str
+    range_scale: np.ndarray | None = None
+    range_offset: np.ndarray | None = None
+
+
+#: Models of uncalibrated ranges r (measured) against distances d: r = k d ("scale"),
+#: r = d + b ("offset"), r = k d + b ("affine"); k, b unknown per range group.
+RANGE_MODELS = ("scale", "offset", "affine")
 
 
 def eigen_gap(gram: np.ndarray, dim: int) -> float:
@@ -128,6 +139,17 @@ class EDMCompletionSDP:
         loss: "l2" (the s-stress of eq. 8, squared residuals) or "l1" (absolute residuals: a few
             wrong distances pull the solution less).
         solver: cvxpy solver name; Clarabel by default.
+        range_groups: optional (N, N) integer array: -1 for pairs whose data are distances, and a
+            group g >= 0 for pairs whose data are uncalibrated ranges (squared, like the rest)
+            sharing an unknown model ``range_model``: all pairs of a group have the same scale k
+            and offset b. The squared distance ((r - b) / k)^2 = a r^2 - 2 c r + e is linear in
+            (a, c, e) = (1, b, b^2) / k^2, so the unknowns enter the SDP as three variables per
+            group, with e >= c^2 / a (equality for the true values) as the one convex constraint
+            left of the relaxation. Scale needs pairs with distances (-1) to fix the units; an
+            offset is the unknown emission time of an acoustic event (times the speed of sound)
+            or a radio's range bias.
+        range_model: "scale" (a only), "offset" (a = 1) or "affine" (a, c, e), see
+            :data:`RANGE_MODELS`.
     """
 
     def __init__(
@@ -137,6 +159,8 @@ class EDMCompletionSDP:
         bounded_pairs: ArrayLike | None = None,
         loss: str = "l2",
         solver: str = "CLARABEL",
+        range_groups: ArrayLike | None = None,
+        range_model: str = "scale",
     ) -> None:
         w = np.array(mask, copy=True)
         if w.dtype != bool or w.ndim != 2 or w.shape[0] != w.shape[1]:
@@ -161,6 +185,15 @@ class EDMCompletionSDP:
         k_of_g = self._pair_map(pairs) @ cp.vec(self._gram, order="C")  # K(G) on the pairs
         # w * K(G) - w * D: the product of two Parameters is not DPP, so w * D is one Parameter.
         weighted_residual = cp.multiply(self._w, k_of_g) - self._wd
+        constraints = [cp.sum(self._gram, axis=1) == 0]
+        self.range_model = range_model
+        self.group_of_pair = np.full(len(pairs), -1)
+        self.n_groups = 0
+        if range_groups is not None:
+            weighted_residual, more = self._calibration_terms(
+                weighted_residual, range_groups, range_model
+            )
+            constraints += more
         if loss == "l2":
             fit = cp.sum_squares(weighted_residual)  # s-stress, eq. (8)
         elif loss == "l1":
@@ -168,7 +201,6 @@ class EDMCompletionSDP:
         else:
             raise InvalidInputError(f"loss must be 'l2' or 'l1'; got {loss!r}")
         self.loss = loss
-        constraints = [cp.sum(self._gram, axis=1) == 0]
         self.bounded_pairs = np.zeros((0, 2), dtype=int)
         if bounded_pairs is not None:
             bp = np.array(bounded_pairs, dtype=int, copy=True)
@@ -188,6 +220,63 @@ class EDMCompletionSDP:
         if not self._problem.is_dpp():  # a programming error: re-solves would re-compile
             raise RuntimeError("the EDM completion problem is not DPP")
         self.scale = 1.0
+
+    def _calibration_terms(self, residual, range_groups: ArrayLike, range_model: str):
+        """Residual minus the calibrated squared ranges a r^2 - 2 c r + e of each group."""
+        if range_model not in RANGE_MODELS:
+            raise InvalidInputError(
+                f"range_model must be one of {RANGE_MODELS}; got {range_model!r}"
+            )
+        groups = np.array(range_groups, copy=True)
+        n = self.n
+        if groups.shape != (n, n) or not np.issubdtype(groups.dtype, np.integer):
+            raise InvalidInputError(
+                f"range_groups must be an integer ({n}, {n}) array; got dtype {groups.dtype}, "
+                f"shape {shape_str(groups.shape)}"
+            )
+        if not np.array_equal(groups, groups.T) or np.any(groups < -1):
+            raise InvalidInputError("range_groups must be symmetric with entries >= -1")
+        g = groups[self.pairs[:, 0], self.pairs[:, 1]]
+        if not np.any(g >= 0):
+            raise InvalidInputError("range_groups marks no observed pair as a range")
+        if range_model != "offset" and not np.any(g < 0):
+            raise InvalidInputError(
+                f"range_model {range_model!r} needs observed pairs with distances (range_groups "
+                "-1) to fix the units; every observed pair is an uncalibrated range"
+            )
+        ids = np.unique(g[g >= 0])
+        if not np.array_equal(ids, np.arange(len(ids))):
+            raise InvalidInputError(f"range groups must be numbered 0..G-1; got {ids.tolist()}")
+        self.group_of_pair = g
+        self.n_groups = n_groups = len(ids)
+        p = len(g)
+        # One-hot (P, G) coefficient Parameters: w r^2, w r and w on the pairs of each group.
+        self._c2 = cp.Parameter((p, n_groups), name="w_r2")
+        self._c1 = cp.Parameter((p, n_groups), name="w_r")
+        self._c0 = cp.Parameter((p, n_groups), nonneg=True, name="w")
+        self._a = cp.Variable(n_groups, nonneg=True, name="a")
+        self._c = self._e = None
+        more = []
+        if range_model == "scale":
+            return residual - self._c2 @ self._a, more
+        self._c = cp.Variable(n_groups, name="c")
+        self._e = cp.Variable(n_groups, nonneg=True, name="e")
+        calibrated = self._c2 @ self._a - 2 * (self._c1 @ self._c) + self._c0 @ self._e
+        more += [cp.quad_over_lin(self._c[k], self._a[k]) <= self._e[k] for k in ids]
+        if range_model == "offset":
+            more += [self._a == 1]
+        return residual - calibrated, more
+
+    def calibration(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(scale k, offset b) per range group from the last solve (b in the caller's units)."""
+        if self.n_groups == 0 or self._a.value is None:
+            return None
+        a = np.maximum(np.asarray(self._a.value, dtype=float), 1e-300)
+        k = 1.0 / np.sqrt(a)
+        if self._c is None:
+            return k, np.zeros_like(k)
+        b = np.asarray(self._c.value, dtype=float) / a * self.scale
+        return k, b
 
     def _pair_map(self, pairs: np.ndarray) -> np.ndarray:
         """(P, N^2) matrix taking vec(G) (row-major) to K(G)_ij = G_ii + G_jj - 2 G_ij, eq. (6)."""
@@ -230,7 +319,17 @@ class EDMCompletionSDP:
         scale = float(np.sqrt(np.median(used))) if used.size else 1.0
         self.scale = scale
         self._w.value = w
-        self._wd.value = w * d / scale**2
+        ranged = self.group_of_pair >= 0
+        fixed = d / scale**2
+        if self.n_groups:
+            r = np.sqrt(np.maximum(d, 0.0)) / scale
+            onehot = np.zeros((len(d), self.n_groups))
+            onehot[np.flatnonzero(ranged), self.group_of_pair[ranged]] = 1.0
+            self._c2.value = onehot * (w * r**2)[:, None]
+            self._c1.value = onehot * (w * r)[:, None]
+            self._c0.value = onehot * w[:, None]
+            fixed = np.where(ranged, 0.0, fixed)
+        self._wd.value = w * fixed
         p = len(self.bounded_pairs)
         if p == 0 and bounds is not None:
             raise InvalidInputError("bounds were given but the problem has no bounded_pairs")
@@ -265,7 +364,7 @@ class EDMCompletionSDP:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # the status is checked below
-                    self._problem.solve(solver=name, **_solver_options(name))
+                    self._problem.solve(solver=name, **_solver_options(name, self.n_groups > 0))
             except cp.error.SolverError as exc:
                 statuses.append(f"{name}: error ({str(exc).splitlines()[0]})")
                 continue
@@ -277,9 +376,14 @@ class EDMCompletionSDP:
         raise SolverError("EDM completion SDP failed", status="; ".join(statuses))
 
 
-def _solver_options(name: str) -> dict:
+def _solver_options(name: str, calibrated: bool = False) -> dict:
     if name == "CLARABEL":
-        return {"tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7}
+        options = {"tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7}
+        if calibrated:
+            # With range-calibration variables Clarabel's KKT solves failed (NumericalError) on
+            # most Plaza windows at its default static regularisation 1e-8; 1e-7 solved them all.
+            options["static_regularization_constant"] = 1e-7
+        return options
     if name == "SCS":
         return {"eps": 1e-7, "max_iters": 20000}
     return {}
@@ -301,6 +405,8 @@ def complete_edm(
     loss: str = "l2",
     solver: str = "CLARABEL",
     problem: EDMCompletionSDP | None = None,
+    range_groups: ArrayLike | None = None,
+    range_model: str = "scale",
 ) -> EDMCompletion:
     """Complete a partial EDM with embedding dimension ``dim`` (eq. 8, rank relaxed).
 
@@ -321,7 +427,10 @@ def complete_edm(
         solver: cvxpy solver; on failure the SDP is retried with SCS (``FALLBACK_SOLVER``) and the
             solver used is recorded in the result. SolverError (with both statuses) if both fail.
         problem: a prebuilt :class:`EDMCompletionSDP` for this mask, to reuse across calls (its
-            mask must equal ``mask``; its bounded pairs, loss and solver are used).
+            mask must equal ``mask``; its bounded pairs, loss, solver and range groups are used).
+        range_groups, range_model: pairs whose data are uncalibrated ranges, with an unknown
+            scale and/or offset per group, estimated with G (see :class:`EDMCompletionSDP`);
+            the estimates are returned in ``range_scale`` and ``range_offset``.
 
     The iteration also stops when the gap stops decreasing (no relative progress of 1e-3 over
     5 iterations); ``converged`` then stays False and the iterate with the smallest gap is
@@ -338,7 +447,16 @@ def complete_edm(
             f"max_iterations must be a positive integer; got {max_iterations!r}"
         )
     if problem is None:
-        problem = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, loss=loss, solver=solver)
+        problem = EDMCompletionSDP(
+            mask,
+            bounded_pairs=bounded_pairs,
+            loss=loss,
+            solver=solver,
+            range_groups=range_groups,
+            range_model=range_model,
+        )
+    elif range_groups is not None:
+        raise InvalidInputError("range_groups are fixed when the problem is built; not both")
     elif not np.array_equal(
         np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), problem.mask
     ):
@@ -376,13 +494,13 @@ def complete_edm(
         g, status, used = problem.solve(z)
         gaps.append(eigen_gap(g, dim))
         if best is None or gaps[-1] <= best[0]:
-            best = (gaps[-1], g, status, used)
+            best = (gaps[-1], g, status, used, problem.calibration())
         if gaps[-1] <= tol:
             break
         if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
             break  # stalled: the last 5 iterations did not improve on the earlier best
         z = low_rank_direction(g, dim)
-    gap, g, status, used = best
+    gap, g, status, used, calibration = best
     converged = method != "convex_iteration" or gap <= tol
     return EDMCompletion(
         gram=frozen(g),
@@ -395,4 +513,6 @@ def complete_edm(
         status=status,
         solver=used,
         method=method,
+        range_scale=None if calibration is None else frozen(calibration[0]),
+        range_offset=None if calibration is None else frozen(calibration[1]),
     )
