@@ -150,6 +150,9 @@ class EDMCompletionSDP:
             or a radio's range bias.
         range_model: "scale" (a only), "offset" (a = 1) or "affine" (a, c, e), see
             :data:`RANGE_MODELS`.
+        solver_options: keyword options for the primary solver, over the defaults (e.g.
+            Clarabel's ``static_regularization_constant``, raised from 1e-8 to 1e-7 by default
+            for problems with range groups: its KKT solves failed without).
     """
 
     def __init__(
@@ -161,6 +164,7 @@ class EDMCompletionSDP:
         solver: str = "CLARABEL",
         range_groups: ArrayLike | None = None,
         range_model: str = "scale",
+        solver_options: dict | None = None,
     ) -> None:
         w = np.array(mask, copy=True)
         if w.dtype != bool or w.ndim != 2 or w.shape[0] != w.shape[1]:
@@ -178,6 +182,7 @@ class EDMCompletionSDP:
         self.pairs = pairs
         self.mask = w & ~np.eye(n, dtype=bool)  # the observed pattern, diagonal ignored
         self.solver = solver
+        self.solver_options = dict(solver_options or {})
         self._gram = cp.Variable((n, n), PSD=True)
         self._z = cp.Parameter((n, n), symmetric=True, name="Z")
         self._w = cp.Parameter(len(pairs), nonneg=True, name="weights")
@@ -364,7 +369,10 @@ class EDMCompletionSDP:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # the status is checked below
-                    self._problem.solve(solver=name, **_solver_options(name, self.n_groups > 0))
+                    options = _solver_options(name, self.n_groups > 0)
+                    if name == self.solver:
+                        options.update(self.solver_options)
+                    self._problem.solve(solver=name, **options)
             except cp.error.SolverError as exc:
                 statuses.append(f"{name}: error ({str(exc).splitlines()[0]})")
                 continue
@@ -407,6 +415,7 @@ def complete_edm(
     problem: EDMCompletionSDP | None = None,
     range_groups: ArrayLike | None = None,
     range_model: str = "scale",
+    solver_options: dict | None = None,
 ) -> EDMCompletion:
     """Complete a partial EDM with embedding dimension ``dim`` (eq. 8, rank relaxed).
 
@@ -431,6 +440,7 @@ def complete_edm(
         range_groups, range_model: pairs whose data are uncalibrated ranges, with an unknown
             scale and/or offset per group, estimated with G (see :class:`EDMCompletionSDP`);
             the estimates are returned in ``range_scale`` and ``range_offset``.
+        solver_options: options for ``solver`` (see :class:`EDMCompletionSDP`).
 
     The iteration also stops when the gap stops decreasing (no relative progress of 1e-3 over
     5 iterations); ``converged`` then stays False and the iterate with the smallest gap is
@@ -454,9 +464,13 @@ def complete_edm(
             solver=solver,
             range_groups=range_groups,
             range_model=range_model,
+            solver_options=solver_options,
         )
-    elif range_groups is not None:
-        raise InvalidInputError("range_groups are fixed when the problem is built; not both")
+    elif range_groups is not None or solver_options is not None:
+        raise InvalidInputError(
+            "range_groups and solver_options are fixed when the problem is built; pass them "
+            "there, not with problem"
+        )
     elif not np.array_equal(
         np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), problem.mask
     ):
