@@ -819,39 +819,21 @@ def _pose_array(values, n: int) -> np.ndarray:
     return out
 
 
-def beacon_slam(
-    data: RangeOdometry,
-    *,
-    start_pose: ArrayLike = (0.0, 0.0, 0.0),
-    max_iterations: int = 100,
-    **settings,
-) -> BeaconSlamResult:
-    """Batch range-only SLAM with odometry: windowed EDM initialisation, then GTSAM.
+def _check_initialisation(initialisation: str, rng) -> None:
+    if initialisation not in ("edm", "random"):
+        raise InvalidInputError(f"initialisation must be 'edm' or 'random'; got {initialisation!r}")
+    if initialisation == "random" and not isinstance(rng, np.random.Generator):
+        raise InvalidInputError(
+            f"rng must be a numpy Generator for initialisation='random'; got {rng!r}"
+        )
 
-    1. Dead reckoning from ``start_pose`` (the gauge: the map is expressed in its frame).
-    2. EDM completion per window of ``window_length`` metres: beacons in each window's frame.
-    3. Stitching: a rigid correction per window and one position per beacon; the corrections,
-       interpolated along the path (by distance travelled), move the dead-reckoned poses.
-    4. GTSAM: Pose2 odometry, robust range factors with the range calibration unknown,
-       Levenberg-Marquardt (the loop in Python, see :func:`_levenberg_marquardt`).
 
-    Args:
-        data: the odometry and ranges (:class:`RangeOdometry`).
-        start_pose: pose 0, (x, y, heading); it fixes the gauge.
-        max_iterations: Levenberg-Marquardt iterations at most.
+def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
+    """Steps 2-3 of :func:`beacon_slam`: window EDMs, stitching, corrected poses.
+
+    Returns initial poses (N + 1, 3), beacons (B, 2) (NaN where not placed), which beacons were
+    placed (B,), and notes for the result's message.
     """
-    t0 = time.perf_counter()
-    if not isinstance(data, RangeOdometry):
-        raise InvalidInputError(
-            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
-        )
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
-        raise InvalidInputError(
-            f"max_iterations must be a positive integer; got {max_iterations!r}"
-        )
-    cfg = _settings(**{**_DEFAULTS, **_known(settings)})
-    start = as_point(start_pose, "start_pose", dim=3)
-    dr = dead_reckoning(data.odometry, start)
     travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
     window_of_pose = _windows(travelled, cfg.window_length)
     n_windows = int(window_of_pose[-1]) + 1
@@ -898,6 +880,59 @@ def beacon_slam(
     # Window 0's correction is the identity (the stitching's gauge), so pose 0 stays at start.
     poses0 = _compose(frames, dr)
 
+    notes = [f"{len(submaps)} of {n_windows} windows placed beacons"]
+    if failed:
+        notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
+    return poses0, beacons0, placed, notes
+
+
+def beacon_slam(
+    data: RangeOdometry,
+    *,
+    start_pose: ArrayLike = (0.0, 0.0, 0.0),
+    max_iterations: int = 100,
+    initialisation: str = "edm",
+    rng: np.random.Generator | None = None,
+    **settings,
+) -> BeaconSlamResult:
+    """Batch range-only SLAM with odometry: windowed EDM initialisation, then GTSAM.
+
+    1. Dead reckoning from ``start_pose`` (the gauge: the map is expressed in its frame).
+    2. EDM completion per window of ``window_length`` metres: beacons in each window's frame.
+    3. Stitching: a rigid correction per window and one position per beacon; the corrections,
+       interpolated along the path (by distance travelled), move the dead-reckoned poses.
+    4. GTSAM: Pose2 odometry, robust range factors with the range calibration unknown,
+       Levenberg-Marquardt (the loop in Python, see :func:`_levenberg_marquardt`).
+
+    Args:
+        data: the odometry and ranges (:class:`RangeOdometry`).
+        start_pose: pose 0, (x, y, heading); it fixes the gauge.
+        max_iterations: Levenberg-Marquardt iterations at most.
+        initialisation: "edm" (steps 2-3) or "random": dead-reckoned poses and beacons drawn
+            from N(0, I) m as GTSAM's RangeISAMExample_plaza2 starts them (needs ``rng``): the
+            same graph without the EDM, for comparison.
+        rng: random generator for ``initialisation="random"``.
+    """
+    t0 = time.perf_counter()
+    if not isinstance(data, RangeOdometry):
+        raise InvalidInputError(
+            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
+        )
+    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
+        raise InvalidInputError(
+            f"max_iterations must be a positive integer; got {max_iterations!r}"
+        )
+    _check_initialisation(initialisation, rng)
+    cfg = _settings(**{**_DEFAULTS, **_known(settings)})
+    start = as_point(start_pose, "start_pose", dim=3)
+    dr = dead_reckoning(data.odometry, start)
+    if initialisation == "edm":
+        poses0, beacons0, placed, notes = _edm_initialisation(data, dr, cfg)
+    else:
+        poses0, beacons0 = dr, rng.standard_normal((data.n_beacons, 2))
+        placed = np.isin(np.arange(data.n_beacons), data.range_beacon)
+        beacons0[~placed] = np.nan
+        notes = ["random beacons, dead-reckoned poses"]
     used = placed[data.range_beacon]
     values, dims = _initial_values(poses0, beacons0, placed, cfg, data.n_beacons)
     group, n_groups = _group_of_range(data, cfg.per_beacon)
@@ -917,20 +952,17 @@ def beacon_slam(
     for j in np.flatnonzero(placed):
         beacons[j] = values.atPoint2(_key_l(int(j)))
     scale, offset = _calibration_arrays(values, cfg, data.n_beacons, placed)
-    notes = [
-        f"{len(submaps)} of {n_windows} windows placed beacons",
+    notes.append(
         f"LM: {report.message} after {report.iterations} iterations "
-        f"(cost {report.initial_cost:.4g} -> {report.cost:.4g})",
-    ]
-    if failed:
-        notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
+        f"(cost {report.initial_cost:.4g} -> {report.cost:.4g})"
+    )
     if not np.all(placed):
         notes.append(
             f"beacons never placed: {np.flatnonzero(~placed).tolist()} "
             f"({int(np.sum(~used))} of their ranges unused)"
         )
     return BeaconSlamResult(
-        method="edm+gtsam",
+        method="edm+gtsam" if initialisation == "edm" else "gtsam random beacons",
         pose_time=data.pose_time,
         poses=frozen(poses),
         beacons=frozen(beacons),
@@ -986,6 +1018,8 @@ def beacon_slam_incremental(
     update_every: int = 25,
     relinearize_threshold: float = 0.1,
     factorization: str = "QR",
+    initialisation: str = "edm",
+    rng: np.random.Generator | None = None,
     **settings,
 ) -> BeaconSlamResult:
     """Incremental range-only SLAM with odometry: iSAM2 over the data in time order.
@@ -1003,6 +1037,9 @@ def beacon_slam_incremental(
         update_every: new range factors between iSAM2 updates.
         relinearize_threshold: iSAM2's relinearisation threshold.
         factorization: "QR" (default) or "CHOLESKY" (iSAM2's; on Plaza1 GTSAM's example needs QR).
+        initialisation: "edm", or "random": each beacon enters at its first range, drawn from
+            N(0, I) m as in GTSAM's RangeISAMExample_plaza2 (needs ``rng``), for comparison.
+        rng: random generator for ``initialisation="random"``.
     """
     import gtsam
 
@@ -1021,6 +1058,7 @@ def beacon_slam_incremental(
         )
     if factorization not in ("QR", "CHOLESKY"):
         raise InvalidInputError(f"factorization must be 'QR' or 'CHOLESKY'; got {factorization!r}")
+    _check_initialisation(initialisation, rng)
     cfg = _settings(**{**_DEFAULTS, **_known(settings)})
     start = as_point(start_pose, "start_pose", dim=3)
     dr = dead_reckoning(data.odometry, start)  # causal: pose i uses steps before i only
@@ -1063,11 +1101,26 @@ def beacon_slam_incremental(
             )
         )
 
+    def place(j: int, at: np.ndarray) -> None:
+        beacons0[j] = at
+        values.insert(_key_l(j), at)
+        g = j if cfg.per_beacon else 0
+        if n_cal and g not in calibrated:
+            values.insert(_key_c(g), np.zeros(n_cal))
+            graph.add(_calibration_prior(gtsam, g, cfg))
+            calibrated.add(g)
+        placed[j] = True
+        for idx in waiting[j]:
+            add_range(idx)
+        waiting[j] = []
+
     def take_ranges(pose: int) -> None:
         nonlocal k, fresh
         while k < len(data.ranges) and data.range_pose[k] == pose:
             j = int(data.range_beacon[k])
             window_rows.append(k)
+            if initialisation == "random" and not placed[j]:
+                place(j, rng.standard_normal(2))
             if placed[j]:
                 add_range(k)
                 fresh += 1
@@ -1121,18 +1174,7 @@ def beacon_slam_incremental(
                 )
                 to_map = align(dr[sub.keyframes, :2], current)  # rigid, handed like the odometry
                 for j in new:
-                    at = to_map.apply(sub.positions[list(sub.beacons).index(j)][None, :])[0]
-                    beacons0[j] = at
-                    values.insert(_key_l(j), at)
-                    g = j if cfg.per_beacon else 0
-                    if n_cal and g not in calibrated:
-                        values.insert(_key_c(g), np.zeros(n_cal))
-                        graph.add(_calibration_prior(gtsam, g, cfg))
-                        calibrated.add(g)
-                    placed[j] = True
-                    for idx in waiting[j]:
-                        add_range(idx)
-                    waiting[j] = []
+                    place(j, to_map.apply(sub.positions[list(sub.beacons).index(j)][None, :])[0])
                 estimate = update(force=True)
                 last_pose = estimate.atPose2(_key_x(i + 1))
         if window_ends:
@@ -1163,7 +1205,7 @@ def beacon_slam_incremental(
             f"beacons never placed: {np.flatnonzero(~placed).tolist()} ({unused} ranges unused)"
         )
     return BeaconSlamResult(
-        method="edm+isam2",
+        method="edm+isam2" if initialisation == "edm" else "isam2 random beacons",
         pose_time=data.pose_time,
         poses=frozen(poses),
         beacons=frozen(beacons),

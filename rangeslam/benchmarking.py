@@ -302,16 +302,27 @@ def write_csv(path: str | Path, rows: Sequence[dict]) -> Path:
     return path
 
 
-def write_tum(path: str | Path, positions: np.ndarray, step_seconds: float = 1.0) -> Path:
+def write_tum(
+    path: str | Path,
+    positions: np.ndarray,
+    step_seconds: float = 1.0,
+    *,
+    times: np.ndarray | None = None,
+) -> Path:
     """A trajectory in the TUM format (``timestamp tx ty tz qx qy qz qw``; identity orientation,
-    one step per ``step_seconds``), which evo reads (``evo_ape tum truth.tum est.tum -a``)."""
+    one step per ``step_seconds`` unless ``times`` (M,) are given), which evo reads
+    (``evo_ape tum truth.tum est.tum -a``). Rows that are not finite (a method that stopped) are
+    not written."""
     x = np.asarray(positions, dtype=float)
     if x.ndim != 2 or x.shape[1] not in (2, 3):
         raise InvalidInputError(f"positions must have shape (M, 2) or (M, 3); got {x.shape}")
     if x.shape[1] == 2:
         x = np.column_stack([x, np.zeros(len(x))])
-    t = np.arange(len(x)) * step_seconds
-    data = np.column_stack([t, x, np.zeros((len(x), 3)), np.ones(len(x))])
+    t = np.arange(len(x)) * step_seconds if times is None else np.asarray(times, dtype=float)
+    if t.shape != (len(x),):
+        raise InvalidInputError(f"times must have shape ({len(x)},); got {t.shape}")
+    ok = np.all(np.isfinite(x), axis=1)
+    data = np.column_stack([t, x, np.zeros((len(x), 3)), np.ones(len(x))])[ok]
     path = Path(path)
     np.savetxt(path, data, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
     return path

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import time
 from pathlib import Path
 
 __all__ = ["main"]
@@ -232,8 +233,74 @@ def _run_bench(
     return 1 if failed == len(rows) else 0
 
 
+def _run_plaza_bench(args: argparse.Namespace) -> int:
+    """Every method on a Plaza data set, the cost against length, a plot; CSV, JSON, Markdown."""
+    from . import benchmarking as bm
+    from . import plaza_bench as pb
+    from .datasets import plaza
+    from .plotting import plot_plaza
+
+    dataset = plaza(args.dataset)
+    out = args.out
+    t0 = time.perf_counter()
+    kept: dict = {}
+    rows = pb.method_rows(
+        dataset, trials=args.trials, seed=args.seed, methods=args.methods, keep=kept
+    )
+    lengths = pb.length_rows(dataset, args.lengths, seed=args.seed) if args.lengths else []
+    wall = time.perf_counter() - t0
+    stem = f"plaza_{dataset.name}"
+    written = [bm.write_csv(out / f"{stem}_methods.csv", rows)]
+    if lengths:
+        written.append(bm.write_csv(out / f"{stem}_lengths.csv", lengths))
+    text = f"## {dataset.name}: methods\n\n" + bm.markdown(*pb.methods_table(rows))
+    if lengths:
+        text += "\n\n## Cost against trajectory length\n\n" + bm.markdown(
+            *pb.lengths_table(lengths)
+        )
+    (out / f"{stem}_summary.md").write_text(text + "\n")
+    written.append(
+        bm.write_summary(
+            out / f"{stem}_summary.json",
+            bench="plaza",
+            dataset=dataset.name,
+            citation=dataset.citation,
+            seed=args.seed,
+            trials=args.trials,
+            wall_seconds=wall,
+            versions=bm.versions(),
+            methods=rows,
+            lengths=lengths,
+        )
+    )
+    evaluations = {name: pb.evaluate(res, dataset) for name, res in kept.items()}
+    written.append(plot_plaza(out / f"{stem}.png", dataset, kept, evaluations))
+    if args.tum:
+        folder = out / "tum"
+        folder.mkdir(exist_ok=True)
+        truth = dataset.truth_at(dataset.pose_time)
+        bm.write_tum(folder / f"{stem}_truth.tum", truth, times=dataset.pose_time)
+        for name, res in kept.items():
+            bm.write_tum(
+                folder / f"{stem}_{name.replace(' ', '_').replace('+', '_')}.tum",
+                res.poses[:, :2],
+                times=res.pose_time,
+            )
+        written.append(folder)
+    print(text)
+    failed = sum(r["status"] != "ok" for r in rows)
+    print(
+        f"\n{len(rows)} runs ({failed} failed) in {wall:.1f} s; seed {args.seed}; written: "
+        + ", ".join(str(p) for p in written)
+    )
+    return 1 if failed == len(rows) else 0
+
+
 def _bench(args: argparse.Namespace) -> int:
     from .benchmarking import BOUND_SETTINGS
+
+    if args.which == "plaza":
+        return _run_plaza_bench(args)
 
     bounds = BOUND_SETTINGS[args.bounds]
     return _run_bench(
@@ -262,6 +329,8 @@ def _positive_int(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .plaza_bench import DEFAULT_METHODS, PLAZA_METHODS
+
     parser = _Parser(prog="rangeslam", description="Rooms, arrays and trajectories from ranges.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -305,8 +374,17 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser(
         "bench", help="run the paper's experiments: fig3, fig5, or every SLAM method (compare)"
     )
-    bench.add_argument("which", choices=("fig3", "fig5", "compare"), help="what to run")
-    bench.add_argument("--trials", type=_positive_int, default=50, help="trials per cell (50)")
+    bench.add_argument(
+        "which",
+        choices=("fig3", "fig5", "compare", "plaza"),
+        help="what to run (plaza: range-only SLAM on the CMU Plaza radio data)",
+    )
+    bench.add_argument(
+        "--trials",
+        type=_positive_int,
+        default=50,
+        help="trials per cell (50); plaza: random starts of the methods that have them",
+    )
     bench.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     bench.add_argument(
         "--jobs", type=_positive_int, default=1, help="trials in parallel processes (default 1)"
@@ -339,6 +417,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.add_argument(
         "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
+    )
+    bench.add_argument(
+        "--dataset",
+        choices=("Plaza1", "Plaza2"),
+        default="Plaza1",
+        help="plaza: which CMU Plaza data set (default Plaza1)",
+    )
+    bench.add_argument(
+        "--methods",
+        nargs="+",
+        choices=PLAZA_METHODS,
+        default=list(DEFAULT_METHODS),
+        metavar="METHOD",
+        help="plaza: methods to run (default: all but 'isam2 random beacons'); one of "
+        + ", ".join(repr(m) for m in PLAZA_METHODS),
+    )
+    bench.add_argument(
+        "--lengths",
+        type=int,
+        nargs="*",
+        default=[250, 500, 1000, 2000, 0],
+        metavar="N",
+        help="plaza: also run the EDM pipelines on the first N poses (0: all); none to skip",
     )
     bench.set_defaults(func=_bench)
     return parser

@@ -17,6 +17,7 @@ from .geometry import Room
 __all__ = [
     "plot_fig3",
     "plot_fig5",
+    "plot_plaza",
     "plot_rir_matrix",
     "plot_room_reconstruction",
     "plot_slam_estimate",
@@ -238,4 +239,27 @@ def plot_rir_matrix(path: str | Path, rirs: np.ndarray, fs: float, title: str = 
     ax.set_xlabel("step")
     ax.set_ylabel("time [ms]")
     ax.set_title(title or "RIR at each step of the walk (Fig. 4C)")
+    return _save(fig, path)
+
+
+def plot_plaza(path: str | Path, dataset, results: dict, evaluations: dict) -> Path:
+    """Trajectories and beacons of each method on a Plaza data set, rigidly aligned onto the
+    ground truth (as evaluated), with the ground truth and the surveyed beacons."""
+    fig, ax = plt.subplots(figsize=(8, 8))
+    truth = dataset.truth_at(dataset.pose_time)
+    ax.plot(truth[:, 0], truth[:, 1], color="0.6", lw=2.5, label="ground truth", zorder=1)
+    ax.scatter(*dataset.beacons.T, marker="*", s=250, color="k", label="surveyed beacons", zorder=4)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (name, ev) in enumerate(evaluations.items()):
+        colour = colours[k % len(colours)]
+        ax.plot(
+            *ev.aligned.T, lw=0.8, color=colour, label=f"{name} ({np.nanmean(ev.errors):.2f} m)"
+        )
+        ok = np.all(np.isfinite(ev.aligned_beacons), axis=1)
+        ax.scatter(*ev.aligned_beacons[ok].T, marker="x", s=80, color=colour, zorder=5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{dataset.name}: trajectories and beacons after rigid alignment (mean APE)")
+    ax.legend(fontsize=8, loc="best")
     return _save(fig, path)
