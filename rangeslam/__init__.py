@@ -5,6 +5,7 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 """
 
 from .alignment import Alignment, align
+from .beacon_slam import BeaconSlamResult, RangeOdometry, beacon_slam, beacon_slam_incremental
 from .calibration import Calibration, calibrate
 from .crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
@@ -24,6 +25,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Alignment",
+    "BeaconSlamResult",
     "Calibration",
     "DataFormatError",
     "DegenerateGeometryError",
@@ -31,6 +33,7 @@ __all__ = [
     "InvalidInputError",
     "MDUBound",
     "MultilaterationResult",
+    "RangeOdometry",
     "RangeSlamError",
     "Room",
     "RoomReconstruction",
@@ -38,6 +41,8 @@ __all__ = [
     "SolverError",
     "__version__",
     "align",
+    "beacon_slam",
+    "beacon_slam_incremental",
     "calibrate",
     "classical_mds",
     "edm",

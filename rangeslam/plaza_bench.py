@@ -109,6 +109,15 @@ def evaluate(result: BeaconSlamResult, dataset) -> Evaluation:
     return Evaluation(errors, beacon_errors, aligned, beacons)
 
 
+def _median(values) -> float:
+    """Median of the finite values (NaN when there are none, or no values)."""
+    if values is None:
+        return float("nan")
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return float(np.median(finite)) if finite.size else float("nan")
+
+
 def _row(method: str, trial: int, result: BeaconSlamResult | None, dataset, error: str = ""):
     row = {"method": method, "trial": trial, "status": "ok" if not error else f"failed: {error}"}
     if result is None:
@@ -130,12 +139,8 @@ def _row(method: str, trial: int, result: BeaconSlamResult | None, dataset, erro
             f"beacon_{int(i)}": float(v)
             for i, v in zip(dataset.beacon_ids, ev.beacon_errors, strict=True)
         },
-        range_scale=float(np.nanmedian(result.range_scale))
-        if result.range_scale is not None
-        else np.nan,
-        range_bias=float(np.nanmedian(result.range_bias))
-        if result.range_bias is not None
-        else np.nan,
+        range_scale=_median(result.range_scale),
+        range_bias=_median(result.range_bias),
         seconds=float(result.seconds),
         per_pose_ms=1e3 * float(result.seconds) / len(result.pose_time),
         real_time_factor=duration / float(result.seconds),
@@ -230,7 +235,16 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
 
 
 def lengths_table(rows) -> tuple[list[str], list[list[str]]]:
-    header = ["poses", "method", "time [s]", "per pose [ms]", "x real time", "mean [m]", "status"]
+    header = [
+        "poses",
+        "method",
+        "time [s]",
+        "per pose [ms]",
+        "x real time",
+        "mean [m]",
+        "converged",
+        "status",
+    ]
     table = []
     for r in rows:
         table.append(
@@ -241,7 +255,8 @@ def lengths_table(rows) -> tuple[list[str], list[list[str]]]:
                 _fmt(r.get("per_pose_ms", np.nan), 2),
                 _fmt(r.get("real_time_factor", np.nan), 0),
                 _fmt(r.get("mean", np.nan)),
-                r["status"],
+                "-" if "converged" not in r else ("yes" if r["converged"] else "no"),
+                r["status"] if r["status"] != "ok" or r.get("converged", True) else r["message"],
             ]
         )
     return header, table
