@@ -5,10 +5,13 @@ geometry is the acoustic SLAM's: the poses are the receivers, the beacons the la
 ranges fill the off-diagonal block of an EDM (eq. 9). What changes at this scale:
 
 - **Windows of the MDU problem.** One SDP cannot take thousands of poses, so the trajectory is cut
-  into windows of ``window_length`` metres of travel. Within a window dead reckoning is accurate
-  (on Plaza1 to 0.2-0.35 m over 60-120 s), so the pose-pose block of the EDM is known from it and
-  the pose-beacon block holds the ranges: the EDM completion (eq. 10, convex iteration, l1 fit)
-  places the beacons heard from non-collinear poses in the window's dead-reckoning frame.
+  into windows of ``window_length`` metres of travel. Within a window dead reckoning is nearly
+  rigid (on Plaza1, after aligning each window onto the truth, the largest error is 0.2-0.35 m
+  in a typical 60-120 s window; in the 150 m windows of the default, 1.4-1.7 m in the worst
+  two), so the pose-pose block of the EDM is taken from it and the pose-beacon block holds the
+  ranges: the EDM completion (eq. 10, convex iteration, l1 fit) places the beacons heard from
+  non-collinear poses in the window's dead-reckoning frame. The ranges enter uncalibrated (7 %
+  long on Plaza): the start only needs to be within the refinement's reach.
 - **Stitching.** One rigid correction per window and one position per beacon are fitted to the
   windows' beacons (GTSAM, Huber), with consecutive corrections tied by the odometry's drift; the
   corrections, interpolated along the path, carry the dead-reckoned poses into the map.
@@ -73,7 +76,59 @@ class RangeOdometry:
     range_pose: np.ndarray
     range_beacon: np.ndarray
     ranges: np.ndarray
-    n_beacons: int
+    n_beacons: int | None = None
+
+    def __post_init__(self) -> None:
+        """Validate and freeze (copies); InvalidInputError names what is wrong. Runs for direct
+        construction too, so a RangeOdometry is always valid."""
+        odo = _as_float_array(self.odometry, "odometry")
+        if odo.ndim != 2 or odo.shape[1] != 2 or len(odo) < 1:
+            raise InvalidInputError(
+                f"odometry must have shape (N, 2) (distance, heading change) with N >= 1; got "
+                f"{shape_str(odo.shape)}"
+            )
+        _finite(odo, "odometry")
+        if np.any(odo[:, 0] < 0):
+            i = int(np.argmax(odo[:, 0] < 0))
+            raise InvalidInputError(f"odometry distances must be >= 0; row {i} has {odo[i, 0]}")
+        t = _as_float_array(self.pose_time, "pose_time")
+        if t.shape != (len(odo) + 1,):
+            raise InvalidInputError(
+                f"pose_time must have shape ({len(odo) + 1},) (one more than odometry rows); got "
+                f"{shape_str(t.shape)}"
+            )
+        _finite(t, "pose_time")
+        if np.any(np.diff(t) <= 0):
+            i = int(np.argmax(np.diff(t) <= 0)) + 1
+            raise InvalidInputError(f"pose_time must increase strictly; entry {i} does not")
+        r = _as_float_array(self.ranges, "ranges")
+        if r.ndim != 1 or len(r) < 1:
+            raise InvalidInputError(f"ranges must be 1-D and non-empty; got {shape_str(r.shape)}")
+        _finite(r, "ranges")
+        if np.any(r <= 0):
+            i = int(np.argmax(r <= 0))
+            raise InvalidInputError(f"ranges must be > 0; entry {i} is {r[i]}")
+        pose = _as_index(self.range_pose, "range_pose", len(r), len(t))
+        if np.any(np.diff(pose) < 0):
+            i = int(np.argmax(np.diff(pose) < 0)) + 1
+            raise InvalidInputError(
+                f"range_pose must be non-decreasing (ranges in time order); entry {i} goes back"
+            )
+        b = self.n_beacons
+        if b is None:
+            b = int(np.max(_as_index(self.range_beacon, "range_beacon", len(r), 2**62))) + 1
+        if isinstance(b, bool) or not isinstance(b, int | np.integer) or b < 1:
+            raise InvalidInputError(f"n_beacons must be a positive integer; got {self.n_beacons!r}")
+        beacon = _as_index(self.range_beacon, "range_beacon", len(r), int(b))
+        for name, value in (
+            ("pose_time", t),
+            ("odometry", odo),
+            ("range_pose", pose),
+            ("range_beacon", beacon),
+            ("ranges", r),
+        ):
+            object.__setattr__(self, name, frozen(value))
+        object.__setattr__(self, "n_beacons", int(b))
 
     @classmethod
     def create(
@@ -85,55 +140,8 @@ class RangeOdometry:
         ranges: ArrayLike,
         n_beacons: int | None = None,
     ) -> RangeOdometry:
-        """Validate and freeze the inputs (copies); InvalidInputError names what is wrong."""
-        odo = _as_float_array(odometry, "odometry")
-        if odo.ndim != 2 or odo.shape[1] != 2 or len(odo) < 1:
-            raise InvalidInputError(
-                f"odometry must have shape (N, 2) (distance, heading change) with N >= 1; got "
-                f"{shape_str(odo.shape)}"
-            )
-        _finite(odo, "odometry")
-        if np.any(odo[:, 0] < 0):
-            i = int(np.argmax(odo[:, 0] < 0))
-            raise InvalidInputError(f"odometry distances must be >= 0; row {i} has {odo[i, 0]}")
-        t = _as_float_array(pose_time, "pose_time")
-        if t.shape != (len(odo) + 1,):
-            raise InvalidInputError(
-                f"pose_time must have shape ({len(odo) + 1},) (one more than odometry rows); got "
-                f"{shape_str(t.shape)}"
-            )
-        _finite(t, "pose_time")
-        if np.any(np.diff(t) <= 0):
-            i = int(np.argmax(np.diff(t) <= 0)) + 1
-            raise InvalidInputError(f"pose_time must increase strictly; entry {i} does not")
-        r = _as_float_array(ranges, "ranges")
-        if r.ndim != 1 or len(r) < 1:
-            raise InvalidInputError(f"ranges must be 1-D and non-empty; got {shape_str(r.shape)}")
-        _finite(r, "ranges")
-        if np.any(r <= 0):
-            i = int(np.argmax(r <= 0))
-            raise InvalidInputError(f"ranges must be > 0; entry {i} is {r[i]}")
-        pose = _as_index(range_pose, "range_pose", len(r), len(t))
-        if np.any(np.diff(pose) < 0):
-            i = int(np.argmax(np.diff(pose) < 0)) + 1
-            raise InvalidInputError(
-                f"range_pose must be non-decreasing (ranges in time order); entry {i} goes back"
-            )
-        b = n_beacons
-        beacon_raw = np.asarray(range_beacon)
-        if b is None:
-            b = int(np.max(beacon_raw)) + 1 if beacon_raw.size else 0
-        if not isinstance(b, int | np.integer) or b < 1:
-            raise InvalidInputError(f"n_beacons must be a positive integer; got {n_beacons!r}")
-        beacon = _as_index(range_beacon, "range_beacon", len(r), int(b))
-        return cls(
-            pose_time=frozen(t),
-            odometry=frozen(odo),
-            range_pose=frozen(pose),
-            range_beacon=frozen(beacon),
-            ranges=frozen(r),
-            n_beacons=int(b),
-        )
+        """The same as the constructor, with ``n_beacons`` optional (max beacon index + 1)."""
+        return cls(pose_time, odometry, range_pose, range_beacon, ranges, n_beacons)
 
     @classmethod
     def from_plaza(cls, data) -> RangeOdometry:
@@ -173,6 +181,8 @@ def _finite(arr: np.ndarray, name: str) -> None:
 
 def _as_index(value: ArrayLike, name: str, length: int, upper: int) -> np.ndarray:
     arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf":
+        raise InvalidInputError(f"{name} must hold integers; got dtype {arr.dtype}")
     if arr.shape != (length,):
         raise InvalidInputError(f"{name} must have shape ({length},); got {shape_str(arr.shape)}")
     integral = arr.dtype.kind in "iu" or (
@@ -200,12 +210,15 @@ class BeaconSlamResult:
             place (e.g. odometry alone, or a beacon never initialised).
         range_bias: (B,) the estimated constant range offset per beacon [m] (one value repeated
             when it is shared); None when the method does not estimate one.
-        range_inlier: (R,) True for ranges the estimate accepts (robust kernel weight or gate);
-            None when the method does not use the ranges.
-        converged: the estimator ended normally (optimiser converged, filter did not diverge).
+        range_inlier: (R,) True for ranges the estimate accepts (beacon_slam: calibrated
+            residual within 3 range_sigma; baselines: their kernel weight or gate); None when
+            the method does not use the ranges.
+        converged: the estimator ended normally: the optimiser converged (batch: Levenberg-
+            Marquardt; incremental: the final iSAM2 updates settled; baselines: their own test,
+            e.g. the filter did not diverge), and every beacon ranged to was placed.
         message: why not, or a short description of the stop.
         range_scale: (B,) estimated range scale 1 + s per beacon (measured = scale * distance +
-            bias); None when not estimated.
+            bias); None when not estimated, NaN for beacons not placed (likewise ``range_bias``).
         initial_poses: (N + 1, 3) the initialisation the optimiser started from (None if none).
         initial_beacons: (B, 2) likewise (NaN for beacons not placed).
         seconds: wall time of the whole estimate [s].
@@ -281,6 +294,9 @@ _WINDOW_SOLVER_OPTIONS = {"static_regularization_constant": 1e-7}
 # tolerance, so the iteration ran to its limit (20: up to 3.8 s a window on Plaza1); the start it
 # gives GTSAM needs metres, not the last decimals of the rank.
 _WINDOW_ITERATIONS = 5
+# A window whose EDM answer keeps more than this share of its trace beyond two dimensions
+# (eigen-gap) is left out of the stitching. Plaza1's windows reach 0.05 after 5 iterations.
+_MAX_WINDOW_GAP = 0.1
 
 
 def _window_submap(
@@ -595,6 +611,11 @@ def _key_c(g: int) -> int:
     return gtsam.symbol("c", g)
 
 
+# The relative-decrease test counts as convergence only at damping up to this (a unit-free
+# lambda on whitened residuals: at 1e-2 the step is within about 1% of Gauss-Newton's).
+_LM_CONVERGED_LAMBDA = 1e-2
+
+
 @dataclass(frozen=True)
 class _LMReport:
     iterations: int
@@ -621,12 +642,19 @@ def _levenberg_marquardt(
     CustomFactor callback from a worker thread takes the GIL afresh. With 3,500 range factors that
     cost 2.7 s per iteration where ``graph.linearize`` called from Python takes 0.05 s.
 
+    Converged: an accepted step decreased the cost by at most ``rel_tol`` of it, with the damping
+    low enough that the step was close to Gauss-Newton's. Not converged: the iteration limit, a
+    non-finite initial cost, or no decrease up to ``lambda_max`` (a stall: a wrong Jacobian, or a
+    point that is not a minimum of the model). Failed linear solves count as rejected steps.
+
     Returns the optimised values and an :class:`_LMReport`.
     """
     import gtsam
 
     damping_models = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
     cost = initial = graph.error(values)
+    if not np.isfinite(cost):
+        return values, _LMReport(0, initial, cost, False, "the initial cost is not finite")
     lam = lambda_initial
     for iteration in range(1, max_iterations + 1):
         linear = graph.linearize(values)
@@ -637,21 +665,25 @@ def _levenberg_marquardt(
                 damped.add(
                     gtsam.JacobianFactor(key, root * np.eye(d), np.zeros(d), damping_models[d])
                 )
-            delta = damped.optimize()
-            trial = values.retract(delta)
-            trial_cost = graph.error(trial)
-            if trial_cost <= cost:
+            try:
+                delta = damped.optimize()
+                trial = values.retract(delta)
+                trial_cost = graph.error(trial)
+            except RuntimeError:  # e.g. an indeterminant system: as GTSAM, a failed step
+                trial_cost = np.inf
+            if np.isfinite(trial_cost) and trial_cost <= cost:
                 break
             lam *= 10.0
             if lam > lambda_max:
                 return values, _LMReport(
-                    iteration, initial, cost, True, "no decrease at the largest damping"
+                    iteration, initial, cost, False, "stalled: no decrease at the largest damping"
                 )
         decrease = cost - trial_cost
         values, cost = trial, trial_cost
-        lam = max(lam / 10.0, 1e-12)
-        if decrease <= rel_tol * max(cost, 1e-300):
+        # A tiny decrease under heavy damping is a short step, not a minimum: keep going.
+        if decrease <= rel_tol * max(cost, 1e-300) and lam <= _LM_CONVERGED_LAMBDA:
             return values, _LMReport(iteration, initial, cost, True, "relative decrease below tol")
+        lam = max(lam / 10.0, 1e-12)
     return values, _LMReport(
         max_iterations, initial, cost, False, f"not converged in {max_iterations} iterations"
     )
@@ -675,6 +707,14 @@ class _Settings:
     min_ranges: int
     min_spread: float
     pose_weight: float
+
+
+def _positive_number(value, name: str) -> float:
+    """A finite number > 0 (bools refused); InvalidInputError naming ``name`` otherwise."""
+    ok = not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.number)
+    if not (ok and np.isfinite(value) and value > 0):
+        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+    return float(value)
 
 
 def _settings(
@@ -714,11 +754,12 @@ def _settings(
         (min_spread, "min_spread"),
         (pose_weight, "pose_weight"),
     ):
-        if not (isinstance(value, int | float | np.floating) and np.isfinite(value) and value > 0):
-            raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+        _positive_number(value, name)
     for value, name, low in ((keyframes, "keyframes", 3), (min_ranges, "min_ranges", 3)):
-        if not (isinstance(value, int | np.integer) and value >= low):
+        if isinstance(value, bool) or not (isinstance(value, int | np.integer) and value >= low):
             raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+    if not isinstance(per_beacon, bool | np.bool_):
+        raise InvalidInputError(f"per_beacon must be True or False; got {per_beacon!r}")
     return _Settings(
         range_calibration,
         bool(per_beacon),
@@ -752,7 +793,9 @@ _SETTINGS_DOC = """
         range_calibration: the range model (:data:`RANGE_CALIBRATIONS`): "affine" (default),
             "scale", "offset" or None.
         per_beacon: one calibration per beacon instead of one shared by all.
-        range_sigma: standard deviation of a range [m] (Plaza: about 1 m).
+        range_sigma: standard deviation of a range [m]. The default, 1 m, is about twice the
+            spread of Plaza1's ranges after the affine calibration (0.54 m); the 3-sigma inlier
+            gate of ``range_inlier`` then flags none of them.
         odometry_sigma: per-step standard deviations along and across the track [m] and of the
             heading [rad]. The defaults, 0.01 m, 0.01 m and 0.002 rad per 0.2 s step, are of the
             size of the drift of Plaza1's odometry against its ground truth over 100-300 steps.
@@ -760,7 +803,9 @@ _SETTINGS_DOC = """
         calibration_sigma: zero-mean prior standard deviations of the scale error s and the
             offset b [m] (weak: they only keep the graph determinate).
         window_length: metres of travel per EDM window.
-        keyframes: ranges per window that enter its EDM (the SDP has keyframes + B points).
+        keyframes: about how many ranges per window enter its EDM, shared among the beacons
+            heard (each gets at least ``min_ranges``); the SDP has one point per keyframe pose
+            plus one per beacon.
         min_ranges, min_spread: a beacon is placed in a window only when heard at least
             ``min_ranges`` times from poses spread ``min_spread`` metres across their line.
         pose_weight: weight of the dead-reckoned pose-pose distances in a window's EDM fit
@@ -823,6 +868,12 @@ def _pose_array(values, n: int) -> np.ndarray:
     return out
 
 
+def _all_heard_placed(data: RangeOdometry, placed: np.ndarray) -> bool:
+    """Every beacon that was ranged to got a position (beacons never heard do not count)."""
+    heard = np.isin(np.arange(data.n_beacons), data.range_beacon)
+    return bool(np.all(placed[heard]))
+
+
 def _check_initialisation(initialisation: str, rng) -> None:
     if initialisation not in ("edm", "random"):
         raise InvalidInputError(f"initialisation must be 'edm' or 'random'; got {initialisation!r}")
@@ -842,7 +893,7 @@ def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
     window_of_pose = _windows(travelled, cfg.window_length)
     n_windows = int(window_of_pose[-1]) + 1
     window_of_range = window_of_pose[data.range_pose]
-    submaps, failed = [], []
+    submaps, failed, far_from_2d = [], [], []
     for w in range(n_windows):
         rows = np.flatnonzero(window_of_range == w)
         if len(rows) == 0:
@@ -863,8 +914,12 @@ def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
         except SolverError as exc:
             failed.append(f"window {w}: {exc}")
             continue
-        if sub is not None:
-            submaps.append(sub)
+        if sub is None:
+            continue
+        if sub.eigen_gap > _MAX_WINDOW_GAP:
+            far_from_2d.append(w)
+            continue
+        submaps.append(sub)
     if not submaps:
         raise SolverError(
             "no window placed any beacon (too few ranges, collinear paths, or every SDP failed"
@@ -880,11 +935,14 @@ def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
         beacon_sigma=1.0,
     )
     centres = (np.arange(n_windows) + 0.5) * cfg.window_length
+    corrections[:, 2] = np.unwrap(corrections[:, 2])  # theta() is wrapped; interpolate unwrapped
     frames = np.column_stack([np.interp(travelled, centres, corrections[:, k]) for k in range(3)])
     # Window 0's correction is the identity (the stitching's gauge), so pose 0 stays at start.
     poses0 = _compose(frames, dr)
 
     notes = [f"{len(submaps)} of {n_windows} windows placed beacons"]
+    if far_from_2d:
+        notes.append(f"windows {far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)")
     if failed:
         notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
     return poses0, beacons0, placed, notes
@@ -907,6 +965,10 @@ def beacon_slam(
        interpolated along the path (by distance travelled), move the dead-reckoned poses.
     4. GTSAM: Pose2 odometry, robust range factors with the range calibration unknown,
        Levenberg-Marquardt (the loop in Python, see :func:`_levenberg_marquardt`).
+
+    Raises SolverError when no window can place any beacon (e.g. a robot that never moved): there
+    is nothing to refine. Beacons that no window places are NaN, their ranges unused (counted in
+    ``message``), and ``converged`` is False.
 
     Args:
         data: the odometry and ranges (:class:`RangeOdometry`).
@@ -972,7 +1034,7 @@ def beacon_slam(
         beacons=frozen(beacons),
         range_bias=offset,
         range_inlier=_inliers(data, poses, beacons, scale, offset, cfg),
-        converged=report.converged,
+        converged=report.converged and _all_heard_placed(data, placed),
         message="; ".join(notes),
         range_scale=scale,
         initial_poses=frozen(poses0),
@@ -1034,7 +1096,10 @@ def beacon_slam_incremental(
     the beacons it can (in the window's dead-reckoning frame, carried into the map by aligning
     the window's keyframes onto their current estimates) and their waiting ranges join. iSAM2
     updates after every ``update_every`` new ranges (as GTSAM's RangeISAMExample_plaza2) and at
-    each window that placed beacons. Once every beacon is placed no SDP runs any more.
+    each window that placed beacons. Once every beacon is placed no SDP runs any more. Unlike the
+    batch, a run in which no beacon is ever placed is not an error (the data may simply not have
+    reached a usable window yet): it returns the odometry-only estimate with ``converged``
+    False and the unplaced beacons and unused ranges counted in ``message``.
 
     Args:
         data, start_pose: as :func:`beacon_slam`.
@@ -1054,12 +1119,11 @@ def beacon_slam_incremental(
         raise InvalidInputError(
             f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
         )
-    if not (isinstance(update_every, int | np.integer) and update_every >= 1):
+    if isinstance(update_every, bool) or not (
+        isinstance(update_every, int | np.integer) and update_every >= 1
+    ):
         raise InvalidInputError(f"update_every must be a positive integer; got {update_every!r}")
-    if not (np.isfinite(relinearize_threshold) and relinearize_threshold > 0):
-        raise InvalidInputError(
-            f"relinearize_threshold must be positive; got {relinearize_threshold!r}"
-        )
+    _positive_number(relinearize_threshold, "relinearize_threshold")
     if factorization not in ("QR", "CHOLESKY"):
         raise InvalidInputError(f"factorization must be 'QR' or 'CHOLESKY'; got {factorization!r}")
     _check_initialisation(initialisation, rng)
@@ -1086,6 +1150,7 @@ def beacon_slam_incremental(
     calibrated: set[int] = set()
     window_rows: list[int] = []
     failed: list[str] = []
+    far_from_2d: list[int] = []
     fresh = 0
     updates = 0
     last_pose = gtsam.Pose2(*start)
@@ -1168,6 +1233,9 @@ def beacon_slam_incremental(
             except SolverError as exc:
                 failed.append(f"window {int(window_of_pose[i + 1])}: {exc}")
                 sub = None
+            if sub is not None and sub.eigen_gap > _MAX_WINDOW_GAP:
+                far_from_2d.append(int(window_of_pose[i + 1]))
+                sub = None
             new = [] if sub is None else [int(j) for j in sub.beacons if not placed[j]]
             if new:
                 current = np.array(
@@ -1190,11 +1258,13 @@ def beacon_slam_incremental(
     # At the end of the data, a few more updates (each one more Gauss-Newton step on the variables
     # past the relinearisation threshold) until the poses settle: beacons placed late, e.g. by
     # the last window of a short run, have had only one update otherwise.
+    settled = False
     for _ in range(_FINAL_UPDATES):
         before = poses
         estimate = update(force=True)
         poses = _pose_array(estimate, len(data.pose_time))
         if np.max(np.abs(poses[:, :2] - before[:, :2])) < _SETTLED:
+            settled = True
             break
     beacons = np.full((data.n_beacons, 2), np.nan)
     for j in np.flatnonzero(placed):
@@ -1202,6 +1272,10 @@ def beacon_slam_incremental(
     scale, offset = _calibration_arrays(estimate, cfg, data.n_beacons, placed)
     unused = sum(len(w) for w in waiting)
     notes = [f"{updates} iSAM2 updates"]
+    if not settled:
+        notes.append(f"not settled: positions still moved by >= {_SETTLED} m after the last update")
+    if far_from_2d:
+        notes.append(f"windows {far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)")
     if failed:
         notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
     if not np.all(placed):
@@ -1215,7 +1289,7 @@ def beacon_slam_incremental(
         beacons=frozen(beacons),
         range_bias=offset,
         range_inlier=_inliers(data, poses, beacons, scale, offset, cfg),
-        converged=bool(np.all(placed)),
+        converged=settled and _all_heard_placed(data, placed),
         message="; ".join(notes),
         range_scale=scale,
         initial_poses=None,
@@ -1229,12 +1303,15 @@ beacon_slam_incremental.__doc__ += _SETTINGS_DOC
 
 @dataclass(frozen=True, eq=False)
 class SimulatedBeaconRun:
-    """Output of :func:`simulate_beacon_run`: the data and the truth behind them."""
+    """Output of :func:`simulate_beacon_run`: the data, the truth behind them (poses (N + 1, 3),
+    beacons (B, 2)), which ranges are outliers (R,), and how many simulated ranges were dropped
+    for being <= 0."""
 
     data: RangeOdometry
     poses: np.ndarray
     beacons: np.ndarray
     outliers: np.ndarray
+    dropped: int
 
 
 def simulate_beacon_run(
@@ -1263,8 +1340,26 @@ def simulate_beacon_run(
     ``outlier_size`` (late arrivals, as multipath gives). Beacons default to four around the
     loop. Pose 0 is at the origin facing +x.
     """
-    if not (isinstance(n_steps, int | np.integer) and n_steps >= 10):
+    if not isinstance(rng, np.random.Generator):
+        raise InvalidInputError(f"rng must be a numpy Generator; got {rng!r}")
+    if isinstance(n_steps, bool) or not (isinstance(n_steps, int | np.integer) and n_steps >= 10):
         raise InvalidInputError(f"n_steps must be an integer >= 10; got {n_steps!r}")
+    for value, name in ((step_length, "step_length"), (dt, "dt"), (radius, "radius")):
+        _positive_number(value, name)
+    for value, name in ((range_rate, "range_rate"), (outlier_fraction, "outlier_fraction")):
+        if not (isinstance(value, int | float | np.number) and 0 <= value <= 1):
+            raise InvalidInputError(f"{name} must be a fraction in [0, 1]; got {value!r}")
+    if range_rate == 0:
+        raise InvalidInputError("range_rate must be > 0: without ranges there is nothing to map")
+    odo_std = _as_float_array(odometry_std, "odometry_std")
+    if odo_std.shape != (2,) or not np.all(np.isfinite(odo_std)) or np.any(odo_std < 0):
+        raise InvalidInputError(
+            f"odometry_std must be two numbers >= 0 (distance [m], heading [rad]); got "
+            f"{odometry_std!r}"
+        )
+    for value, name in ((range_std, "range_std"), (outlier_size, "outlier_size")):
+        if not (isinstance(value, int | float | np.number) and np.isfinite(value) and value >= 0):
+            raise InvalidInputError(f"{name} must be a number >= 0; got {value!r}")
     k = np.arange(n_steps)
     turn = step_length / radius * (1.0 + 0.8 * np.sin(2 * np.pi * k / 700.0))
     controls = np.column_stack([np.full(n_steps, step_length), turn])
@@ -1275,7 +1370,7 @@ def simulate_beacon_run(
         b = centre + 1.3 * radius * np.column_stack([np.cos(angles), np.sin(angles)])
     else:
         b = as_points(beacons, "beacons", dim=2)
-    odo_noise = rng.normal(0.0, 1.0, (n_steps, 2)) * np.asarray(odometry_std, dtype=float)
+    odo_noise = rng.normal(0.0, 1.0, (n_steps, 2)) * odo_std
     odometry = controls + odo_noise
     odometry[:, 0] = np.abs(odometry[:, 0])
     heard = np.flatnonzero(rng.random(n_steps + 1) < range_rate)
@@ -1284,10 +1379,14 @@ def simulate_beacon_run(
     ranges = range_scale * dist + range_offset + rng.normal(0.0, range_std, len(heard))
     outliers = rng.random(len(heard)) < outlier_fraction
     ranges[outliers] += outlier_size * rng.uniform(0.5, 1.0, int(outliers.sum()))
-    keep = ranges > 0
+    keep = ranges > 0  # a negative offset can push a short range below 0: counted in dropped
     data = RangeOdometry.create(
         np.arange(n_steps + 1) * dt, odometry, heard[keep], which[keep], ranges[keep], len(b)
     )
     return SimulatedBeaconRun(
-        data=data, poses=frozen(poses), beacons=frozen(b), outliers=frozen(outliers[keep])
+        data=data,
+        poses=frozen(poses),
+        beacons=frozen(b),
+        outliers=frozen(outliers[keep]),
+        dropped=int(np.sum(~keep)),
     )

@@ -96,7 +96,7 @@ def evaluate(result: BeaconSlamResult, dataset) -> Evaluation:
     and carry the beacons along. Poses that are NaN (a method that stopped) are left out of the
     alignment and count as missing in the errors (NaN)."""
     n = len(result.pose_time)
-    truth = dataset.truth_at(dataset.pose_time[:n])
+    truth = dataset.truth_at(result.pose_time)
     ok = np.all(np.isfinite(result.poses[:, :2]), axis=1)
     fit = align(result.poses[ok, :2], truth[ok])
     aligned = np.full((n, 2), np.nan)
@@ -132,6 +132,7 @@ def _row(method: str, trial: int, result: BeaconSlamResult | None, dataset, erro
         max=float(e.max()),
         rmse=float(np.sqrt(np.mean(e**2))),
         missing_poses=int(np.sum(~np.isfinite(ev.errors))),
+        beacons_placed=int(np.sum(np.isfinite(ev.beacon_errors))),
         beacon_max=float(np.nanmax(ev.beacon_errors))
         if np.any(np.isfinite(ev.beacon_errors))
         else np.nan,
@@ -187,13 +188,19 @@ def length_rows(dataset, lengths, *, methods=("edm+gtsam", "edm+isam2"), seed: i
     return rows
 
 
+def dataset_beacons(rows) -> list[str]:
+    """The beacon columns (beacon_<id>) of a row."""
+    return [k for k in rows[0] if k.startswith("beacon_") and k not in ("beacon_max",)]
+
+
 def _fmt(x, digits: int = 2) -> str:
     return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
 
 
 def methods_table(rows) -> tuple[list[str], list[list[str]]]:
     """Markdown table of the method rows: for methods with random starts, the median over the
-    trials and the worst trial."""
+    trials and the worst trial. "worst beacon" is over the beacons placed ("beacons placed",
+    fewest over the trials)."""
     header = [
         "method",
         "trials (converged)",
@@ -201,6 +208,7 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
         "median [m]",
         "max [m]",
         "worst beacon [m]",
+        "beacons placed",
         "range scale",
         "time [s]",
     ]
@@ -210,7 +218,7 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
         ok = [r for r in mine if r["status"] == "ok"]
         conv = sum(bool(r.get("converged")) for r in ok)
         if not ok:
-            table.append([method, f"{len(mine)} (0)", mine[0]["status"], "", "", "", "", ""])
+            table.append([method, f"{len(mine)} (0)", mine[0]["status"], "", "", "", "", "", ""])
             continue
 
         def cell(key, digits=2, rows_=ok):
@@ -227,6 +235,7 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
                 cell("median"),
                 cell("max"),
                 cell("beacon_max"),
+                f"{min(r['beacons_placed'] for r in ok)}/{len(dataset_beacons(ok))}",
                 _fmt(float(np.median([r["range_scale"] for r in ok])), 4),
                 _fmt(float(np.median([r["seconds"] for r in ok])), 1),
             ]

@@ -67,6 +67,11 @@ def test_evaluate_is_rigid_alignment(p1):
     poses[-10:] = np.nan
     ev = pb.evaluate(replace(res, poses=poses), p1)
     assert np.isnan(ev.errors[-10:]).all() and np.nanmax(ev.errors) < 1e-9
+    # a result over other times than the data set's first poses is scored at its own times
+    part = replace(
+        res, pose_time=p1.pose_time[500:900], poses=np.column_stack([moved[500:900], np.zeros(400)])
+    )
+    assert np.max(pb.evaluate(part, p1).errors) < 1e-9
 
 
 def test_lengths_rows_report_cost_and_failures(p1):
