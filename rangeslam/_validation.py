@@ -75,10 +75,12 @@ def as_ranges(
     *,
     shape: tuple[int | None, ...],
     observed: np.ndarray | None = None,
+    signed: bool = False,
 ) -> np.ndarray:
     """Return ranges (distances in metres) as float64 with the given shape; None means any size.
 
-    Observed ranges must be finite and non-negative. Where ``observed`` (a boolean array of the same
+    Observed ranges must be finite and non-negative (any sign with ``signed``: ranges that carry
+    an unknown offset, such as an unknown emission time, may be negative). Where ``observed`` (a boolean array of the same
     shape) is False the entry is a placeholder: it is not checked and is set to 0 in the returned
     array, so it can hold NaN in the caller's data. Missing entries are given by the mask only.
     """
@@ -96,7 +98,7 @@ def as_ranges(
             f"{name} must be finite where observed (mark missing ranges with mask=, not NaN); "
             f"entry {bad} is {arr[bad]}"
         )
-    if np.any(arr < 0):
+    if not signed and np.any(arr < 0):
         bad = tuple(int(i) for i in np.argwhere(arr < 0)[0])
         raise InvalidInputError(f"{name} must be non-negative distances; entry {bad} is {arr[bad]}")
     return arr
