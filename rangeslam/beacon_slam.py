@@ -31,7 +31,7 @@ Journal of Field Robotics 26(9), 2009).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -813,9 +813,17 @@ _SETTINGS_DOC = """
 """
 
 
-def _windows(travelled: np.ndarray, length: float) -> np.ndarray:
-    """(N + 1,) window of each pose: by distance travelled."""
-    return np.floor(travelled / length).astype(int)
+def _windows(data: RangeOdometry, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N + 1,) distance travelled at each pose [m] and (N + 1,) its window (``length`` m each)."""
+    travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
+    return travelled, np.floor(travelled / length).astype(int)
+
+
+def _check_data(data) -> None:
+    if not isinstance(data, RangeOdometry):
+        raise InvalidInputError(
+            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
+        )
 
 
 def _group_of_range(data: RangeOdometry, per_beacon: bool) -> tuple[np.ndarray, int]:
@@ -868,6 +876,56 @@ def _pose_array(values, n: int) -> np.ndarray:
     return out
 
 
+@dataclass
+class _WindowLog:
+    """Windows whose SDP failed and windows left out for not being 2-D, for the result's message."""
+
+    failed: list[str] = field(default_factory=list)
+    far_from_2d: list[int] = field(default_factory=list)
+
+    def notes(self) -> list[str]:
+        out = []
+        if self.far_from_2d:
+            out.append(
+                f"windows {self.far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)"
+            )
+        if self.failed:
+            out.append(f"{len(self.failed)} window SDPs failed ({self.failed[0]})")
+        return out
+
+
+def _place_window(
+    w: int,
+    dr_xy: np.ndarray,
+    rows: np.ndarray,
+    data: RangeOdometry,
+    cfg: _Settings,
+    log: _WindowLog,
+) -> Submap | None:
+    """The submap of window ``w`` (its ranges ``rows``), or None when it places no beacon, its
+    SDP fails or its EDM is not 2-D (the last two recorded in ``log``)."""
+    try:
+        sub = _window_submap(
+            w,
+            dr_xy,
+            rows,
+            data.range_pose,
+            data.range_beacon,
+            data.ranges,
+            keyframes=cfg.keyframes,
+            min_ranges=cfg.min_ranges,
+            min_spread=cfg.min_spread,
+            pose_weight=cfg.pose_weight,
+        )
+    except SolverError as exc:
+        log.failed.append(f"window {w}: {exc}")
+        return None
+    if sub is not None and sub.eigen_gap > _MAX_WINDOW_GAP:
+        log.far_from_2d.append(w)
+        return None
+    return sub
+
+
 def _all_heard_placed(data: RangeOdometry, placed: np.ndarray) -> bool:
     """Every beacon that was ranged to got a position (beacons never heard do not count)."""
     heard = np.isin(np.arange(data.n_beacons), data.range_beacon)
@@ -889,41 +947,21 @@ def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
     Returns initial poses (N + 1, 3), beacons (B, 2) (NaN where not placed), which beacons were
     placed (B,), and notes for the result's message.
     """
-    travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
-    window_of_pose = _windows(travelled, cfg.window_length)
+    travelled, window_of_pose = _windows(data, cfg.window_length)
     n_windows = int(window_of_pose[-1]) + 1
     window_of_range = window_of_pose[data.range_pose]
-    submaps, failed, far_from_2d = [], [], []
+    submaps, log = [], _WindowLog()
     for w in range(n_windows):
         rows = np.flatnonzero(window_of_range == w)
         if len(rows) == 0:
             continue
-        try:
-            sub = _window_submap(
-                w,
-                dr[:, :2],
-                rows,
-                data.range_pose,
-                data.range_beacon,
-                data.ranges,
-                keyframes=cfg.keyframes,
-                min_ranges=cfg.min_ranges,
-                min_spread=cfg.min_spread,
-                pose_weight=cfg.pose_weight,
-            )
-        except SolverError as exc:
-            failed.append(f"window {w}: {exc}")
-            continue
-        if sub is None:
-            continue
-        if sub.eigen_gap > _MAX_WINDOW_GAP:
-            far_from_2d.append(w)
-            continue
-        submaps.append(sub)
+        sub = _place_window(w, dr[:, :2], rows, data, cfg, log)
+        if sub is not None:
+            submaps.append(sub)
     if not submaps:
         raise SolverError(
             "no window placed any beacon (too few ranges, collinear paths, or every SDP failed"
-            + (f": {failed[0]}" if failed else "")
+            + (f": {log.failed[0]}" if log.failed else "")
             + ")"
         )
     corrections, beacons0, placed = _stitch(
@@ -940,11 +978,7 @@ def _edm_initialisation(data: RangeOdometry, dr: np.ndarray, cfg: _Settings):
     # Window 0's correction is the identity (the stitching's gauge), so pose 0 stays at start.
     poses0 = _compose(frames, dr)
 
-    notes = [f"{len(submaps)} of {n_windows} windows placed beacons"]
-    if far_from_2d:
-        notes.append(f"windows {far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)")
-    if failed:
-        notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
+    notes = [f"{len(submaps)} of {n_windows} windows placed beacons", *log.notes()]
     return poses0, beacons0, placed, notes
 
 
@@ -980,10 +1014,7 @@ def beacon_slam(
         rng: random generator for ``initialisation="random"``.
     """
     t0 = time.perf_counter()
-    if not isinstance(data, RangeOdometry):
-        raise InvalidInputError(
-            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
-        )
+    _check_data(data)
     if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
         raise InvalidInputError(
             f"max_iterations must be a positive integer; got {max_iterations!r}"
@@ -1115,10 +1146,7 @@ def beacon_slam_incremental(
     from .alignment import align
 
     t0 = time.perf_counter()
-    if not isinstance(data, RangeOdometry):
-        raise InvalidInputError(
-            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
-        )
+    _check_data(data)
     if isinstance(update_every, bool) or not (
         isinstance(update_every, int | np.integer) and update_every >= 1
     ):
@@ -1130,8 +1158,7 @@ def beacon_slam_incremental(
     cfg = _settings(**{**_DEFAULTS, **_known(settings)})
     start = as_point(start_pose, "start_pose", dim=3)
     dr = dead_reckoning(data.odometry, start)  # causal: pose i uses steps before i only
-    travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
-    window_of_pose = _windows(travelled, cfg.window_length)
+    _, window_of_pose = _windows(data, cfg.window_length)
     group, _ = _group_of_range(data, cfg.per_beacon)
     n_cal = _calibration_dim(cfg.range_calibration)
 
@@ -1149,8 +1176,7 @@ def beacon_slam_incremental(
     waiting: list[list[int]] = [[] for _ in range(data.n_beacons)]
     calibrated: set[int] = set()
     window_rows: list[int] = []
-    failed: list[str] = []
-    far_from_2d: list[int] = []
+    log = _WindowLog()
     fresh = 0
     updates = 0
     last_pose = gtsam.Pose2(*start)
@@ -1216,26 +1242,9 @@ def beacon_slam_incremental(
         window_ends = i + 1 == n_steps or window_of_pose[i + 2] != window_of_pose[i + 1]
         if window_ends and not np.all(placed) and window_rows:
             estimate = update()
-            rows = np.array(window_rows)
-            try:
-                sub = _window_submap(
-                    int(window_of_pose[i + 1]),
-                    dr[:, :2],
-                    rows,
-                    data.range_pose,
-                    data.range_beacon,
-                    data.ranges,
-                    keyframes=cfg.keyframes,
-                    min_ranges=cfg.min_ranges,
-                    min_spread=cfg.min_spread,
-                    pose_weight=cfg.pose_weight,
-                )
-            except SolverError as exc:
-                failed.append(f"window {int(window_of_pose[i + 1])}: {exc}")
-                sub = None
-            if sub is not None and sub.eigen_gap > _MAX_WINDOW_GAP:
-                far_from_2d.append(int(window_of_pose[i + 1]))
-                sub = None
+            sub = _place_window(
+                int(window_of_pose[i + 1]), dr[:, :2], np.array(window_rows), data, cfg, log
+            )
             new = [] if sub is None else [int(j) for j in sub.beacons if not placed[j]]
             if new:
                 current = np.array(
@@ -1274,10 +1283,7 @@ def beacon_slam_incremental(
     notes = [f"{updates} iSAM2 updates"]
     if not settled:
         notes.append(f"not settled: positions still moved by >= {_SETTLED} m after the last update")
-    if far_from_2d:
-        notes.append(f"windows {far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)")
-    if failed:
-        notes.append(f"{len(failed)} window SDPs failed ({failed[0]})")
+    notes += log.notes()
     if not np.all(placed):
         notes.append(
             f"beacons never placed: {np.flatnonzero(~placed).tolist()} ({unused} ranges unused)"
