@@ -276,17 +276,21 @@ def detect_echoes_many(
                 f"rirs[0] has {len(xs[0])}"
             )
     fs = _as_fs(fs)
-    params = _Params.make(fs, length=len(xs[0]), **kwargs)
+    params = _Params.make(fs, length=len(xs[0]), **{**_DEFAULTS, **kwargs})
     out = []
     for m, x in enumerate(xs):
         out.append(_detect(x, params, f"rirs[{m}]", stacklevel=3))
     return out
 
 
-# Keyword arguments of detect_echoes (and so of detect_echoes_many).
-_OPTIONS = frozenset(
-    name for name in inspect.signature(detect_echoes).parameters if name not in ("rir", "fs")
-)
+# Keyword arguments of detect_echoes (and so of detect_echoes_many), with their defaults: the one
+# place they are set (_Params.make takes every option explicitly).
+_DEFAULTS = {
+    name: p.default
+    for name, p in inspect.signature(detect_echoes).parameters.items()
+    if name not in ("rir", "fs")
+}
+_OPTIONS = frozenset(_DEFAULTS)
 
 
 # ---- input checks -----------------------------------------------------------------------------
@@ -344,16 +348,16 @@ class _Params:
         fs: float,
         *,
         length: int,
-        excitation: ArrayLike | None = None,
-        max_echoes: int | None = None,
-        min_separation: float | None = None,
-        threshold: float | None = None,
-        noise_factor: float = 6.0,
-        relative_threshold: float = 0.01,
-        max_time: float | None = None,
-        noise_window: tuple[float, float] | None = None,
-        direct_fraction: float = 0.1,
-        baseline: bool = True,
+        excitation: ArrayLike | None,
+        max_echoes: int | None,
+        min_separation: float | None,
+        threshold: float | None,
+        noise_factor: float,
+        relative_threshold: float,
+        max_time: float | None,
+        noise_window: tuple[float, float] | None,
+        direct_fraction: float,
+        baseline: bool,
     ) -> _Params:
         exc = None
         pulse = np.ones(1)
