@@ -19,8 +19,10 @@ __all__ = [
     "plot_fig5",
     "plot_plaza",
     "plot_rir_matrix",
+    "plot_room_estimate",
     "plot_room_reconstruction",
     "plot_slam_estimate",
+    "plot_walk_estimate",
 ]
 
 _VIEWS = (("top view", (0, 1), ("x [m]", "y [m]")), ("side view", (0, 2), ("x [m]", "z [m]")))
@@ -222,8 +224,11 @@ def plot_slam_estimate(
     return _save(fig, path)
 
 
-def plot_rir_matrix(path: str | Path, rirs: np.ndarray, fs: float, title: str = "") -> Path:
-    """The "RIR matrix" of Fig. 4C: steps along x, time along y, magnitude in dB as colour."""
+def plot_rir_matrix(
+    path: str | Path, rirs: np.ndarray, fs: float, title: str = "", *, xlabel: str = "step"
+) -> Path:
+    """The "RIR matrix" of Fig. 4C: steps (or microphones: ``xlabel``) along x, time along y,
+    magnitude in dB as colour."""
     mag = 20 * np.log10(np.abs(rirs) / np.max(np.abs(rirs)) + 1e-6)
     fig, ax = plt.subplots(figsize=(7.0, 5.0))
     im = ax.imshow(
@@ -236,7 +241,7 @@ def plot_rir_matrix(path: str | Path, rirs: np.ndarray, fs: float, title: str = 
         cmap="magma",
     )
     fig.colorbar(im, ax=ax, label="magnitude [dB]")
-    ax.set_xlabel("step")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("time [ms]")
     ax.set_title(title or "RIR at each step of the walk (Fig. 4C)")
     return _save(fig, path)
@@ -262,4 +267,181 @@ def plot_plaza(path: str | Path, dataset, results: dict, evaluations: dict) -> P
     ax.set_ylabel("y [m]")
     ax.set_title(f"{dataset.name}: trajectories and beacons after rigid alignment (mean APE)")
     ax.legend(fontsize=8, loc="best")
+    return _save(fig, path)
+
+
+def _wall_trace(ax, normal, offset, axes, at, extent, **style) -> bool:
+    """Draw the line where the plane normal . x = offset cuts the view plane through ``at`` (the
+    third coordinate), within ``extent`` ((2, 2) lower and upper corner); False when the plane is
+    within 30 degrees of the view plane (no useful trace)."""
+    a, b = axes
+    c = 3 - a - b
+    n2 = np.array([normal[a], normal[b]])
+    if np.linalg.norm(n2) < 0.5:
+        return False
+    rhs = offset - normal[c] * at[c]
+    p0 = n2 * rhs / (n2 @ n2)
+    u = np.array([-n2[1], n2[0]]) / np.linalg.norm(n2)
+    span = 2 * np.linalg.norm(extent[1] - extent[0]) + np.linalg.norm(p0)
+    seg = p0 + np.outer([-span, span], u)
+    ax.plot(seg[:, 0], seg[:, 1], **style)
+    return True
+
+
+def plot_room_estimate(
+    path: str | Path,
+    *,
+    wall_normals: np.ndarray | None,
+    wall_offsets: np.ndarray | None,
+    mics: np.ndarray,
+    source: np.ndarray | None,
+    image_sources: np.ndarray | None = None,
+    room: Room | None = None,
+    true_room: Room | None = None,
+    true_source: np.ndarray | None = None,
+    title: str = "",
+) -> Path:
+    """A room estimated from RIRs (``rangeslam run``), top and side views, with or without truth.
+
+    The estimated room's outline when the walls bound one (``room``); otherwise each wall as the
+    line where it cuts the view plane through the loudspeaker (walls nearly parallel to the view
+    are left out of it). Microphones, loudspeaker, image sources; the true room and loudspeaker
+    when given. Returns the path written.
+    """
+    centre = source if source is not None else mics.mean(axis=0)
+    pts = [mics, centre[None]]
+    if image_sources is not None and len(image_sources):
+        pts.append(image_sources.reshape(-1, 3))
+    if true_room is not None:
+        pts.append(true_room.vertices)
+    if room is not None:
+        pts.append(room.vertices)
+    if wall_normals is not None and wall_offsets is not None:  # foot of the loudspeaker on each
+        foot = centre + (wall_offsets - wall_normals @ centre)[:, None] * wall_normals
+        pts.append(foot)
+    allpts = np.vstack(pts)
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.08 * np.max(hi - lo) + 0.1
+    lo, hi = lo - pad, hi + pad
+    fig, axs = plt.subplots(1, 2, figsize=(12.0, 5.6), squeeze=False)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (name, axes, labels) in zip(axs[0], _VIEWS, strict=True):
+        if true_room is not None:
+            _outline(ax, true_room, axes, color="0.3", lw=2.0, label="true room")
+        if room is not None:
+            _outline(ax, room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed")
+        elif wall_normals is not None and wall_offsets is not None:
+            for k, (n, o) in enumerate(zip(wall_normals, wall_offsets, strict=True)):
+                _wall_trace(
+                    ax,
+                    n,
+                    o,
+                    axes,
+                    centre,
+                    np.array([lo[list(axes)], hi[list(axes)]]),
+                    color=colours[k % len(colours)],
+                    lw=1.2,
+                    ls="--",
+                    label=f"wall {k}",
+                )
+        if image_sources is not None and len(image_sources):
+            ims = image_sources.reshape(-1, 3)
+            ax.scatter(
+                ims[:, axes[0]],
+                ims[:, axes[1]],
+                marker="*",
+                s=40,
+                c="tab:orange",
+                label="image sources (est.)",
+            )
+        ax.scatter(
+            mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
+        )
+        if true_source is not None:
+            ax.scatter(
+                true_source[axes[0]],
+                true_source[axes[1]],
+                marker="s",
+                s=60,
+                facecolors="none",
+                edgecolors="k",
+                label="loudspeaker (true)",
+            )
+        if source is not None:
+            ax.scatter(
+                source[axes[0]],
+                source[axes[1]],
+                marker="x",
+                s=50,
+                c="tab:red",
+                label="loudspeaker (est.)",
+            )
+        ax.set_xlim(lo[axes[0]], hi[axes[0]])
+        ax.set_ylim(lo[axes[1]], hi[axes[1]])
+        ax.set_xlabel(labels[0])
+        ax.set_ylabel(labels[1])
+        ax.set_title(name + ("" if room is not None else " (walls cut through the loudspeaker)"))
+        ax.set_aspect("equal", adjustable="box")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=7)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_walk_estimate(
+    path: str | Path,
+    *,
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    receiver_cov: np.ndarray | None = None,
+    source_cov: np.ndarray | None = None,
+    true_trajectory: np.ndarray | None = None,
+    rotation: np.ndarray | None = None,
+    translation: np.ndarray | None = None,
+    title: str = "",
+) -> Path:
+    """Top view of a trajectory and its landmarks estimated from RIRs (``rangeslam run``), with
+    2-sigma ellipses when covariances are given. With ``true_trajectory`` the estimate is mapped
+    onto it by (``rotation``, ``translation``), e.g. from :func:`rangeslam.align`; otherwise it
+    is drawn in its own frame. Returns the path written."""
+    d = receivers.shape[1]
+    rot = np.eye(d) if rotation is None else rotation
+    shift = np.zeros(d) if translation is None else translation
+    rec = receivers @ rot.T + shift
+    src = sources @ rot.T + shift
+    rot_cov = lambda c: None if c is None else np.einsum("ij,njk,lk->nil", rot, c, rot)  # noqa: E731
+    fig, axs = plt.subplots(1, 2, figsize=(12.0, 5.0))
+    for ax, est, cov, name in (
+        (axs[0], rec, rot_cov(receiver_cov), "trajectory"),
+        (axs[1], src, rot_cov(source_cov), "landmarks"),
+    ):
+        if name == "trajectory" and true_trajectory is not None:
+            ax.plot(
+                true_trajectory[:, 0],
+                true_trajectory[:, 1],
+                "o-",
+                c="k",
+                mfc="none",
+                ms=5,
+                label="trajectory (true)",
+            )
+        if name == "landmarks":  # the walk, for scale
+            ax.plot(rec[:, 0], rec[:, 1], "-", c="0.6", lw=1.0, label="trajectory (est.)")
+        style = "x-" if name == "trajectory" else "x"
+        ax.plot(est[:, 0], est[:, 1], style, c="tab:red", ms=6, label=f"{name} (est.)")
+        if name == "trajectory" and len(est):
+            ax.plot(est[0, 0], est[0, 1], "o", c="tab:red", ms=8, mfc="none", label="first step")
+        if cov is not None:
+            for p, c in zip(est, cov, strict=True):
+                _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
+        ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
+    if title:
+        fig.suptitle(title)
     return _save(fig, path)

@@ -360,27 +360,37 @@ class EDMCompletionSDP:
     def solve(self, z: np.ndarray) -> tuple[np.ndarray, str, str]:
         """Solve step (i) for direction ``z``; return (G in caller units^2, status, solver).
 
-        Falls back to :data:`FALLBACK_SOLVER` when the primary solver fails; raises
+        Clarabel that fails is tried again with static regularisation 1e-7 (unless the options
+        set it), then :data:`FALLBACK_SOLVER`; raises
         :class:`SolverError` with the status when neither gives a usable solution.
         """
         self._z.value = 0.5 * (z + z.T)
         statuses = []
-        for name in dict.fromkeys((self.solver, FALLBACK_SOLVER)):
+        attempts = [(self.solver, {})]
+        if self.solver == "CLARABEL" and "static_regularization_constant" not in self.solver_options:
+            # masked unfoldings with many sparse columns (tracked echoes) made Clarabel's KKT
+            # solves fail at its default static regularisation; 1e-7 solved them
+            attempts.append((self.solver, {"static_regularization_constant": 1e-7}))
+        if self.solver != FALLBACK_SOLVER:
+            attempts.append((FALLBACK_SOLVER, {}))
+        for name, extra in attempts:
+            label = name + "".join(f" ({k} {v})" for k, v in extra.items())
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # the status is checked below
                     options = _solver_options(name, self.n_groups > 0)
                     if name == self.solver:
                         options.update(self.solver_options)
+                    options.update(extra)
                     self._problem.solve(solver=name, **options)
             except cp.error.SolverError as exc:
-                statuses.append(f"{name}: error ({str(exc).splitlines()[0]})")
+                statuses.append(f"{label}: error ({str(exc).splitlines()[0]})")
                 continue
             status = self._problem.status
             if status in _USABLE.get(name, ("optimal",)) and self._gram.value is not None:
                 g = self._gram.value
                 return 0.5 * (g + g.T) * self.scale**2, status, name
-            statuses.append(f"{name}: {status}")
+            statuses.append(f"{label}: {status}")
         raise SolverError("EDM completion SDP failed", status="; ".join(statuses))
 
 
