@@ -367,7 +367,10 @@ class EDMCompletionSDP:
         self._z.value = 0.5 * (z + z.T)
         statuses = []
         attempts = [(self.solver, {})]
-        if self.solver == "CLARABEL" and "static_regularization_constant" not in self.solver_options:
+        if (
+            self.solver == "CLARABEL"
+            and "static_regularization_constant" not in self.solver_options
+        ):
             # masked unfoldings with many sparse columns (tracked echoes) made Clarabel's KKT
             # solves fail at its default static regularisation; 1e-7 solved them
             attempts.append((self.solver, {"static_regularization_constant": 1e-7}))
