@@ -8,7 +8,15 @@ from .alignment import Alignment, align
 from .beacon_slam import BeaconSlamResult, RangeOdometry, beacon_slam, beacon_slam_incremental
 from .calibration import Calibration, calibrate
 from .crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
+from .echo_labelling import EchoLabelling, RoomFromRirs, label_echoes, room_from_rirs
+from .echo_tracking import EchoTracks, WalkFromRirs, track_echoes, walk_from_rirs
+from .echoes import EchoDetection, detect_echoes, detect_echoes_many
 from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
+from .emission import (
+    calibrate_unknown_emission,
+    multilaterate_with_offset,
+    reconstruct_room_unknown_emission,
+)
 from .errors import (
     DataFormatError,
     DegenerateGeometryError,
@@ -18,6 +26,7 @@ from .errors import (
 )
 from .geometry import ImageSources, Room
 from .multilateration import MultilaterationResult, multilaterate
+from .pipeline import LoadedRirs, RunResult, load_rirs, run_rirs
 from .room_reconstruction import RoomReconstruction, reconstruct_room
 from .slam import SlamResult, slam
 
@@ -29,30 +38,48 @@ __all__ = [
     "Calibration",
     "DataFormatError",
     "DegenerateGeometryError",
+    "EchoDetection",
+    "EchoLabelling",
+    "EchoTracks",
     "ImageSources",
     "InvalidInputError",
+    "LoadedRirs",
     "MDUBound",
     "MultilaterationResult",
     "RangeOdometry",
     "RangeSlamError",
     "Room",
+    "RoomFromRirs",
     "RoomReconstruction",
+    "RunResult",
     "SlamResult",
     "SolverError",
+    "WalkFromRirs",
     "__version__",
     "align",
     "beacon_slam",
     "beacon_slam_incremental",
     "calibrate",
+    "calibrate_unknown_emission",
     "classical_mds",
+    "detect_echoes",
+    "detect_echoes_many",
     "edm",
     "edm_to_gram",
     "gram_to_edm",
     "is_edm",
+    "label_echoes",
+    "load_rirs",
     "mdu_crlb",
     "multilaterate",
+    "multilaterate_with_offset",
     "multilateration_crlb",
     "reconstruct_room",
+    "reconstruct_room_unknown_emission",
+    "room_from_rirs",
+    "run_rirs",
     "slam",
+    "track_echoes",
+    "walk_from_rirs",
     "wall_crlb",
 ]

@@ -5,8 +5,8 @@ Every image source, of any order, is a fixed point, so a track needs no wall lab
 must be one point throughout. Data association, frame by frame (one RIR a frame):
 
 - The direct path (``EchoDetection.direct``) is column 0.
-- A confirmed track predicts its next range by a quadratic through its last hits (a line through
-  two) and takes the detection nearest the prediction within its gate (``tolerance``, growing with
+- A confirmed track predicts its next range by a parabola fitted to its last six hits (a line
+  to fewer than five) and takes the detection nearest the prediction within its gate (``tolerance``, growing with
   the frames since its last hit); tracks and detections are matched by least total distance
   (Hungarian algorithm, ``scipy.optimize.linear_sum_assignment``), confirmed tracks first.
 - Crossings: where the predictions of two confirmed tracks come within ``merge_distance`` (the
@@ -45,8 +45,9 @@ from .slam import SlamResult, _residual_verdict, slam
 
 __all__ = ["EchoTracks", "WalkFromRirs", "track_echoes", "walk_from_rirs"]
 
-# Hits a quadratic prediction is fitted to.
-_FIT_POINTS = 4
+# Hits the prediction is fitted to: a parabola through up to six (a line through fewer than five;
+# a parabola through few noisy hits extrapolates their noise, a line misses the curvature).
+_FIT_POINTS = 6
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -116,7 +117,7 @@ class _Track:
         if n == 1:
             return self.ranges[-1]
         t = np.asarray(self.frames[-n:], dtype=float)
-        coef = np.polyfit(t - t[-1], np.asarray(self.ranges[-n:]), min(n - 1, 2))
+        coef = np.polyfit(t - t[-1], np.asarray(self.ranges[-n:]), 2 if n >= 5 else 1)
         return float(np.polyval(coef, f - t[-1]))
 
 
@@ -336,7 +337,7 @@ def _assign(tracks, pred, gates, ranges, amps, free, taken, f, close_ambiguous=T
         if ok[a, b]:
             j = cand[b]
             rivals = np.sort(cost[a][ok[a]])
-            if close_ambiguous and len(rivals) > 1 and rivals[1] < 2 * rivals[0] + 0.5 * gates[a]:
+            if close_ambiguous and len(rivals) > 1 and rivals[1] < 2 * rivals[0] + 0.1 * gates[a]:
                 tracks[a].closed = True  # two detections fit: end the track rather than guess
                 continue
             tracks[a].add(f, ranges[j], amps[j], j)
@@ -551,7 +552,7 @@ def walk_from_rirs(
     2. :func:`track_echoes` over all frames, with the largest move between frames twice a
        step's upper bound shared among the frames recorded during it.
     3. At the M keyframes (the SLAM steps), the ``n_start`` tracks with the most hits (at least
-       ``min_hits``) and the direct path: :func:`rangeslam.slam` (EDM completion with the step
+       ``min_hits``; more where a step would hear fewer than d + 1 of them) and the direct path: :func:`rangeslam.slam` (EDM completion with the step
        bounds of eq. 11, then GTSAM, Huber kernel), each track a landmark of its own.
     4. Entries beyond a gate (4 robust sigmas of the range residuals, at least 0.1 sample) are
        masked and GTSAM run again, until none is.
@@ -613,8 +614,21 @@ def walk_from_rirs(
                 mask[i] &= ~np.isin(key.detection[i], crowded)
     hits = mask.sum(axis=0)
     candidates = [j for j in range(1, key.n_tracks) if hits[j] >= min_hits]
-    amp = np.nanmean(np.abs(np.where(mask, key.amplitudes, np.nan)), axis=0, where=mask)
-    start_cols = sorted(candidates, key=lambda j: (-hits[j], -amp[j]))[:n_start]
+    amp = np.where(mask, np.abs(np.nan_to_num(key.amplitudes)), 0.0).sum(axis=0) / np.maximum(
+        hits, 1
+    )
+    ranked = sorted(candidates, key=lambda j: (-hits[j], -amp[j]))
+    start_cols = ranked[:n_start]
+    # every step must hear dim + 1 landmarks of the start: add the tracks that fill the gaps most
+    for _ in range(n_start):
+        short = mask[:, [0, *start_cols]].sum(axis=1) < dim + 1
+        rest = [j for j in ranked if j not in start_cols]
+        if not short.any() or not rest:
+            break
+        best = max(rest, key=lambda j: int(np.sum(mask[short, j])))
+        if not mask[short, best].any():
+            break
+        start_cols.append(best)
 
     def result(ranges=None, mask=None, columns=(), answer=None, gate=gate_floor, ok=False, msg=""):
         return WalkFromRirs(
