@@ -178,6 +178,63 @@ def test_room_from_simulated_rirs_recovers_the_walls(rng, compact, bound):
     assert np.array_equal(rec.observed[0], res.labelling.mask)
 
 
+def wrong_walls(rec, size, *, degrees=5.0, metres=0.10):
+    """Estimated walls more than ``degrees`` from every true normal of the shoebox, or more than
+    ``metres`` from the centre of the true wall with the nearest normal."""
+    room = Room.shoebox(size)
+    centre = np.asarray(size) / 2
+    bad = []
+    for n, o in zip(rec.wall_normals, rec.wall_offsets, strict=True):
+        j = int(np.argmax(room.normals @ n))
+        p = centre + (room.offsets[j] - room.normals[j] @ centre) * room.normals[j]
+        angle = np.degrees(np.arccos(min(float(room.normals[j] @ n), 1.0)))
+        bad.append(angle > degrees or abs(n @ p - o) > metres)
+    return np.array(bad)
+
+
+# Issue: at 16 kHz with a compact array a first-order image that few microphones hear cleanly is
+# missed, and a higher-order image (or a chance alignment) takes its column: before the swap test
+# (_ambiguous) and max_normal_std, 49 of 200 rooms (this setup, setup seeds 1-10) came out
+# converged with such a wrong wall. Now none does, and 65% converge (130 of 200; per 20 rooms
+# 12-16). Other layouts, 100 rooms each: 16 kHz spread 7 -> 1 wrong, converged 100% -> 94%;
+# 48 kHz compact 1 -> 0, 100% -> 99%; 48 kHz spread 0 -> 0, 100% -> 100%.
+# 8 of 20 leaves a margin: at 65% fewer than 8 occur with probability 0.6%. Passed for seeds 1-5.
+def test_no_wrong_wall_is_presented_as_converged(rng):
+    n_rooms, converged = 20, 0
+    for _ in range(n_rooms):
+        size, src, mics, absorption = random_setup(rng, compact=True)
+        rirs = shoebox_rirs(size, src, mics, fs=16000, absorption=absorption, max_order=3)
+        res = room_from_rirs(rirs, 16000, mics, c=C, rng=rng)
+        if res.converged:
+            converged += 1
+            bad = wrong_walls(res.reconstruction, size)
+            assert not bad.any(), f"wrong walls {np.flatnonzero(bad)} converged: {res.message}"
+        else:
+            assert res.message
+    assert converged >= 8, f"only {converged} of {n_rooms} rooms converged"
+
+
+def test_an_ambiguous_column_is_left_out_and_said_so(rng):
+    """Every arrival up to order 3 but the floor's: second-order images through the floor take
+    its column (and a free one); they are left out, no wall found is wrong, and it is said."""
+    size = np.array([5.0, 4.0, 3.0])
+    src = np.array([1.6, 1.3, 1.2])
+    mics = np.array([3.0, 2.4, 1.5]) + rng.uniform(-0.3, 0.3, (10, 3))
+    ims = Room.shoebox(size).image_sources(src, 3)
+    # every arrival up to order 3 but the floor's (image 4, and the images coinciding with it)
+    keep = ims.valid & (np.linalg.norm(ims.positions - ims.positions[4], axis=1) > 1e-9)
+    dets = geometric_detections(mics, np.vstack([src[None], ims.positions[keep]]), 48000)
+    lab = label_echoes(dets, mics, c=C, rng=rng)
+    assert not lab.converged, lab.message
+    floor = np.array([0.0, 0.0, -1.0])
+    normals = (lab.images - lab.source) / np.linalg.norm(lab.images - lab.source, axis=1)[:, None]
+    # every column is a true wall other than the floor; nothing floor-like is presented
+    for n in normals:
+        assert np.max(Room.shoebox(size).normals @ n) > np.cos(np.radians(1))
+        assert n @ floor < np.cos(np.radians(1))
+    assert "left out the image" in lab.message
+
+
 # ---- missing echoes, silent RIRs, too few echoes ----------------------------------------------------
 
 
@@ -255,6 +312,11 @@ def test_n_images_none_labels_the_walls_there_are(rng):
     np.testing.assert_allclose(lab.images, ims[[0, 2, 4]][order], atol=1e-6)
     lab = label_echoes(dets, mics, c=C, rng=rng)  # six asked for
     assert not lab.converged and "3 of the 6" in lab.message and lab.n_images == 3
+    # walls less certain than max_normal_std: kept as columns, the result not converged
+    assert lab.normal_std.shape == (3,) and np.all(lab.normal_std > 0)
+    vague = label_echoes(dets, mics, c=C, n_images=None, max_normal_std=1e-9, rng=rng)
+    assert not vague.converged and vague.n_images == 3
+    assert vague.message.count("doubtful") == 3 and "max_normal_std" in vague.message
 
 
 # ---- input checks -----------------------------------------------------------------------------------
@@ -282,6 +344,7 @@ def test_bad_input_is_refused_with_a_message_naming_the_argument(rng):
         ({"c": C, "tolerance": 0.0}, "tolerance"),
         ({"c": C, "max_range": -2.0}, "max_range"),
         ({"c": C, "n_triples": 1.5}, "n_triples"),
+        ({"c": C, "max_normal_std": 0.0}, "max_normal_std"),
     ]:
         with pytest.raises(InvalidInputError, match=name):
             label_echoes(dets, mics, **kwargs)
@@ -356,6 +419,18 @@ def test_dechorate_loudspeaker_and_ceiling(dechorate_dir):
     assert not res.converged  # the walls found do not close a room, and it says so
 
 
+# Why the lateral walls are out of reach (measured, scratch analysis, geometry and echo_toa.csv used
+# only to look): after matched filtering with the direct sound the ceiling echo peaks at 0.38-0.59
+# of the direct path and within 1.4 cm of the geometry at every microphone, while the west, east,
+# south and north echoes reach only 0.04-0.41 (median about 0.2) over a clutter whose median is
+# 0.07-0.14, their maxima within 8 cm of the expected time often on the window edge. Even with
+# the shoebox prior (vertical walls, 2 parameters) and the floor/ceiling image family masked out,
+# the 12-microphone steered envelope at the true walls ranks 1473 (west), 14723 (east), 25630
+# (south) and 10600 (north) among 205200 (angle, distance) hypotheses, in every band tried
+# (0.3-1.5, 0.3-3, 1-4, 2-8, 4-16 kHz, with and without the matched filter). The strongest
+# lateral reflector is 35 cm beyond the calibrated south wall (where 9 of the 12 annotated south
+# echoes lie too, 48-62 cm late in range), and the "west" column found is a 21-degree tilted plane
+# at 10 (= 5 pairs of) microphones within 3 cm. Nothing in these RIRs singles out the four walls.
 @pytest.mark.xfail(
     strict=True,
     reason="issue 7 asks for 4 of the 5 reflective dEchorate walls within 10 cm; only the ceiling "
