@@ -90,6 +90,9 @@ def main() -> None:
     conv = np.array([r["converged"] for r in rows])
     ok = conv & np.isfinite(err)
     ratio = err[ok] / np.maximum(ref[ok], 1e-6)
+    for j, r in enumerate(rows):
+        if not r["converged"]:
+            print(f"walk {j} not converged: {r['message']}")
     print()
     print(
         markdown_table(
@@ -119,6 +122,10 @@ def main() -> None:
         )
     )
     print()
+    if not ok.any():
+        print(f"{args.frames_per_step} RIRs a step, {args.fs} Hz: none of {len(rows)} converged")
+        print(machine())
+        return
     print(
         f"{args.frames_per_step} RIRs a step, {args.fs} Hz: converged {ok.sum()} of {len(rows)}; "
         f"mean error {1e3 * err[ok].mean():.2f} mm against {1e3 * ref[ok].mean():.2f} mm "

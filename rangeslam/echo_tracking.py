@@ -690,9 +690,35 @@ def walk_from_rirs(
     r_all = np.column_stack([direct] + [g[1] for g in groups])
     m_all = np.column_stack([mask[:, 0]] + [g[2] for g in groups])
     pts = np.vstack([fit0.sources[0]] + [_locate(traj, g[1], g[2]) for g in groups])
-    fit, m_all, gate, _ = _gated_refine(
-        traj, pts, r_all, m_all, bounds, sigma0, gate_floor, covariances=True
+    cols_all = [(0,), *[g[0] for g in groups]]
+    n_linked = int(m_all.sum())
+    fit, m_all, gate, sigma = _gated_refine(
+        traj, pts, r_all, m_all, bounds, sigma0, gate_floor, covariances=False
     )
+    # a landmark the gate left with d or fewer ranges is not determined: leave it out
+    keep = m_all.sum(axis=0) > dim
+    if not keep[0]:
+        return result(
+            msg=f"the direct path kept {int(m_all[:, 0].sum())} ranges through the gate of "
+            f"{gate:.2g} m: the loudspeaker is not determined"
+        )
+    if keep.sum() < dim + 2:
+        return result(msg=f"{int(keep.sum()) - 1} echo landmarks kept ranges through the gate")
+    r_all, m_all = r_all[:, keep], m_all[:, keep]
+    cols_all = [c for c, k in zip(cols_all, keep, strict=True) if k]
+    try:
+        fit = refine_graph(
+            fit.receivers,
+            fit.sources[keep],
+            np.nan_to_num(r_all),
+            noise_std=sigma,
+            mask=m_all,
+            step_bounds=bounds,
+            robust="huber",
+            covariances=True,
+        )
+    except SolverError as exc:
+        return result(msg=f"GTSAM on the linked landmarks failed: {exc}")
     res = np.where(m_all, fit.residuals, np.nan)
     ssr = float(np.nansum(res**2))
     noise = sopts.get("noise_std")
@@ -733,15 +759,16 @@ def walk_from_rirs(
         start="edm",
         eigen_gap=start.eigen_gap,
     )
-    n_masked = int(np.sum(np.column_stack([mask[:, 0]] + [g[2] for g in groups]) & ~m_all))
+    n_masked = n_linked - int(m_all.sum())
     summary = (
-        f"{len(groups)} landmarks from {sum(len(g[0]) for g in groups)} of {key.n_tracks - 1} "
-        f"tracks, {int(m_all.sum())} ranges used, {n_masked} beyond the gate of {gate:.2g} m"
+        f"{len(cols_all) - 1} echo landmarks from {sum(len(c) for c in cols_all[1:])} of "
+        f"{key.n_tracks - 1} tracks, {int(m_all.sum())} ranges used, {n_masked} left out by the "
+        f"gate of {gate:.2g} m"
     )
     return result(
         r_all,
         m_all,
-        [(0,), *[g[0] for g in groups]],
+        cols_all,
         answer,
         gate,
         ok,
