@@ -352,6 +352,14 @@ _PRUNE_ROUNDS = 3
 # entry further than this from its landmark's fit is taken for a wrong or merged echo.
 _GATE_K = 4.0
 _GATE_FLOOR = 0.1
+# More than this share of the steps on a bound: the bounds decide the answer, not converged (a
+# 10-step walk given bounds 1.3x too long was 17 cm off with a 2 mm residual; helper review).
+_MAX_PINNED = 0.5
+# Kernel of the last GTSAM run, from the gated Huber answer: Tukey's, which gives no weight to the
+# few ranges biased by millimetres (merged arrivals) that Huber's still follows (Fig. 5 walks 9 and
+# 10 of benchmarks/bench_walk_rirs.py: 3.41 and 3.20 mm with Huber, 2.30 and 1.20 mm with Tukey;
+# Tukey in the gating rounds too made walk 10 worse, 5.1 mm).
+_FINAL_KERNEL = "tukey"
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -417,7 +425,7 @@ def _frame_steps(upper: np.ndarray, keyframes: np.ndarray, n_frames: int) -> np.
     """(F - 1,) the largest move between consecutive frames: twice a step's upper bound shared
     among the frames recorded during it (frames before the first step or after the last take
     the nearest step's)."""
-    per = 2.0 * upper / np.diff(keyframes)
+    per = np.maximum(2.0 * upper / np.diff(keyframes), 1e-6)  # a step bounded by 0: standing
     step_of = np.clip(
         np.searchsorted(keyframes, np.arange(n_frames - 1), side="right") - 1, 0, len(per) - 1
     )
@@ -490,6 +498,15 @@ def _locate(trajectory: np.ndarray, r: np.ndarray, ok: np.ndarray) -> np.ndarray
     return best.x
 
 
+def _steps_on_bounds(traj: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> int:
+    """Steps of ``traj`` within 2 % of the bounds' width of either bound (bounds of zero width
+    not counted)."""
+    steps = np.linalg.norm(np.diff(traj, axis=0), axis=1)
+    width = upper - lower
+    near = (steps <= lower + 0.02 * width) | (steps >= upper - 0.02 * width)
+    return int(np.sum(near & (width > 0)))
+
+
 def _gated_refine(traj, pts, r, mask, bounds, sigma, gate_floor, covariances):
     """GTSAM (Huber) on the ranges, then rounds of masking the entries beyond the gate
     (``_GATE_K`` robust sigmas, at least ``gate_floor``) and refining again. Returns
@@ -555,11 +572,12 @@ def walk_from_rirs(
        ``min_hits``; more where a step would hear fewer than d + 1 of them) and the direct path: :func:`rangeslam.slam` (EDM completion with the step
        bounds of eq. 11, then GTSAM, Huber kernel), each track a landmark of its own.
     4. Entries beyond a gate (4 robust sigmas of the range residuals, at least 0.1 sample) are
-       masked and GTSAM run again, until none is.
+       masked and GTSAM run again (at most 3 rounds).
     5. Linking: a fixed point's squared ranges minus the loudspeaker's are affine in the
        position, so they lie in a (d + 1)-dimensional space known from the trajectory (the EDM
        rank test); tracks whose ranges fit one point within the gate are one landmark.
-    6. GTSAM on all landmarks (each started by least squares from the trajectory), gated as in 4.
+    6. GTSAM on all landmarks (each started by least squares from the trajectory), gated as in 4;
+       landmarks left with d or fewer ranges dropped; a last run with Tukey's kernel.
 
     Args:
         rirs: (F, L) RIRs, t = 0 at the emission, one per frame. fs: Hz.
@@ -568,7 +586,9 @@ def walk_from_rirs(
             more RIRs than steps where steps are long: echoes are followed frame to frame.
         c: speed of sound, m/s. dim: 2 or 3.
         n_start: tracks the EDM start is solved on (besides the direct path).
-        min_hits: fewest keyframes a landmark is heard at (default max(dim + 3, M // 3)).
+        min_hits: fewest keyframes a landmark is heard at (default max(dim + 3, M // 3), at most M).
+        isolation: samples; an arrival nearer than this to another in its RIR is left out (two
+            arrivals that close bias each other's times). 0 keeps them all.
         rng: random generator (or seed) for the SDP's restarts.
         detect_options, track_options, slam_options: keyword arguments of
             :func:`rangeslam.echoes.detect_echoes_many`, :func:`track_echoes` and
@@ -593,11 +613,18 @@ def walk_from_rirs(
         raise InvalidInputError(
             f"n_start must be an integer >= dim + 1 = {dim + 1}; got {n_start!r}"
         )
-    min_hits = max(dim + 3, m // 3) if min_hits is None else min_hits
+    if m < dim + 2:
+        raise InvalidInputError(
+            f"keyframes must give at least dim + 2 = {dim + 2} steps (RIRs, when keyframes is "
+            f"None); got {m}"
+        )
+    min_hits = min(max(dim + 3, m // 3), m) if min_hits is None else min_hits
     if not (isinstance(min_hits, int | np.integer) and dim + 2 <= min_hits <= m):
         raise InvalidInputError(
             f"min_hits must be an integer in [dim + 2, M] = [{dim + 2}, {m}]; got {min_hits!r}"
         )
+    if not (isinstance(isolation, int | float | np.number) and 0 <= isolation < np.inf):
+        raise InvalidInputError(f"isolation must be a number of samples >= 0; got {isolation!r}")
     topts = dict(track_options or {})
     topts.setdefault("c", c)
     tracks = track_echoes(dets, topts.pop("max_step", _frame_steps(upper, keys, n_frames)), **topts)
@@ -668,19 +695,22 @@ def walk_from_rirs(
         )
     except SolverError as exc:
         return result(msg=f"the EDM start failed: {exc}")
-    except InvalidInputError as exc:  # the tracks leave the unfolding under-determined
-        return result(msg=f"too few echoes tracked for the EDM start: {exc}")
+    except InvalidInputError as exc:  # e.g. the tracks leave the unfolding under-determined
+        return result(msg=f"the EDM start refused the tracked ranges: {exc}")
     sigma0 = max(start.residual_rms, gate_floor / _GATE_K)
-    fit0, _, gate, _ = _gated_refine(
-        start.receivers,
-        start.sources,
-        ranges[:, cols0],
-        mask[:, cols0],
-        bounds,
-        sigma0,
-        gate_floor,
-        covariances=False,
-    )
+    try:
+        fit0, _, gate, _ = _gated_refine(
+            start.receivers,
+            start.sources,
+            ranges[:, cols0],
+            mask[:, cols0],
+            bounds,
+            sigma0,
+            gate_floor,
+            covariances=False,
+        )
+    except SolverError as exc:
+        return result(msg=f"GTSAM from the EDM start failed: {exc}")
     traj = fit0.receivers
     direct = np.where(mask[:, 0], ranges[:, 0], np.nan)
     basis, ref = _subspace(traj)
@@ -692,9 +722,19 @@ def walk_from_rirs(
     pts = np.vstack([fit0.sources[0]] + [_locate(traj, g[1], g[2]) for g in groups])
     cols_all = [(0,), *[g[0] for g in groups]]
     n_linked = int(m_all.sum())
-    fit, m_all, gate, sigma = _gated_refine(
-        traj, pts, r_all, m_all, bounds, sigma0, gate_floor, covariances=False
-    )
+    try:
+        fit, m_all, gate, sigma = _gated_refine(
+            traj,
+            pts,
+            r_all,
+            m_all,
+            bounds,
+            sigma0,
+            gate_floor,
+            covariances=False,
+        )
+    except SolverError as exc:
+        return result(msg=f"GTSAM on the linked landmarks failed: {exc}")
     # a landmark the gate left with d or fewer ranges is not determined: leave it out
     keep = m_all.sum(axis=0) > dim
     if not keep[0]:
@@ -714,7 +754,7 @@ def walk_from_rirs(
             noise_std=sigma,
             mask=m_all,
             step_bounds=bounds,
-            robust="huber",
+            robust=_FINAL_KERNEL,
             covariances=True,
         )
     except SolverError as exc:
@@ -738,6 +778,13 @@ def walk_from_rirs(
     if not fit.converged:
         ok = False
         msg += f"GTSAM: {fit.message}; "
+    pinned = _steps_on_bounds(fit.receivers, lower, upper)
+    if pinned > _MAX_PINNED * (m - 1):
+        ok = False
+        msg += (
+            f"{pinned} of the {m - 1} steps sit on a step bound: the bounds, not the ranges, "
+            "decide the trajectory (are they right?); "
+        )
     rec, src, rot = _canonical_frame(fit.receivers, fit.sources)
     cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
     cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
