@@ -169,7 +169,7 @@ def test_walk_from_rirs_end_to_end(rng):
     """The Fig. 5 walk as RIRs (8 a step), end to end: converged, the ranges used timed to a
     quarter of a sample, the trajectory within 1 cm RMS (after rigid alignment with reflection).
     benchmarks/bench_walk_rirs.py compares it with exact ranges and matched noise (12 walks:
-    0.20-3.41 mm against 0.34-4.28 mm; the issue's 1.5x met by the mean, not by every walk)."""
+    0.12-2.30 mm against 0.34-4.28 mm; the issue's 1.5x met by the mean, by 10 of 12 walks)."""
     rirs, traj, keys, bounds, landmarks = fig5_walk(rng, 8)
     w = walk_from_rirs(rirs, FS, step_bounds=bounds, keyframes=keys, rng=rng)
     assert w.converged, w.message
