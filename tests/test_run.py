@@ -512,9 +512,6 @@ def test_walk_from_simulated_rirs():
     """The real tracker (rangeslam.echo_tracking) on RIRs along a walk, 10 keyframes of 30 RIRs:
     converged, and the trajectory error (RMS after rigid alignment, with reflection) within 3
     times the standard deviation its covariance states, and within 3 cm."""
-    tracking = pytest.importorskip("rangeslam.echo_tracking")
-    if not hasattr(tracking, "walk_from_rirs"):
-        pytest.skip("rangeslam.echo_tracking has no walk_from_rirs yet")
     from rangeslam.experiments import FIG5_ROOM_SIZE
     from rangeslam.trajectories import lemniscate, step_lengths
 
