@@ -12,7 +12,15 @@ from numpy.typing import ArrayLike
 
 from .errors import InvalidInputError
 
-__all__ = ["as_mask", "as_points", "as_ranges", "frozen", "shape_str"]
+__all__ = [
+    "as_mask",
+    "as_points",
+    "as_ranges",
+    "check_int",
+    "check_positive",
+    "frozen",
+    "shape_str",
+]
 
 
 def shape_str(shape: tuple[int, ...]) -> str:
@@ -128,3 +136,19 @@ def frozen(arr: np.ndarray) -> np.ndarray:
     """Mark an array read-only (result objects hand out arrays that cannot be edited in place)."""
     arr.setflags(write=False)
     return arr
+
+
+def check_int(value, name: str, low: int) -> int:
+    """``value`` as an int, refused (naming ``name``) unless an integer >= ``low`` (not a bool)."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+        raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+    return int(value)
+
+
+def check_positive(value, name: str) -> float:
+    """``value`` as a float, refused (naming ``name``) unless a finite number > 0 (not a bool)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+    if not (np.isfinite(value) and value > 0):
+        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+    return float(value)

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ._robust import mad_sigma, studentized
-from ._validation import _as_float_array, as_mask, as_ranges, frozen, shape_str
+from ._validation import _as_float_array, as_mask, as_ranges, check_int, frozen, shape_str
 from .edm import edm
 from .errors import DegenerateGeometryError, InvalidInputError, SolverError
 from .multilateration import multilaterate
@@ -403,8 +403,7 @@ def calibrate(
         ("max_iterations", max_iterations, 1),
         ("random_starts", random_starts, 0),
     ):
-        if not (isinstance(value, int | np.integer) and value >= low):
-            raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+        check_int(value, name, low)
     # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
     from .sdp import EDMCompletionSDP
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._validation import as_points, frozen, shape_str
+from ._validation import as_points, check_int, check_positive, frozen, shape_str
 from .echoes import EchoDetection, detect_echoes_many
 from .errors import DataFormatError, DegenerateGeometryError, InvalidInputError
 from .geometry import reflect
@@ -682,20 +682,6 @@ def _normal_std(x, picks, source, mics, peaks: _Peaks, sigma) -> float:
 # ---- the labelling ------------------------------------------------------------------------------
 
 
-def _check_int(value, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
-    return int(value)
-
-
-def _check_positive(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    if not (math.isfinite(value) and value > 0):
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    return float(value)
-
-
 def label_echoes(
     detections: Sequence[EchoDetection],
     mics: ArrayLike,
@@ -819,22 +805,20 @@ def label_echoes(
         raise DegenerateGeometryError(
             "mics are coplanar (or collinear): every point has a mirror image across their plane"
         )
-    c = _check_positive(c, "c")
+    c = check_positive(c, "c")
     if n_images is not None:
-        n_images = _check_int(n_images, "n_images", 1)
+        n_images = check_int(n_images, "n_images", 1)
     if min_mics is None:
         min_mics = max(5, math.ceil(m_n / 2))
-    min_mics = min(_check_int(min_mics, "min_mics", 4), m_n)
-    n_triples = _check_int(n_triples, "n_triples", 1)
-    max_hypotheses = _check_int(max_hypotheses, "max_hypotheses", 1)
+    min_mics = min(check_int(min_mics, "min_mics", 4), m_n)
+    n_triples = check_int(n_triples, "n_triples", 1)
+    max_hypotheses = check_int(max_hypotheses, "max_hypotheses", 1)
     tol = (
-        c / min(d.fs for d in dets)
-        if tolerance is None
-        else _check_positive(tolerance, "tolerance")
+        c / min(d.fs for d in dets) if tolerance is None else check_positive(tolerance, "tolerance")
     )
-    limit = math.inf if max_range is None else _check_positive(max_range, "max_range")
+    limit = math.inf if max_range is None else check_positive(max_range, "max_range")
     if max_normal_std is not None:
-        max_normal_std = _check_positive(max_normal_std, "max_normal_std")
+        max_normal_std = check_positive(max_normal_std, "max_normal_std")
     cap = _MAX_GATE * tol
 
     ranges_list = [np.asarray(det.times, dtype=float) * c for det in dets]
@@ -1105,7 +1089,7 @@ def room_from_rirs(
                 f"rirs must be a finite, non-silent (M, L) array to take a direct template from; "
                 f"got shape {shape_str(x.shape)}"
             )
-        fs_ = _check_positive(fs, "fs")
+        fs_ = check_positive(fs, "fs")
         if not (before >= 0 and after > 0 and math.isfinite(before + after)):
             raise InvalidInputError(
                 f"direct_template must be (before >= 0, after > 0) seconds; got {direct_template!r}"

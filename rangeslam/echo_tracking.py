@@ -36,12 +36,12 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from ._robust import mad_sigma
-from ._validation import frozen
+from ._validation import check_int, check_positive, frozen
 from .calibration import _canonical_frame
 from .echoes import SPEED_OF_SOUND, EchoDetection, detect_echoes_many
 from .errors import InvalidInputError, SolverError
 from .gtsam_backend import _check_bounds, refine_graph
-from .slam import SlamResult, _residual_verdict, slam
+from .slam import SlamResult, _residual_verdict, _rotated_covariances, slam
 
 __all__ = ["EchoTracks", "WalkFromRirs", "track_echoes", "walk_from_rirs"]
 
@@ -121,22 +121,6 @@ class _Track:
         return float(np.polyval(coef, f - t[-1]))
 
 
-def _check_positive(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}") from exc
-    if not (np.isfinite(v) and v > 0):
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    return v
-
-
-def _check_count(value, name: str, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
-    return int(value)
-
-
 def track_echoes(
     detections: Sequence[EchoDetection],
     max_step: float | ArrayLike,
@@ -193,15 +177,15 @@ def track_echoes(
     steps = np.broadcast_to(steps, (n_frames - 1,))
     if not (np.all(np.isfinite(steps)) and np.all(steps > 0)):
         raise InvalidInputError(f"max_step must be positive and finite; got {max_step!r}")
-    c = _check_positive(c, "c")
-    tol = 0.3 * c / fs if tolerance is None else _check_positive(tolerance, "tolerance")
+    c = check_positive(c, "c")
+    tol = 0.3 * c / fs if tolerance is None else check_positive(tolerance, "tolerance")
     merge = (
-        2 * c / fs if merge_distance is None else _check_positive(merge_distance, "merge_distance")
+        2 * c / fs if merge_distance is None else check_positive(merge_distance, "merge_distance")
     )
-    max_gap = _check_count(max_gap, "max_gap", 0)
-    confirm = _check_count(confirm, "confirm", 2)
+    max_gap = check_int(max_gap, "max_gap", 0)
+    confirm = check_int(confirm, "confirm", 2)
     min_len = max(confirm, n_frames // 3) if min_length is None else min_length
-    min_len = _check_count(min_len, "min_length", 1)
+    min_len = check_int(min_len, "min_length", 1)
 
     direct = np.full(n_frames, np.nan)
     direct_amp = np.full(n_frames, np.nan)
@@ -321,7 +305,7 @@ def _roughness(t: _Track) -> float:
     return float(np.sum(np.abs(np.diff(r, 2)))) if len(r) > 2 else 0.0
 
 
-def _assign(tracks, pred, gates, ranges, amps, free, taken, f, close_ambiguous=True) -> None:
+def _assign(tracks, pred, gates, ranges, amps, free, taken, f) -> None:
     """Match tracks to free detections (Hungarian, cost = distance to the prediction) within each
     track's gate; extend the matched tracks and mark their detections taken."""
     cand = [j for j in free if j not in taken]
@@ -337,7 +321,7 @@ def _assign(tracks, pred, gates, ranges, amps, free, taken, f, close_ambiguous=T
         if ok[a, b]:
             j = cand[b]
             rivals = np.sort(cost[a][ok[a]])
-            if close_ambiguous and len(rivals) > 1 and rivals[1] < 2 * rivals[0] + 0.1 * gates[a]:
+            if len(rivals) > 1 and rivals[1] < 2 * rivals[0] + 0.1 * gates[a]:
                 tracks[a].closed = True  # two detections fit: end the track rather than guess
                 continue
             tracks[a].add(f, ranges[j], amps[j], j)
@@ -507,18 +491,20 @@ def _steps_on_bounds(traj: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> 
     return int(np.sum(near & (width > 0)))
 
 
-def _gated_refine(traj, pts, r, mask, bounds, sigma, gate_floor, covariances):
+def _gated_refine(traj, pts, r, mask, bounds, sigma, gate_floor):
     """GTSAM (Huber) on the ranges, then rounds of masking the entries beyond the gate
     (``_GATE_K`` robust sigmas, at least ``gate_floor``) and refining again. Returns
-    (fit, mask, gate)."""
+    (fit, mask, gate, sigma)."""
     mask = mask.copy()
+    r = np.nan_to_num(r)
+
     gate = gate_floor
     fit = None
     for _ in range(_PRUNE_ROUNDS):
         fit = refine_graph(
             traj,
             pts,
-            np.nan_to_num(r),
+            r,
             noise_std=sigma,
             mask=mask,
             step_bounds=bounds,
@@ -533,17 +519,6 @@ def _gated_refine(traj, pts, r, mask, bounds, sigma, gate_floor, covariances):
         if not drop.any():
             break
         mask &= ~drop
-    if covariances:
-        fit = refine_graph(
-            traj,
-            pts,
-            np.nan_to_num(r),
-            noise_std=sigma,
-            mask=mask,
-            step_bounds=bounds,
-            robust="huber",
-            covariances=True,
-        )
     return fit, mask, gate, sigma
 
 
@@ -707,7 +682,6 @@ def walk_from_rirs(
             bounds,
             sigma0,
             gate_floor,
-            covariances=False,
         )
     except SolverError as exc:
         return result(msg=f"GTSAM from the EDM start failed: {exc}")
@@ -731,7 +705,6 @@ def walk_from_rirs(
             bounds,
             sigma0,
             gate_floor,
-            covariances=False,
         )
     except SolverError as exc:
         return result(msg=f"GTSAM on the linked landmarks failed: {exc}")
@@ -786,10 +759,7 @@ def walk_from_rirs(
             "decide the trajectory (are they right?); "
         )
     rec, src, rot = _canonical_frame(fit.receivers, fit.sources)
-    cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
-    cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
-    rot_all = np.kron(np.eye(m), rot)
-    cov_traj = rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
+    cov_r, cov_s, cov_traj = _rotated_covariances(fit, rot)
     answer = SlamResult(
         receivers=frozen(rec),
         sources=frozen(src),

@@ -62,7 +62,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares, minimize, minimize_scalar
 
-from ._validation import _as_float_array, as_mask, as_points, as_ranges, frozen, shape_str
+from ._validation import (
+    _as_float_array,
+    as_mask,
+    as_points,
+    as_ranges,
+    check_int,
+    frozen,
+    shape_str,
+)
 from .calibration import (
     _canonical_frame,
     _check_determined,
@@ -1006,8 +1014,7 @@ def calibrate_unknown_emission(
         ("max_iterations", max_iterations, 1),
         ("random_starts", random_starts, 0),
     ):
-        if not (isinstance(value, int | np.integer) and value >= low):
-            raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+        check_int(value, name, low)
 
     # 1. Offsets.
     if offsets0 is not None:

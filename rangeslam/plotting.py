@@ -59,36 +59,7 @@ def plot_room_reconstruction(
             _outline(
                 ax, estimated_room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed"
             )
-        if image_sources is not None:
-            ims = image_sources.reshape(-1, d)
-            ax.scatter(
-                ims[:, axes[0]],
-                ims[:, axes[1]],
-                marker="*",
-                s=40,
-                c="tab:orange",
-                label="image sources (est.)",
-            )
-        ax.scatter(
-            mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
-        )
-        ax.scatter(
-            true_sources[:, axes[0]],
-            true_sources[:, axes[1]],
-            marker="s",
-            s=60,
-            facecolors="none",
-            edgecolors="k",
-            label="loudspeaker (true)",
-        )
-        ax.scatter(
-            estimated_sources[:, axes[0]],
-            estimated_sources[:, axes[1]],
-            marker="x",
-            s=50,
-            c="tab:red",
-            label="loudspeaker (est.)",
-        )
+        _scatter_room_points(ax, axes, mics, image_sources, true_sources, estimated_sources)
         ax.set_xlabel(labels[0])
         ax.set_ylabel(labels[1])
         ax.set_title(name)
@@ -98,6 +69,36 @@ def plot_room_reconstruction(
     if title:
         fig.suptitle(title)
     return _save(fig, path)
+
+
+def _scatter_room_points(ax, axes, mics, image_sources, true_sources, estimated_sources) -> None:
+    """Microphones, image sources and the loudspeaker (true and estimated) in one view; any of
+    the last three may be None. Points as rows, one point as (d,)."""
+    d = mics.shape[1]
+    if image_sources is not None and len(image_sources):
+        ims = image_sources.reshape(-1, d)
+        ax.scatter(
+            ims[:, axes[0]],
+            ims[:, axes[1]],
+            marker="*",
+            s=40,
+            c="tab:orange",
+            label="image sources (est.)",
+        )
+    ax.scatter(
+        mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
+    )
+    for pts, label, style in (
+        (
+            true_sources,
+            "loudspeaker (true)",
+            {"marker": "s", "s": 60, "facecolors": "none", "edgecolors": "k"},
+        ),
+        (estimated_sources, "loudspeaker (est.)", {"marker": "x", "s": 50, "c": "tab:red"}),
+    ):
+        if pts is not None:
+            pts = np.reshape(pts, (-1, d))
+            ax.scatter(pts[:, axes[0]], pts[:, axes[1]], label=label, **style)
 
 
 def _save(fig, path: str | Path) -> Path:
@@ -344,38 +345,7 @@ def plot_room_estimate(
                     ls="--",
                     label=f"wall {k}",
                 )
-        if image_sources is not None and len(image_sources):
-            ims = image_sources.reshape(-1, 3)
-            ax.scatter(
-                ims[:, axes[0]],
-                ims[:, axes[1]],
-                marker="*",
-                s=40,
-                c="tab:orange",
-                label="image sources (est.)",
-            )
-        ax.scatter(
-            mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
-        )
-        if true_source is not None:
-            ax.scatter(
-                true_source[axes[0]],
-                true_source[axes[1]],
-                marker="s",
-                s=60,
-                facecolors="none",
-                edgecolors="k",
-                label="loudspeaker (true)",
-            )
-        if source is not None:
-            ax.scatter(
-                source[axes[0]],
-                source[axes[1]],
-                marker="x",
-                s=50,
-                c="tab:red",
-                label="loudspeaker (est.)",
-            )
+        _scatter_room_points(ax, axes, mics, image_sources, true_source, source)
         ax.set_xlim(lo[axes[0]], hi[axes[0]])
         ax.set_ylim(lo[axes[1]], hi[axes[1]])
         ax.set_xlabel(labels[0])

@@ -92,6 +92,17 @@ def _least_steps(r: np.ndarray, observed: np.ndarray) -> np.ndarray:
     return np.where(both, np.abs(np.diff(r, axis=0)), 0.0).max(axis=1)
 
 
+def _rotated_covariances(fit: GraphFit, rot: np.ndarray):
+    """A fit's receiver (M, d, d), source (K, d, d) and joint trajectory (M d, M d) covariances
+    in the frame x -> x @ rot (e.g. :func:`rangeslam.calibration._canonical_frame`'s); covariances
+    rotate with the frame, a translation leaves them unchanged."""
+    m, dim = fit.receivers.shape
+    cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
+    cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
+    rot_all = np.kron(np.eye(m), rot)
+    return cov_r, cov_s, rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
+
+
 def _residual_verdict(
     ssr: float,
     observed: np.ndarray,
@@ -392,11 +403,8 @@ def slam(
         message += f"GTSAM: {fit.message}; "
     rec_f, src_f, rot = _canonical_frame(rec, src)
     cov_r = cov_s = cov_traj = None
-    if fit is not None:  # covariances rotate with the frame (translation leaves them unchanged)
-        cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
-        cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
-        rot_all = np.kron(np.eye(m), rot)
-        cov_traj = rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
+    if fit is not None:
+        cov_r, cov_s, cov_traj = _rotated_covariances(fit, rot)
     pts = completion.points
     edm_rec, edm_src, _ = _canonical_frame(pts[:m], pts[m:])
     return SlamResult(
