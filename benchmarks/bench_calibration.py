@@ -21,9 +21,9 @@ import numpy as np
 from _common import machine, markdown_table, timed
 
 from rangeslam import align
-from rangeslam.calibration import mdu_edm, mdu_mask
-from rangeslam.experiments import calibration_experiment, fig3_scene
-from rangeslam.sdp import EDMCompletionSDP, complete_edm
+from rangeslam.app.experiments import calibration_experiment, fig3_scene
+from rangeslam.mdu.core import mdu_edm, mdu_mask
+from rangeslam.solvers.sdp import EDMCompletionSDP, complete_edm
 
 
 def fig3_table(trials: int, rng: np.random.Generator) -> str:

@@ -14,9 +14,10 @@ import argparse
 import numpy as np
 from _common import machine, markdown_table, timed
 
-from baselines import linear_multilaterate
 from rangeslam import multilaterate, multilateration_crlb
-from rangeslam.simulation import add_outliers, range_matrix
+from rangeslam.baselines import linear_multilaterate
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.scenes import add_outliers
 
 
 def scene(rng, dim, kind, m=8):

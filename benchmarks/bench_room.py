@@ -16,8 +16,8 @@ import numpy as np
 from _common import machine, markdown_table, timed
 
 from rangeslam import Room, wall_crlb
-from rangeslam.experiments import demo_rooms, room_experiment
-from rangeslam.simulation import random_convex_room
+from rangeslam.app.experiments import demo_rooms, room_experiment
+from rangeslam.sim.scenes import random_convex_room
 
 
 def rooms(kind: str, rng) -> Room:

@@ -8,11 +8,11 @@ The lemniscate of eq. (12) from a random phase, steps t_n = 0.3 n (about 30 cm),
 a loudspeaker uniform in the room, landmarks = the loudspeaker and its 6 first-order images. Range
 noise sigma; step bounds +-20% of the true steps, or none. Trajectory error: RMS over the steps
 after the best rigid motion with reflection. Three estimators: the EDM answer (convex iteration
-with eq. 11), EDM + GTSAM (rangeslam.slam), and GTSAM from a GTSAM-style start (random walk and
+with eq. 11), EDM + GTSAM (rangeslam.mdu.slam), and GTSAM from a GTSAM-style start (random walk and
 random landmarks, no EDM), with the same step prior. CRLB: ranges alone (inf where they do not
 determine the trajectory). NEES: of the whole trajectory against EDM + GTSAM's covariance, mean
 over the trials divided by its dof (1 for a consistent estimator), with the 95% chi-square band.
-Time: the rangeslam.slam call alone.
+Time: the rangeslam.mdu.slam call alone.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import argparse
 import numpy as np
 from _common import machine, markdown_table
 
-from rangeslam.benchmarking import BOUND_SETTINGS
-from rangeslam.experiments import mean_nees, slam_experiment
+from rangeslam.app.benchmarking import BOUND_SETTINGS
+from rangeslam.app.experiments import mean_nees, slam_experiment
 
 
 def nees_summary(runs) -> str:

@@ -3,7 +3,7 @@
     python benchmarks/bench_slam_lm.py [--sigma 0.001] [--trials 30] [--seed 5] [--steps 5 8 10 15 20]
 
 Same scenes as bench_slam.py (+-20% bounds), one GTSAM-style start per trial refined twice: with
-lambdaUpperBound = 1e12 (rangeslam's default) and 1e5 (GTSAM's). EDM + GTSAM is rangeslam.slam.
+lambdaUpperBound = 1e12 (rangeslam's default) and 1e5 (GTSAM's). EDM + GTSAM is rangeslam.mdu.slam.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import argparse
 import numpy as np
 from _common import machine, markdown_table
 
-from rangeslam.alignment import align
+from rangeslam.app.experiments import gtsam_style_start, slam_experiment
 from rangeslam.errors import SolverError
-from rangeslam.experiments import gtsam_style_start, slam_experiment
-from rangeslam.gtsam_backend import refine_graph
+from rangeslam.geometry.alignment import align
+from rangeslam.solvers.gtsam_graph import refine_graph
 
 
 def main() -> None:

@@ -5,8 +5,8 @@
 Each walk: the lemniscate of eq. (12), M = 15 steps of t = 0.3 (about 33 cm), a loudspeaker
 uniform in the 5 x 4 x 2.6 m room, pyroomacoustics RIRs (order 3, absorption 0.2) at
 ``frames-per-step`` RIRs a step (the SLAM steps are every that many), step bounds +-20 %.
-:func:`rangeslam.echo_tracking.walk_from_rirs` gives the trajectory; the reference is
-:func:`rangeslam.slam` on the exact ranges to the loudspeaker and its 6 first-order images with
+:func:`rangeslam.acoustics.tracking.walk_from_rirs` gives the trajectory; the reference is
+:func:`rangeslam.mdu.slam` on the exact ranges to the loudspeaker and its 6 first-order images with
 N(0, sigma^2) noise, sigma the RMS error of the ranges the RIR pipeline used (each against the
 nearest image source of order <= 3). Errors: trajectory RMS after rigid alignment (reflection
 allowed: a planar walk is heard the same from both sides).
@@ -20,12 +20,14 @@ import warnings
 import numpy as np
 from _common import machine, markdown_table, timed
 
-from rangeslam import Room, align, slam
-from rangeslam.echo_tracking import walk_from_rirs
-from rangeslam.experiments import FIG5_ROOM_SIZE
-from rangeslam.rir import shoebox_rirs
-from rangeslam.simulation import random_points_in_room, range_matrix
-from rangeslam.trajectories import lemniscate, step_lengths
+from rangeslam import Room, align
+from rangeslam.acoustics.tracking import walk_from_rirs
+from rangeslam.app.experiments import FIG5_ROOM_SIZE
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.mdu import slam
+from rangeslam.sim.rir import shoebox_rirs
+from rangeslam.sim.scenes import random_points_in_room
+from rangeslam.sim.trajectories import lemniscate, step_lengths
 
 
 def one_walk(rng: np.random.Generator, frames_per_step: int, fs: int, m: int = 15) -> dict:

@@ -4,31 +4,36 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 (ICASSP 2016). Points are rows, shape (N, d); ranges are metres; masks are True where observed.
 """
 
-from .alignment import Alignment, align
-from .beacon_slam import BeaconSlamResult, RangeOdometry, beacon_slam, beacon_slam_incremental
-from .calibration import Calibration, calibrate
-from .crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
-from .echo_labelling import EchoLabelling, RoomFromRirs, label_echoes, room_from_rirs
-from .echo_tracking import EchoTracks, WalkFromRirs, track_echoes, walk_from_rirs
-from .echoes import EchoDetection, detect_echoes, detect_echoes_many
-from .edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
-from .emission import (
-    calibrate_unknown_emission,
-    multilaterate_with_offset,
-    reconstruct_room_unknown_emission,
+from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
+from rangeslam.acoustics.labelling import EchoLabelling, RoomFromRirs, label_echoes, room_from_rirs
+from rangeslam.acoustics.pipeline import LoadedRirs, RunResult, load_rirs, run_rirs
+from rangeslam.acoustics.tracking import EchoTracks, WalkFromRirs, track_echoes, walk_from_rirs
+from rangeslam.beacons.slam import (
+    BeaconSlamResult,
+    RangeOdometry,
+    beacon_slam,
+    beacon_slam_incremental,
 )
-from .errors import (
+from rangeslam.errors import (
     DataFormatError,
     DegenerateGeometryError,
     InvalidInputError,
     RangeSlamError,
     SolverError,
 )
-from .geometry import ImageSources, Room
-from .multilateration import MultilaterationResult, multilaterate
-from .pipeline import LoadedRirs, RunResult, load_rirs, run_rirs
-from .room_reconstruction import RoomReconstruction, reconstruct_room
-from .slam import SlamResult, slam
+from rangeslam.evaluation.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
+from rangeslam.geometry.alignment import Alignment, align
+from rangeslam.geometry.edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
+from rangeslam.geometry.room import ImageSources, Room
+from rangeslam.localization.emission import (
+    multilaterate_with_offset,
+    reconstruct_room_unknown_emission,
+)
+from rangeslam.localization.multilateration import MultilaterationResult, multilaterate
+from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
+from rangeslam.mdu.calibration import Calibration, calibrate
+from rangeslam.mdu.emission import calibrate_unknown_emission
+from rangeslam.mdu.slam import SlamResult, slam
 
 __version__ = "0.1.0"
 

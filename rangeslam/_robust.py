@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["mad_sigma", "studentized"]
+__all__ = ["MAD_TO_STD", "mad_sigma", "studentized"]
+
+#: The median absolute deviation times this is the standard deviation of Gaussian data
+#: (1 / Phi^-1(3/4)).
+MAD_TO_STD = 1.4826
 
 
 def studentized(abs_res: np.ndarray, jac: np.ndarray, in_fit: np.ndarray) -> np.ndarray:
@@ -29,4 +33,4 @@ def studentized(abs_res: np.ndarray, jac: np.ndarray, in_fit: np.ndarray) -> np.
 def mad_sigma(stud: np.ndarray) -> float:
     """1.4826 times the median of the finite studentized |residuals| (floored at 1e-9)."""
     finite = stud[np.isfinite(stud)]
-    return max(1.4826 * float(np.median(finite)), 1e-9) if finite.size else 1e-9
+    return max(MAD_TO_STD * float(np.median(finite)), 1e-9) if finite.size else 1e-9

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .errors import InvalidInputError
+from rangeslam.errors import InvalidInputError
 
 __all__ = [
     "as_mask",
@@ -28,7 +28,7 @@ def shape_str(shape: tuple[int, ...]) -> str:
     return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
-def _as_float_array(value: ArrayLike, name: str) -> np.ndarray:
+def as_float_array(value: ArrayLike, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float, copy=True)
     except (TypeError, ValueError) as exc:
@@ -49,7 +49,7 @@ def as_points(
 
     A single point of shape (d,) is refused: points are rows, and a bare vector is ambiguous.
     """
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     want_d = "d in (2, 3)" if dim is None else f"d = {dim}"
     if arr.ndim != 2 or arr.shape[1] not in (2, 3) or (dim is not None and arr.shape[1] != dim):
         raise InvalidInputError(
@@ -69,7 +69,7 @@ def as_points(
 
 def as_point(value: ArrayLike, name: str, *, dim: int) -> np.ndarray:
     """Return one point of shape (dim,), finite."""
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     if arr.shape != (dim,):
         raise InvalidInputError(f"{name} must have shape ({dim},); got {shape_str(arr.shape)}")
     if not np.all(np.isfinite(arr)):
@@ -92,7 +92,7 @@ def as_ranges(
     shape) is False the entry is a placeholder: it is not checked and is set to 0 in the returned
     array, so it can hold NaN in the caller's data. Missing entries are given by the mask only.
     """
-    arr = _as_float_array(value, name)
+    arr = as_float_array(value, name)
     expected = shape_str(tuple("*" if s is None else s for s in shape))  # type: ignore[misc]
     if arr.ndim != len(shape) or any(
         s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)

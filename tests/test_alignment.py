@@ -1,4 +1,4 @@
-"""Tests of rangeslam.alignment: Umeyama rigid / similarity alignment with and without reflection."""
+"""Tests of rangeslam.geometry.alignment: Umeyama rigid / similarity alignment with and without reflection."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from rangeslam.alignment import Alignment, align
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+from rangeslam.geometry.alignment import Alignment, align
 
 
 def _random_rotation(rng: np.random.Generator, dim: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Range-only SLAM with odometry (rangeslam.beacon_slam): simulated runs and CMU Plaza1.
+"""Range-only SLAM with odometry (rangeslam.beacons.slam): simulated runs and CMU Plaza1.
 
 Plaza data: J. Djugash, B. Hamner and S. Roth, "Navigating with ranging radios: five data sets
 with ground truth", Journal of Field Robotics 26(9), 2009. Plaza1 is the development set; Plaza2
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError, align
-from rangeslam.beacon_slam import (
+from rangeslam.beacons.slam import (
     RangeOdometry,
     beacon_slam,
     beacon_slam_incremental,
@@ -257,7 +257,7 @@ def plaza1():
 def test_plaza1_accuracy(plaza1, estimator, rng):
     """Mean error <= 1.5 m, every beacon within 1.5 m, and at least 40 % below GTSAM's example
     approach (random beacons, iSAM2) run in the same session from a fresh random start."""
-    from baselines import gtsam_range_example
+    from rangeslam.baselines import gtsam_range_example
 
     truth = plaza1.truth_at(plaza1.pose_time)
     data = RangeOdometry.from_plaza(plaza1)
@@ -281,7 +281,7 @@ def test_plaza1_accuracy(plaza1, estimator, rng):
 def test_range_factor_jacobians_match_finite_differences(model, rng):
     """Jacobians of the range error w.r.t. Pose2 (retract: pose o Expmap(xi), xi = (vx, vy, w)),
     the beacon and the calibration vector, against central differences."""
-    from rangeslam.beacon_slam import _range_error
+    from rangeslam.beacons.slam import _range_error
 
     error = _range_error(7.3, model)
     keys = [gtsam.symbol("x", 0), gtsam.symbol("l", 0), gtsam.symbol("c", 0)]
@@ -311,7 +311,7 @@ def test_range_factor_jacobians_match_finite_differences(model, rng):
 
 
 def test_stitching_factor_jacobians_match_finite_differences(rng):
-    from rangeslam.beacon_slam import _placed_error
+    from rangeslam.beacons.slam import _placed_error
 
     p = rng.normal(0, 5, 2)
     error = _placed_error(p)
@@ -340,7 +340,7 @@ def test_stitching_factor_jacobians_match_finite_differences(rng):
 def test_levenberg_marquardt_reports_a_stall():
     """A factor whose Jacobian has the wrong sign: no step decreases the cost, which is a stall
     (converged False), not convergence."""
-    from rangeslam.beacon_slam import _levenberg_marquardt
+    from rangeslam.beacons.slam import _levenberg_marquardt
 
     key = gtsam.symbol("v", 0)
 

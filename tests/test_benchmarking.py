@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError
-from rangeslam import benchmarking as bm
-from rangeslam.cli import main
+from rangeslam.app import benchmarking as bm
+from rangeslam.app.cli import main
 
 SMALL = ["--trials", "2", "--steps", "5", "--sigmas", "0.01", "--bounds", "with"]
 # 7 steps: the EKF's 5-step start-up window, then 2 filtered steps
@@ -98,7 +98,7 @@ def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
 
 
 def test_a_failing_trial_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch):
-    import rangeslam.experiments as ex
+    import rangeslam.app.experiments as ex
 
     real = ex.slam_experiment
     calls = []

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError, SolverError, align, calibrate, mdu_crlb
-from rangeslam.experiments import calibration_experiment, fig3_scene
-from rangeslam.simulation import add_outliers, add_range_noise, range_matrix
+from rangeslam.app.experiments import calibration_experiment, fig3_scene
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.scenes import add_outliers, add_range_noise
 
 
 def _fig3_runs(sigma, rng, n=100):
@@ -139,7 +140,7 @@ def test_unknown_noise_vote_on_a_well_posed_array(rng):
 
 
 def test_an_sdp_failure_in_one_run_is_noted_and_the_others_go_on(rng, monkeypatch):
-    from rangeslam import sdp
+    from rangeslam.solvers import sdp
 
     original = sdp.EDMCompletionSDP.solve
     calls = {"n": 0}
@@ -175,7 +176,7 @@ def test_robust_calibration_drops_wrong_picks(rng):
 
 
 def test_solver_failure_propagates(rng, monkeypatch):
-    from rangeslam import sdp
+    from rangeslam.solvers import sdp
 
     def broken(self, z):
         raise SolverError("EDM completion SDP failed", status="CLARABEL: error; SCS: error")

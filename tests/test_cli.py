@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from rangeslam.cli import main
+from rangeslam.app.cli import main
 
 
 def test_demo_end_to_end(tmp_path, capsys):
@@ -35,7 +35,7 @@ def test_demo_end_to_end(tmp_path, capsys):
 def test_console_script_runs():
     """The installed entry point answers --help (the module runs as a program)."""
     proc = subprocess.run(
-        [sys.executable, "-m", "rangeslam.cli", "--help"], capture_output=True, text=True
+        [sys.executable, "-m", "rangeslam.app.cli", "--help"], capture_output=True, text=True
     )
     assert proc.returncode == 0 and "demo" in proc.stdout
 

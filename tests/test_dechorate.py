@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rangeslam import DataFormatError, align, calibrate, reconstruct_room
+from rangeslam.app.experiments import wall_errors
 from rangeslam.datasets import load_dechorate
-from rangeslam.experiments import wall_errors
 
 
 @pytest.fixture

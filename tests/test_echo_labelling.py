@@ -4,14 +4,10 @@ import numpy as np
 import pytest
 
 from rangeslam import DegenerateGeometryError, InvalidInputError, Room
-from rangeslam.echo_labelling import (
-    EchoLabelling,
-    label_echoes,
-    load_dechorate_rirs,
-    room_from_rirs,
-)
-from rangeslam.echoes import EchoDetection, detect_echoes_many
-from rangeslam.rir import shoebox_rirs
+from rangeslam.acoustics.echoes import EchoDetection, detect_echoes_many
+from rangeslam.acoustics.labelling import EchoLabelling, label_echoes, room_from_rirs
+from rangeslam.datasets.dechorate import load_dechorate_rirs
+from rangeslam.sim.rir import shoebox_rirs
 
 C = 343.0  # pyroomacoustics' speed of sound
 

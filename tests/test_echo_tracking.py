@@ -1,4 +1,4 @@
-"""Echo tracking for a moving microphone (rangeslam.echo_tracking): association on synthetic
+"""Echo tracking for a moving microphone (rangeslam.acoustics.tracking): association on synthetic
 detections, and the walk from simulated RIRs end to end."""
 
 from __future__ import annotations
@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError, Room, align
-from rangeslam.echo_tracking import EchoTracks, track_echoes, walk_from_rirs
-from rangeslam.echoes import SPEED_OF_SOUND, EchoDetection
-from rangeslam.experiments import FIG5_ROOM_SIZE
-from rangeslam.rir import shoebox_rirs
-from rangeslam.simulation import random_points_in_room, range_matrix
-from rangeslam.trajectories import lemniscate, step_lengths
+from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection
+from rangeslam.acoustics.tracking import EchoTracks, track_echoes, walk_from_rirs
+from rangeslam.app.experiments import FIG5_ROOM_SIZE
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.rir import shoebox_rirs
+from rangeslam.sim.scenes import random_points_in_room
+from rangeslam.sim.trajectories import lemniscate, step_lengths
 
 FS = 16000.0
 C = SPEED_OF_SOUND

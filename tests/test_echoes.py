@@ -8,14 +8,14 @@ from scipy.signal import chirp, fftconvolve
 from scipy.signal.windows import tukey
 
 from rangeslam import InvalidInputError, Room
-from rangeslam.echoes import (
+from rangeslam.acoustics.echoes import (
     SPEED_OF_SOUND,
     ClippedRirWarning,
     EchoDetection,
     detect_echoes,
     detect_echoes_many,
 )
-from rangeslam.rir import shoebox_rirs
+from rangeslam.sim.rir import shoebox_rirs
 
 C = 343.0  # pyroomacoustics' default speed of sound
 
@@ -182,7 +182,7 @@ def test_the_result_is_frozen(rng):
 def test_direct_path_and_first_order_echoes_in_shoebox_rooms(rng, fs):
     """Of the direct paths and first-order echoes that no other arrival (image sources up to
     order 3, all that are simulated) comes within a sample of, >= 95% are detected within one
-    sample (measured: 98.3-98.6% at 16 kHz, 99.6-99.7% at 48 kHz, see rangeslam.echoes); nearly
+    sample (measured: 98.3-98.6% at 16 kHz, 99.6-99.7% at 48 kHz, see rangeslam.acoustics.echoes); nearly
     every detection is a real arrival; the direct path is found and nothing comes before it."""
     present = hit = detections = real = 0
     for _ in range(10):

@@ -1,12 +1,13 @@
-"""Tests of rangeslam.edm: EDMs, Gram matrices, Gower's test and classical MDS (eqs. 5-7)."""
+"""Tests of rangeslam.geometry.edm: EDMs, Gram matrices, Gower's test and classical MDS (eqs. 5-7)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from rangeslam.alignment import align
-from rangeslam.edm import (
+from rangeslam.errors import InvalidInputError
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import (
     centring_matrix,
     classical_mds,
     edm,
@@ -14,7 +15,6 @@ from rangeslam.edm import (
     gram_to_edm,
     is_edm,
 )
-from rangeslam.errors import InvalidInputError
 
 SIGMA = 0.01  # metres, range noise of the noisy-EDM tests
 

@@ -1,18 +1,19 @@
-"""The EKF range-only SLAM baseline (baselines.ekf_slam)."""
+"""The EKF range-only SLAM baseline (rangeslam.baselines.ekf_slam)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from baselines.ekf_slam import ekf_slam
-from rangeslam.alignment import align
+from rangeslam.app.experiments import FIG5_ROOM_SIZE
+from rangeslam.baselines.ekf_slam import ekf_slam
 from rangeslam.errors import InvalidInputError
-from rangeslam.experiments import FIG5_ROOM_SIZE
-from rangeslam.geometry import Room
-from rangeslam.simulation import add_range_noise, random_points_in_room, range_matrix
-from rangeslam.slam import SlamResult
-from rangeslam.trajectories import lemniscate, random_walk, step_lengths
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.room import Room
+from rangeslam.mdu.slam import SlamResult
+from rangeslam.sim.scenes import add_range_noise, random_points_in_room
+from rangeslam.sim.trajectories import lemniscate, random_walk, step_lengths
 
 # Easy scenes: a median over this many, because a filter that starts on a short, nearly straight
 # window sometimes locks onto a landmark's mirror image and diverges (about 1 scene in 8 measured
@@ -33,7 +34,7 @@ def _easy_scene(rng):
 
 
 def _fig5_scene(m, sigma, rng):
-    """Fig. 5 (as rangeslam.experiments.slam_experiment): lemniscate, loudspeaker and its 6
+    """Fig. 5 (as rangeslam.app.experiments.slam_experiment): lemniscate, loudspeaker and its 6
     first-order images in the 5 x 4 x 2.6 m room, +-20% step bounds."""
     room = Room.shoebox(FIG5_ROOM_SIZE)
     traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))

@@ -1,24 +1,18 @@
-"""Unknown emission times: one range offset per acoustic event (rangeslam.emission)."""
+"""Unknown emission times: one range offset per acoustic event (rangeslam.localization.emission)."""
 
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
 from rangeslam import DegenerateGeometryError, InvalidInputError, Room, reconstruct_room
-from rangeslam.alignment import align
-from rangeslam.emission import (
-    _OffsetUnfolding,
-    calibrate_unknown_emission,
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.localization.emission import (
     multilaterate_with_offset,
-    offsets_from_rank,
     reconstruct_room_unknown_emission,
 )
-from rangeslam.simulation import (
-    echo_ranges,
-    random_convex_room,
-    random_points_in_room,
-    range_matrix,
-)
+from rangeslam.mdu.emission import _OffsetUnfolding, calibrate_unknown_emission, offsets_from_rank
+from rangeslam.sim.scenes import echo_ranges, random_convex_room, random_points_in_room
 
 C = 343.0  # m/s
 FS = 16_000.0  # Hz

@@ -6,7 +6,7 @@ benchmarks/bench_slam.py for the 50-trial tables these thresholds come from."""
 import numpy as np
 import pytest
 
-from rangeslam.experiments import mean_nees, slam_experiment
+from rangeslam.app.experiments import mean_nees, slam_experiment
 
 STEPS = (5, 6, 8, 10, 15, 20)
 TRIALS = 8

@@ -1,4 +1,4 @@
-"""Tests of rangeslam.geometry: convex rooms, their image sources and the mirror map."""
+"""Tests of rangeslam.geometry.room: convex rooms, their image sources and the mirror map."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
-from rangeslam.geometry import ImageSources, Room, reflect
-from rangeslam.simulation import random_convex_room, random_points_in_room
+from rangeslam.geometry.room import ImageSources, Room, reflect
+from rangeslam.sim.scenes import random_convex_room, random_points_in_room
 
 # (dim, n_walls) of rooms from random_convex_room, and (dim, n_points) of random point clouds
 # whose hull is the room: the 4-point clouds are tetrahedra, the 3-point ones triangles.

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError, align, mdu_crlb
-from rangeslam.gtsam_backend import STEP_PRIORS, refine_graph
-from rangeslam.simulation import add_outliers, range_matrix
-from rangeslam.trajectories import lemniscate, step_lengths
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.scenes import add_outliers
+from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.solvers.gtsam_graph import STEP_PRIORS, refine_graph
 
 
 def _scene(rng, dim=3, m=8, k=8):

@@ -4,14 +4,15 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from baselines import linear_multilaterate
 from rangeslam import (
     DegenerateGeometryError,
     InvalidInputError,
     multilaterate,
     multilateration_crlb,
 )
-from rangeslam.simulation import add_outliers, range_matrix
+from rangeslam.baselines import linear_multilaterate
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.scenes import add_outliers
 
 
 def _scene(rng, dim, kind, m=8):

@@ -1,5 +1,5 @@
-"""The CMU Plaza baselines: odometry alone, GTSAM's RangeISAMExample_plaza2 port and a range-only
-EKF (baselines.odometry_only, baselines.gtsam_range_example, baselines.ekf_range_odometry).
+"""The CMU Plaza rangeslam.baselines: odometry alone, GTSAM's RangeISAMExample_plaza2 port and a range-only
+EKF (rangeslam.baselines.odometry_only, rangeslam.baselines.gtsam_range_example, rangeslam.baselines.ekf_range_odometry).
 
 Data: J. Djugash, B. Hamner and S. Roth, "Navigating with ranging radios: five data sets with
 ground truth", Journal of Field Robotics 26(9), 2009. Every Plaza1 bound below was measured (the
@@ -14,11 +14,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from baselines.ekf_range_odometry import ekf_range_odometry
-from baselines.gtsam_range_example import gtsam_range_example
-from baselines.odometry_only import odometry_only
 from rangeslam import InvalidInputError, align
-from rangeslam.beacon_slam import BeaconSlamResult
+from rangeslam.baselines.ekf_range_odometry import ekf_range_odometry
+from rangeslam.baselines.gtsam_range_example import gtsam_range_example
+from rangeslam.baselines.odometry_only import odometry_only
+from rangeslam.beacons.slam import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset, plaza
 
 pytest.importorskip("gtsam")  # the Plaza files ship with GTSAM's wheel

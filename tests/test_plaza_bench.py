@@ -1,4 +1,4 @@
-"""``rangeslam bench plaza`` and its evaluation (rangeslam.plaza_bench) on CMU Plaza1.
+"""``rangeslam bench plaza`` and its evaluation (rangeslam.app.plaza_bench) on CMU Plaza1.
 
 Data: J. Djugash, B. Hamner and S. Roth, "Navigating with ranging radios: five data sets with
 ground truth", Journal of Field Robotics 26(9), 2009.
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from rangeslam import RangeSlamError
-from rangeslam.cli import main
+from rangeslam.app.cli import main
 
 pytest.importorskip("gtsam")
 
-from rangeslam import plaza_bench as pb
+from rangeslam.app import plaza_bench as pb
 from rangeslam.datasets import plaza
 
 
@@ -54,7 +54,7 @@ def test_bad_method_is_refused(capsys):
 
 def test_evaluate_is_rigid_alignment(p1):
     """A result that is the truth moved rigidly has zero error; NaN poses are left out."""
-    from rangeslam.beacon_slam import BeaconSlamResult
+    from rangeslam.beacons.slam import BeaconSlamResult
 
     truth = p1.truth_at(p1.pose_time)
     c, s = np.cos(0.4), np.sin(0.4)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError
-from rangeslam.rir import shoebox_rirs
+from rangeslam.sim.rir import shoebox_rirs
 
 C = 343.0  # pyroomacoustics' default speed of sound
 
@@ -63,7 +63,7 @@ def test_room_rirs_equal_shoebox_rirs_on_a_shoebox(rng):
     (1.2, 2.1, 1.4) and microphone (4.0, 3.3, 2.2) in a 5 x 4 x 3 m room; 0 of 10 random
     configurations.)"""
     from rangeslam import Room
-    from rangeslam.rir import room_rirs
+    from rangeslam.sim.rir import room_rirs
 
     size = np.array([5.0, 4.0, 3.0])
     src = rng.uniform(0.3, size - 0.3)
@@ -80,7 +80,7 @@ def test_room_rirs_in_a_non_shoebox_room(rng):
     arrive where the image sources say (within a sample); a wall given absorption 1 sends back
     nothing."""
     from rangeslam import Room
-    from rangeslam.rir import room_rirs
+    from rangeslam.sim.rir import room_rirs
 
     base = np.array([[0, 0], [5, 0], [5, 3], [4, 4], [0, 4]], dtype=float)
     verts = np.vstack(
@@ -128,7 +128,7 @@ def test_room_rirs_in_a_non_shoebox_room(rng):
 )
 def test_room_rirs_bad_input(kwargs, match):
     from rangeslam import Room
-    from rangeslam.rir import room_rirs
+    from rangeslam.sim.rir import room_rirs
 
     args = dict(source=[1.0, 1.0, 1.0], receivers=[[2.0, 2.0, 1.0]])
     with pytest.raises(InvalidInputError, match=match):

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 
 from rangeslam import DegenerateGeometryError, InvalidInputError, Room, reconstruct_room, wall_crlb
-from rangeslam.experiments import demo_rooms, room_experiment, wall_errors
-from rangeslam.room_reconstruction import _JointModel
-from rangeslam.simulation import (
+from rangeslam.app.experiments import demo_rooms, room_experiment, wall_errors
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.localization.room_reconstruction import JointWallModel
+from rangeslam.sim.scenes import (
     add_range_noise,
     echo_ranges,
     random_convex_room,
     random_mask,
     random_points_in_room,
-    range_matrix,
 )
 
 
@@ -258,7 +258,7 @@ def test_analytic_jacobian_matches_central_differences(rng):
     d, j_n, k_n, m_n = 3, 2, 4, 6
     mics = rng.normal(size=(m_n, d))
     ranges = rng.uniform(1, 3, (j_n, m_n, 1 + k_n))
-    model = _JointModel(mics, ranges, np.ones_like(ranges, dtype=bool))
+    model = JointWallModel(mics, ranges, np.ones_like(ranges, dtype=bool))
     theta = np.concatenate([rng.normal(size=j_n * d) * 0.3, rng.normal(size=k_n * d) + 2.0])
     jac = model.jacobian(theta)
     h = 1e-6

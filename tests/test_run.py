@@ -12,9 +12,8 @@ import pytest
 from scipy.io import wavfile
 
 from rangeslam import DataFormatError, InvalidInputError
-from rangeslam.cli import main
-from rangeslam.echoes import ClippedRirWarning, detect_echoes_many
-from rangeslam.pipeline import (
+from rangeslam.acoustics.echoes import ClippedRirWarning, detect_echoes_many
+from rangeslam.acoustics.pipeline import (
     MEASURED_RIR_OPTIONS,
     SHOEBOX_WALLS,
     SilentRirWarning,
@@ -23,7 +22,8 @@ from rangeslam.pipeline import (
     run_rirs,
     shoebox_wall_errors,
 )
-from rangeslam.rir import shoebox_rirs
+from rangeslam.app.cli import main
+from rangeslam.sim.rir import shoebox_rirs
 
 C = 343.0  # pyroomacoustics' speed of sound
 FS = 48000
@@ -420,7 +420,7 @@ def test_cli_run_refuses_ambiguous_knowledge(tmp_path, capsys):
 
 
 def fake_walk_module(trajectory, landmarks, converged=True):
-    """A stand-in rangeslam.echo_tracking whose walk_from_rirs detects the echoes and returns the
+    """A stand-in rangeslam.acoustics.tracking whose walk_from_rirs detects the echoes and returns the
     given answer: for the plumbing of walk mode (RunResult, CLI output), not its accuracy."""
     calls = {}
 
@@ -459,8 +459,8 @@ def fake_walk_module(trajectory, landmarks, converged=True):
 def walk_scene(m=12, fs=16000):
     """A microphone on the lemniscate (steps of about 10 cm) in the Fig. 5 room, a fixed source;
     RIRs per step and +-20% step bounds."""
-    from rangeslam.experiments import FIG5_ROOM_SIZE
-    from rangeslam.trajectories import lemniscate, step_lengths
+    from rangeslam.app.experiments import FIG5_ROOM_SIZE
+    from rangeslam.sim.trajectories import lemniscate, step_lengths
 
     walk = lemniscate(m, step=0.1, phase=0.3)
     src = np.array([1.2, 2.9, 1.4])
@@ -476,7 +476,7 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
     walk, rirs, bounds = walk_scene()
     marks = np.array([[1.2, 2.9, 1.4], [-1.2, 2.9, 1.4]])
     fake, calls = fake_walk_module(walk, marks)
-    monkeypatch.setitem(sys.modules, "rangeslam.echo_tracking", fake)
+    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.tracking", fake)
     res = run_rirs(rirs, 16000, step_bounds=(bounds[0], bounds[1]), c=C, rng=0)
     assert res.mode == "walk" and res.converged and res.source is None
     np.testing.assert_array_equal(res.trajectory, walk)
@@ -497,7 +497,7 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
     # the --step-bounds file as (M - 1, 2) works alike; a non-finite answer is never converged
     np.savetxt(tmp_path / "b.txt", bounds.T)
     fake2, _ = fake_walk_module(np.full_like(walk, np.nan), marks)
-    monkeypatch.setitem(sys.modules, "rangeslam.echo_tracking", fake2)
+    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.tracking", fake2)
     argv = ["run", str(path), "--step-bounds", str(tmp_path / "b.txt"), "--out", str(out)]
     assert main(argv) == 1
     assert "not finite" in capsys.readouterr().err
@@ -509,11 +509,11 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
 # determined: exact ranges to the loudspeaker and its first-order images with 0.3 mm noise give
 # 3.7 mm); an earlier tracker gave 2.3 mm. The test holds the answer to what it says of itself.
 def test_walk_from_simulated_rirs():
-    """The real tracker (rangeslam.echo_tracking) on RIRs along a walk, 10 keyframes of 30 RIRs:
+    """The real tracker (rangeslam.acoustics.tracking) on RIRs along a walk, 10 keyframes of 30 RIRs:
     converged, and the trajectory error (RMS after rigid alignment, with reflection) within 3
     times the standard deviation its covariance states, and within 3 cm."""
-    from rangeslam.experiments import FIG5_ROOM_SIZE
-    from rangeslam.trajectories import lemniscate, step_lengths
+    from rangeslam.app.experiments import FIG5_ROOM_SIZE
+    from rangeslam.sim.trajectories import lemniscate, step_lengths
 
     walk = lemniscate(30, step=0.05, phase=0.3)
     rirs = shoebox_rirs(FIG5_ROOM_SIZE, [1.2, 2.9, 1.4], walk, fs=16000, max_order=2)

@@ -4,16 +4,16 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-from rangeslam import InvalidInputError, SolverError, edm
-from rangeslam.calibration import mdu_edm, mdu_mask
-from rangeslam.sdp import (
+from rangeslam import InvalidInputError, SolverError
+from rangeslam.geometry.edm import edm, range_matrix
+from rangeslam.mdu.core import mdu_edm, mdu_mask
+from rangeslam.solvers.sdp import (
     EDMCompletionSDP,
     complete_edm,
     eigen_gap,
     low_rank_direction,
     random_direction,
 )
-from rangeslam.simulation import range_matrix
 
 
 def _random_mask(rng, n, fraction):
@@ -262,7 +262,7 @@ def _with_calibration(x, groups, scale, offset):
     [("scale", 1e-3, 1e-4, 0.0), ("offset", 0.1, 1e-6, 0.05), ("affine", 0.15, 0.02, 0.25)],
 )
 def test_range_groups_recover_calibration(rng, model, tol_points, tol_scale, tol_offset):
-    from rangeslam.alignment import align
+    from rangeslam.geometry.alignment import align
 
     x, mask, groups = _unfolding_with_ranges(rng)
     scale = 1.0 if model == "offset" else rng.uniform(0.9, 1.1)

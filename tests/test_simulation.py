@@ -1,4 +1,4 @@
-"""Tests of rangeslam.simulation: range matrices, noise, masks, outliers, random rooms and echoes."""
+"""Tests of rangeslam.sim.scenes: range matrices, noise, masks, outliers, random rooms and echoes."""
 
 from __future__ import annotations
 
@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
-from rangeslam.geometry import Room
-from rangeslam.simulation import (
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.room import Room
+from rangeslam.sim.scenes import (
     add_outliers,
     add_range_noise,
     echo_ranges,
     random_convex_room,
     random_mask,
     random_points_in_room,
-    range_matrix,
 )
 
 

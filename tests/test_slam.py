@@ -3,10 +3,12 @@
 import numpy as np
 import pytest
 
-from rangeslam import InvalidInputError, align, mdu_crlb, slam
-from rangeslam.geometry import Room
-from rangeslam.simulation import add_range_noise, random_points_in_room, range_matrix
-from rangeslam.trajectories import lemniscate, step_lengths
+from rangeslam import InvalidInputError, align, mdu_crlb
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.room import Room
+from rangeslam.mdu import slam
+from rangeslam.sim.scenes import add_range_noise, random_points_in_room
+from rangeslam.sim.trajectories import lemniscate, step_lengths
 
 
 def _scene(rng, m):
@@ -141,7 +143,7 @@ def test_unknown_step_prior_is_refused(rng):
 def test_gtsam_style_start_ignores_unobserved_ranges(rng):
     """The baseline's start (random walk of the nominal steps, landmarks in a box of the largest
     range) reads only observed ranges: NaN where an echo was missed."""
-    from rangeslam.experiments import gtsam_style_start
+    from rangeslam.app.experiments import gtsam_style_start
 
     traj, landmarks = _scene(rng, 8)
     r = range_matrix(traj, landmarks)

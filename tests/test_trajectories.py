@@ -1,4 +1,4 @@
-"""Tests of rangeslam.trajectories: the lemniscate of eq. (12), smooth paths and random walks."""
+"""Tests of rangeslam.sim.trajectories: the lemniscate of eq. (12), smooth paths and random walks."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from rangeslam.errors import InvalidInputError
-from rangeslam.geometry import Room
-from rangeslam.trajectories import lemniscate, random_walk, smooth_path, step_lengths
+from rangeslam.geometry.room import Room
+from rangeslam.sim.trajectories import lemniscate, random_walk, smooth_path, step_lengths
 
 
 # ---- lemniscate -----------------------------------------------------------------------------------

@@ -44,8 +44,8 @@ from types import MappingProxyType
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._validation import _as_float_array, as_point, frozen, shape_str
-from ..errors import DataFormatError, InvalidInputError
+from rangeslam._validation import as_float_array, as_point, frozen, shape_str
+from rangeslam.errors import DataFormatError, InvalidInputError
 
 __all__ = ["PLAZA_CITATION", "PLAZA_NAMES", "PlazaDataset", "plaza"]
 
@@ -137,7 +137,7 @@ class PlazaDataset:
         clamped to an end (np.interp's default) or returned as NaN: both would pass silently into
         an error statistic. Every odometry and range time of both files lies inside the span.
         """
-        t = _as_float_array(times, "times")
+        t = as_float_array(times, "times")
         if t.ndim > 1:
             raise InvalidInputError(f"times must be a scalar or 1-D; got {shape_str(t.shape)}")
         t = np.atleast_1d(t)

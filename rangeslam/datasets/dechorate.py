@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import frozen
-from ..errors import DataFormatError
-from ..geometry import Room
+from rangeslam._validation import frozen, shape_str
+from rangeslam.errors import DataFormatError, InvalidInputError
+from rangeslam.geometry.room import Room
 
-__all__ = ["ECHO_LABELS", "DEchorate", "load_dechorate"]
+__all__ = ["ECHO_LABELS", "DEchorate", "DechorateRirs", "load_dechorate", "load_dechorate_rirs"]
 
 #: Columns of the range matrices: direct path, then the walls in Room.shoebox order.
 ECHO_LABELS = ("direct", "west_x0", "east_xL", "south_y0", "north_yW", "floor_z0", "ceiling_zH")
@@ -155,4 +155,61 @@ def load_dechorate(path: str | Path) -> DEchorate:
         fs=fs,
         toa=frozen(toa),
         mic_array=frozen(arrays),
+    )
+
+
+@dataclass(frozen=True)
+class DechorateRirs:
+    """The measured dEchorate RIRs of ``rirs_src0_12mics.npz`` and their calibrated geometry.
+
+    Attributes:
+        rirs: (M, L) RIRs, t = 0 at emission. fs: Hz. mics: (M, 3) metres (``mics_v3``).
+        source: (3,) metres (``src_v3``). room_size: (3,) L, W, H, metres (shoebox
+        [0, L] x [0, W] x [0, H]). c: speed of sound, m/s. mic_ids: (M,) indices among the 30
+        microphones of the dataset. room_code: which walls were reflective ('011111': not the floor).
+    """
+
+    rirs: np.ndarray
+    fs: float
+    mics: np.ndarray
+    source: np.ndarray
+    room_size: np.ndarray
+    c: float
+    mic_ids: np.ndarray
+    room_code: str
+
+
+def load_dechorate_rirs(path: str | Path) -> DechorateRirs:
+    """Read ``rirs_src0_12mics.npz`` (the file, or the dEchorate directory holding it)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "rirs_src0_12mics.npz"
+    if not p.is_file():
+        raise InvalidInputError(
+            f"path must be the dEchorate directory or its npz file; {p} not found"
+        )
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            raw = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
+    need = ("rirs", "fs", "mics_v3", "src_v3", "room_size", "c", "mic_ids", "room_code")
+    missing = [k for k in need if k not in raw]
+    if missing:
+        raise DataFormatError(f"{p}: missing arrays {missing}")
+    rirs = np.asarray(raw["rirs"], dtype=float)
+    mics = np.asarray(raw["mics_v3"], dtype=float)
+    if rirs.ndim != 2 or mics.shape != (rirs.shape[0], 3):
+        raise DataFormatError(
+            f"{p}: rirs {shape_str(rirs.shape)} and mics_v3 {shape_str(mics.shape)} do not match"
+        )
+    return DechorateRirs(
+        rirs=frozen(rirs),
+        fs=float(raw["fs"]),
+        mics=frozen(mics),
+        source=frozen(np.asarray(raw["src_v3"], dtype=float).reshape(3)),
+        room_size=frozen(np.asarray(raw["room_size"], dtype=float).reshape(3)),
+        c=float(raw["c"]),
+        mic_ids=frozen(np.asarray(raw["mic_ids"], dtype=int)),
+        room_code=str(raw["room_code"]),
     )

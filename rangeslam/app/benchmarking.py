@@ -1,0 +1,485 @@
+"""Benchmark runs: the paper's Fig. 3 and Fig. 5, and every SLAM method side by side.
+
+A run is a list of :class:`Trial` s, one per (cell, trial index); a cell is one setting (a noise
+level, a number of steps, bounds or none). Each trial draws its scene from its own Generator,
+seeded from (seed, cell, trial) through numpy's ``SeedSequence``, so a run gives the same numbers
+serially, over processes (``jobs``) or on a Dask cluster (``scheduler``). A trial that raises
+becomes a row whose status says why, and the run goes on.
+
+The rows hold what is deterministic (errors, bounds, flags); wall times are kept apart (they
+differ between runs), so that the CSV of a seed is the same whatever the parallelism.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from rangeslam.app.experiments import mean_nees
+from rangeslam.errors import InvalidInputError
+from rangeslam.geometry.alignment import align
+
+__all__ = [
+    "BENCHES",
+    "FIG3_SIGMAS",
+    "FIG5_SIGMAS",
+    "FIG5_STEPS",
+    "SLAM_METHODS",
+    "Trial",
+    "TrialOutcome",
+    "markdown",
+    "plan",
+    "run_trial",
+    "run_trials",
+    "summary_table",
+    "versions",
+    "write_csv",
+    "write_summary",
+    "write_tum",
+]
+
+BENCHES = ("fig3", "fig5", "compare")
+#: The --bounds choices: which step-bound settings a SLAM run covers.
+BOUND_SETTINGS = {"both": (True, False), "with": (True,), "without": (False,)}
+FIG3_SIGMAS = (0.0, 1e-3, 5e-3, 1e-2)
+FIG5_STEPS = (4, 5, 6, 8, 10, 15, 20)
+FIG5_SIGMAS = (1e-3, 1e-2)
+#: Columns of a SLAM trial: the EDM answer, EDM + GTSAM (rangeslam.mdu.slam), GTSAM from a
+#: GTSAM-style start, and (``compare``) the filterpy EKF, filtered and RTS-smoothed.
+SLAM_METHODS = ("edm", "edm_gtsam", "gtsam", "ekf", "ekf_rts")
+METHOD_NAMES = {
+    "edm": "EDM only",
+    "edm_gtsam": "EDM + GTSAM",
+    "gtsam": "GTSAM without EDM",
+    "ekf": "EKF",
+    "ekf_rts": "EKF + RTS",
+}
+#: Trajectory error under which a SLAM trial counts as a success, metres (issue 4).
+SUCCESS_M = 0.10
+#: Steps of the EKF's delayed-initialisation window in ``compare``.
+EKF_WINDOW = 5
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One trial of a run: ``bench`` in BENCHES, ``cell`` and ``index`` locate it, ``params`` is
+    the setting ((name, value) pairs), ``seed`` the run's seed."""
+
+    bench: str
+    cell: int
+    index: int
+    params: tuple[tuple[str, object], ...]
+    seed: int
+
+    def rng(self) -> np.random.Generator:
+        """The trial's Generator, keyed on the bench, the setting's values and the index (not on
+        the cell's place in the plan): M = 5 draws the same scenes alone or in a full run."""
+        p = dict(self.params)
+        key = (
+            BENCHES.index(self.bench),
+            round(p["sigma"] * 1e9),  # nanometres
+            int(p.get("bounds", 0)),
+            int(p.get("m", 0)),
+            self.index,
+        )
+        return np.random.default_rng(np.random.SeedSequence(self.seed, spawn_key=key))
+
+
+@dataclass(frozen=True)
+class TrialOutcome:
+    """What a trial gives back: ``row`` (deterministic values for the CSV), ``seconds`` (wall
+    time per method), ``trajectories`` (name -> (M, 3) positions, the truth as "truth"; only when
+    asked for)."""
+
+    row: dict
+    seconds: dict = field(default_factory=dict)
+    trajectories: dict | None = None
+
+
+def plan(
+    bench: str,
+    trials: int,
+    seed: int,
+    *,
+    sigmas: Sequence[float] | None = None,
+    steps: Sequence[int] | None = None,
+    bounds: Sequence[bool] = (True, False),
+    placement: str = "centred",
+) -> list[Trial]:
+    """The trials of a run, cell by cell. fig3: one cell per sigma (default FIG3_SIGMAS); fig5 and
+    compare: one per (sigma, bounds, M) (defaults FIG5_SIGMAS, both, FIG5_STEPS), the bounds
+    centred on the true steps (the paper's +-20%) or placed at random around them (see
+    :func:`rangeslam.app.experiments.slam_experiment`)."""
+    if bench not in BENCHES:
+        raise InvalidInputError(f"bench must be one of {BENCHES}; got {bench!r}")
+    if not (isinstance(trials, int) and trials >= 1):
+        raise InvalidInputError(f"trials must be a positive integer; got {trials!r}")
+    if placement not in ("centred", "random"):
+        raise InvalidInputError(f"placement must be 'centred' or 'random'; got {placement!r}")
+    if bench == "fig3":
+        cells = [(("sigma", float(s)),) for s in (FIG3_SIGMAS if sigmas is None else sigmas)]
+    else:
+        cells = [
+            (("sigma", float(s)), ("bounds", bool(b)), ("m", int(m)), ("placement", placement))
+            for s in (FIG5_SIGMAS if sigmas is None else sigmas)
+            for b in bounds
+            for m in (FIG5_STEPS if steps is None else steps)
+        ]
+    for cell in cells:
+        p = dict(cell)
+        if p["sigma"] < 0 or not np.isfinite(p["sigma"]):
+            raise InvalidInputError(f"sigmas must be finite and >= 0; got {p['sigma']}")
+        if "m" in p and p["m"] < 3:
+            raise InvalidInputError(f"steps must be >= 3; got {p['m']}")
+    return [
+        Trial(bench, c, i, cell, int(seed)) for c, cell in enumerate(cells) for i in range(trials)
+    ]
+
+
+def _fig3_trial(params: dict, rng: np.random.Generator, outcome: TrialOutcome) -> None:
+    from rangeslam.app.experiments import calibration_experiment
+
+    t0 = time.perf_counter()
+    e = calibration_experiment(params["sigma"], rng)
+    outcome.seconds["calibrate"] = time.perf_counter() - t0
+    outcome.row.update(
+        mic_error_m=e.mic_error, crlb_m=e.mic_crlb, converged=bool(e.result.converged)
+    )
+
+
+def _slam_trial(
+    params: dict, rng: np.random.Generator, outcome: TrialOutcome, *, ekf: bool, keep: bool
+) -> None:
+    from rangeslam.app.experiments import slam_experiment
+
+    e = slam_experiment(
+        params["m"], params["sigma"], params["bounds"], rng, bounds_placement=params["placement"]
+    )
+    outcome.seconds["edm_gtsam"] = e.seconds
+    outcome.row.update(
+        crlb_m=e.crlb,
+        edm_error_m=e.edm_error,
+        edm_gtsam_error_m=e.error,
+        gtsam_error_m=e.baseline_error,
+        landmark_error_m=e.source_error,
+        nees=e.nees,
+        nees_dof=e.nees_dof,
+        converged=bool(e.converged),
+        edm_start_kept=e.result.start == "edm",
+    )
+    estimates = {
+        "edm": e.result.edm_receivers,
+        "edm_gtsam": e.result.receivers,
+        "gtsam": e.baseline_receivers,
+    }
+    if ekf:
+        from rangeslam.baselines.ekf_slam import ekf_slam
+
+        for name, smooth in (("ekf", False), ("ekf_rts", True)):
+            t0 = time.perf_counter()
+            try:
+                # A genuine filter: the first steps (at most 5) are its delayed-initialisation
+                # window, the rest are filtered. (Its own default waits until a linearisation
+                # test passes, which on the planar Fig. 5 walk is never: a batch fit of all M.)
+                out = ekf_slam(
+                    e.ranges,
+                    step_bounds=e.step_bounds,
+                    noise_std=params["sigma"],
+                    smooth=smooth,
+                    init_steps=min(EKF_WINDOW, params["m"]),
+                    rng=rng,
+                )
+            except Exception as exc:  # the EKF failing is its result, not the trial's
+                outcome.row[f"{name}_error_m"] = float("nan")
+                outcome.row[f"{name}_status"] = _one_line(exc)
+                continue
+            outcome.seconds[name] = time.perf_counter() - t0
+            outcome.row[f"{name}_error_m"] = align(
+                out.receivers, e.trajectory, reflection=True
+            ).rmse
+            outcome.row[f"{name}_converged"] = bool(out.converged)
+            estimates[name] = out.receivers
+    if keep:
+        outcome.trajectories.update(truth=e.trajectory, **estimates)
+
+
+def _one_line(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+
+
+def run_trial(trial: Trial, keep_trajectories: bool = False) -> TrialOutcome:
+    """Run one trial; never raises: a failure is the row's ``status``."""
+    params = dict(trial.params)
+    row = {"bench": trial.bench, "cell": trial.cell, "trial": trial.index, **params}
+    outcome = TrialOutcome(row=row, trajectories={} if keep_trajectories else None)
+    row["status"] = "ok"
+    try:
+        if trial.bench == "fig3":
+            _fig3_trial(params, trial.rng(), outcome)
+        else:
+            _slam_trial(
+                params, trial.rng(), outcome, ekf=trial.bench == "compare", keep=keep_trajectories
+            )
+    except Exception as exc:  # a failing trial is recorded, and the run goes on
+        row["status"] = f"failed: {_one_line(exc)}"
+    return outcome
+
+
+def run_trials(
+    trials: Sequence[Trial],
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    keep_trajectories: bool = False,
+    progress: bool = False,
+) -> list[TrialOutcome]:
+    """Run ``trials`` in order (``jobs`` = 1), over ``jobs`` processes, or on the Dask cluster at
+    ``scheduler`` (needs the ``dask`` extra). Outcomes come back in the order of ``trials``."""
+    from tqdm import tqdm
+
+    if not (isinstance(jobs, int) and jobs >= 1):
+        raise InvalidInputError(f"jobs must be a positive integer; got {jobs!r}")
+    if scheduler is not None and jobs != 1:
+        raise InvalidInputError("give either jobs (local processes) or scheduler (Dask), not both")
+    bar = tqdm(total=len(trials), disable=not progress, unit="trial", leave=False)
+    try:
+        if scheduler is not None:
+            return _run_dask(trials, scheduler, keep_trajectories, bar)
+        if jobs == 1:
+            out = []
+            for t in trials:
+                out.append(run_trial(t, keep_trajectories))
+                bar.update()
+            return out
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(run_trial, t, keep_trajectories) for t in trials]
+            for f in futures:
+                f.result()
+                bar.update()
+            return [f.result() for f in futures]
+    finally:
+        bar.close()
+
+
+def _run_dask(trials, scheduler: str, keep: bool, bar) -> list[TrialOutcome]:
+    try:
+        from dask.distributed import Client, as_completed
+    except ImportError as exc:
+        raise InvalidInputError("--scheduler needs Dask: pip install 'rangeslam[dask]'") from exc
+    try:
+        client = Client(scheduler, timeout="5s")
+    except OSError as exc:
+        raise InvalidInputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+    with client:
+        futures = client.map(run_trial, list(trials), keep_trajectories=keep, pure=False)
+        for _ in as_completed(futures):
+            bar.update()
+        return client.gather(futures)
+
+
+def write_csv(path: str | Path, rows: Sequence[dict]) -> Path:
+    """One row per trial; floats with 6 significant digits (the last bits of a float depend on
+    the BLAS's threading, the CSV must not)."""
+    columns: list[str] = []
+    for row in rows:
+        columns += [c for c in row if c not in columns]
+    path = Path(path)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, restval="")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in row.items()})
+    return path
+
+
+def write_tum(
+    path: str | Path,
+    positions: np.ndarray,
+    step_seconds: float = 1.0,
+    *,
+    times: np.ndarray | None = None,
+) -> Path:
+    """A trajectory in the TUM format (``timestamp tx ty tz qx qy qz qw``; identity orientation,
+    one step per ``step_seconds`` unless ``times`` (M,) are given), which evo reads
+    (``evo_ape tum truth.tum est.tum -a``). Rows that are not finite (a method that stopped) are
+    not written."""
+    x = np.asarray(positions, dtype=float)
+    if x.ndim != 2 or x.shape[1] not in (2, 3):
+        raise InvalidInputError(f"positions must have shape (M, 2) or (M, 3); got {x.shape}")
+    if x.shape[1] == 2:
+        x = np.column_stack([x, np.zeros(len(x))])
+    t = np.arange(len(x)) * step_seconds if times is None else np.asarray(times, dtype=float)
+    if t.shape != (len(x),):
+        raise InvalidInputError(f"times must have shape ({len(x)},); got {t.shape}")
+    ok = np.all(np.isfinite(x), axis=1)
+    data = np.column_stack([t, x, np.zeros((len(x), 3)), np.ones(len(x))])[ok]
+    path = Path(path)
+    np.savetxt(path, data, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
+    return path
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and of the packages the numbers depend on."""
+    out = {"python": platform.python_version()}
+    for name in ("rangeslam", "numpy", "scipy", "cvxpy", "clarabel", "scs", "gtsam", "filterpy"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def _stats(values) -> tuple[float, float]:
+    """(mean, median) of the finite values (failed trials have none), NaNs when there are none."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan")
+    return float(np.mean(v)), float(np.median(v))
+
+
+def _cells(rows: Sequence[dict]) -> dict[int, list[dict]]:
+    cells: dict[int, list[dict]] = {}
+    for row in rows:
+        cells.setdefault(row["cell"], []).append(row)
+    return cells
+
+
+def summary_table(
+    bench: str, rows: Sequence[dict], seconds: Sequence[dict]
+) -> tuple[list[str], list[list[str]], list[dict]]:
+    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. Errors in
+    cm; a failed trial counts as a failure of every method and is left out of the means."""
+    times = {id(r): s for r, s in zip(rows, seconds, strict=True)}
+    header: list[str]
+    table, records = [], []
+    if bench == "fig3":
+        header = [
+            "sigma (mm)",
+            "trials",
+            "failed",
+            "median error (mm)",
+            "median CRLB (mm)",
+            "error / CRLB",
+            "< 3x CRLB",
+            "converged",
+            "time median (s)",
+        ]
+    else:
+        methods = [m for m in SLAM_METHODS if bench == "compare" or not m.startswith("ekf")]
+        header = ["sigma (mm)", "bounds", "M", "trials", "failed"]
+        header += [f"{METHOD_NAMES[m]} mean / median (cm), < 10 cm" for m in methods]
+        header += [
+            "CRLB median (cm)",
+            "NEES / dof",
+            "EDM start kept",
+            "time median (s): "
+            + ", ".join(METHOD_NAMES[m] for m in methods if m in ("edm_gtsam", "ekf")),
+        ]
+    for cell_rows in _cells(rows).values():
+        first = cell_rows[0]
+        ok = [r for r in cell_rows if r["status"] == "ok"]
+        n, failed = len(cell_rows), len(cell_rows) - len(ok)
+        rec = {k: first[k] for k in ("sigma", "bounds", "m") if k in first}
+        rec.update(trials=n, failed=failed)
+
+        def col(name: str, rs=ok) -> np.ndarray:
+            return np.array([r.get(name, np.nan) for r in rs], dtype=float)
+
+        if bench == "fig3":
+            err, crlb = col("mic_error_m"), col("crlb_m")
+            med_e, med_c = np.median(err) if ok else np.nan, np.median(crlb) if ok else np.nan
+            success = (
+                float(np.sum(err < 3 * crlb)) / n
+                if first["sigma"] > 0
+                else float(np.sum(err < 1e-3)) / n
+            )
+            conv = float(np.sum(col("converged"))) / n
+            _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
+            rec.update(
+                median_error_m=med_e,
+                median_crlb_m=med_c,
+                success=success,
+                converged=conv,
+                median_seconds=t,
+            )
+            table.append(
+                [
+                    f"{first['sigma'] * 1e3:g}",
+                    str(n),
+                    str(failed),
+                    f"{med_e * 1e3:.3g}",
+                    f"{med_c * 1e3:.3g}",
+                    f"{med_e / med_c:.2f}" if med_c > 0 else "-",
+                    f"{success * 100:.0f}%",
+                    f"{conv * 100:.0f}%",
+                    f"{t:.2f}",
+                ]
+            )
+        else:
+            cells = [
+                f"{first['sigma'] * 1e3:g}",
+                "+-20%" if first["bounds"] else "none",
+                str(first["m"]),
+                str(n),
+                str(failed),
+            ]
+            for m in methods:
+                e = col(f"{m}_error_m")
+                mean, med = _stats(e)
+                success = float(np.sum(e < SUCCESS_M)) / n
+                rec[m] = {"mean_error_m": mean, "median_error_m": med, "success": success}
+                cells.append(f"{mean * 100:.2f} / {med * 100:.2f}, {success * 100:.0f}%")
+            crlb = float(np.median(col("crlb_m"))) if ok else float("nan")  # inf: not identifiable
+            ratio, _, _ = mean_nees(col("nees"), col("nees_dof"))
+            kept = float(np.mean(col("edm_start_kept"))) if ok else float("nan")
+            rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
+            t = {
+                m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
+                for m in ("edm_gtsam", "ekf")
+                if m in methods
+            }
+            rec["median_seconds"] = t
+            cells += [
+                f"{crlb * 100:.2f}",
+                f"{ratio:.2f}",
+                f"{kept * 100:.0f}%",
+                ", ".join(f"{v:.2f}" for v in t.values()),
+            ]
+            table.append(cells)
+        records.append(rec)
+    return header, table, records
+
+
+def markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def write_summary(path: str | Path, **content) -> Path:
+    """The JSON summary (seed, versions, options, per-cell figures); NaN written as null."""
+
+    def clean(v):
+        if isinstance(v, float) and not np.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [clean(x) for x in v]
+        return v
+
+    path = Path(path)
+    path.write_text(json.dumps(clean(content), indent=2) + "\n")
+    return path

@@ -1,0 +1,423 @@
+"""Simulated experiments as library functions; the CLI and the benchmarks only call and print them.
+
+``room_experiment`` is Problem 1 end to end: a room, a random array and loudspeakers, simulated
+echo ranges with noise and wrong picks, the reconstruction, and its errors against the truth.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
+from rangeslam.evaluation.crlb import mdu_crlb
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.room import Room
+from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
+from rangeslam.mdu.calibration import Calibration, calibrate
+from rangeslam.sim.scenes import add_outliers, add_range_noise, echo_ranges, random_points_in_room
+
+__all__ = [
+    "CalibrationExperiment",
+    "CalibrationScene",
+    "RoomExperiment",
+    "SlamExperiment",
+    "calibration_experiment",
+    "demo_rooms",
+    "fig3_scene",
+    "room_experiment",
+    "slam_experiment",
+    "wall_errors",
+]
+
+#: The shoebox of the paper's Fig. 3, metres.
+FIG3_ROOM_SIZE = (5.1, 3.7, 2.6)
+
+
+@dataclass(frozen=True)
+class RoomExperiment:
+    """A simulated Problem 1 instance and its reconstruction.
+
+    Attributes:
+        room: the true room.
+        mics: (M, d) true (and known) microphone positions.
+        sources: (J, d) true loudspeaker positions.
+        ranges: J noisy range matrices (M, 1+K) given to the solver.
+        outliers: J boolean matrices (M, 1+K), True where a wrong pick was injected.
+        result: the reconstruction.
+        offset_errors: (K,) distance from each true wall centroid to the estimated plane, metres.
+        normal_errors_deg: (K,) angle between estimated and true normals, degrees.
+        source_errors: (J,) loudspeaker position errors, metres.
+    """
+
+    room: Room
+    mics: np.ndarray
+    sources: np.ndarray
+    ranges: tuple[np.ndarray, ...]
+    outliers: tuple[np.ndarray, ...]
+    result: RoomReconstruction
+    offset_errors: np.ndarray
+    normal_errors_deg: np.ndarray
+    source_errors: np.ndarray
+
+
+def wall_errors(
+    room: Room, normals: np.ndarray, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order.
+
+    The offset error of wall k is the distance from the true wall's centroid p_k (the paper's
+    description of a wall by n_k and p_k) to the estimated plane, |n_k_est . p_k - o_k_est|: the
+    offset where the wall is, independent of where the coordinate origin happens to be.
+    """
+    cos = np.clip(np.einsum("kd,kd->k", normals, room.normals), -1.0, 1.0)
+    offset_err = np.abs(np.einsum("kd,kd->k", normals, room.wall_centroids) - offsets)
+    return offset_err, np.degrees(np.arccos(cos))
+
+
+def room_experiment(
+    room: Room,
+    *,
+    n_mics: int = 8,
+    n_sources: int = 1,
+    sigma: float = 1e-3,
+    outlier_fraction: float = 0.0,
+    margin: float = 0.3,
+    rng=None,
+) -> RoomExperiment:
+    """Draw microphones and loudspeakers uniformly in ``room`` (``margin`` m from the walls), simulate
+    first-order echo ranges with N(0, sigma^2) noise and a fraction of wrong picks, reconstruct."""
+    rng = np.random.default_rng(rng)
+    mics = random_points_in_room(room, n_mics, margin=margin, rng=rng)
+    sources = random_points_in_room(room, n_sources, margin=margin, rng=rng)
+    ranges, outliers = [], []
+    for s in sources:
+        r = add_range_noise(echo_ranges(room, mics, s), sigma, rng=rng)
+        r, out = add_outliers(r, outlier_fraction, rng=rng)
+        ranges.append(r)
+        outliers.append(out)
+    result = reconstruct_room(mics, ranges, rng=rng)
+    off, ang = wall_errors(room, result.wall_normals, result.wall_offsets)
+    return RoomExperiment(
+        room=room,
+        mics=mics,
+        sources=sources,
+        ranges=tuple(ranges),
+        outliers=tuple(outliers),
+        result=result,
+        offset_errors=off,
+        normal_errors_deg=ang,
+        source_errors=np.linalg.norm(result.sources - sources, axis=1),
+    )
+
+
+def demo_rooms() -> dict[str, Room]:
+    """The rooms of ``rangeslam demo``: the paper's Fig. 3 shoebox and a non-box convex room."""
+    # A 5.1 x 3.7 x 2.6 m shoebox with one corner cut by a slanted wall and a sloping ceiling.
+    normals = np.array(
+        [
+            [-1, 0, 0],
+            [1, 0, 0],
+            [0, -1, 0],
+            [0, 1, 0],
+            [0, 0, -1],
+            [0.0, 0.25, 1.0],
+            [1.0, 1.0, 0.0],
+        ]
+    )
+    points = np.array(
+        [[0, 0, 0], [5.1, 0, 0], [0, 0, 0], [0, 3.7, 0], [0, 0, 0], [0, 0, 2.6], [4.3, 3.7, 0]]
+    )
+    return {
+        "shoebox": Room.shoebox([5.1, 3.7, 2.6]),
+        "cut corner": Room.from_planes(normals, points),
+    }
+
+
+@dataclass(frozen=True)
+class CalibrationScene:
+    """A zero-knowledge calibration instance (Fig. 3): microphones and the sources they hear.
+
+    Attributes:
+        room: the shoebox.
+        mics: (M, 3) microphone positions, metres.
+        loudspeaker: (3,) the real source.
+        sources: (K, 3) the loudspeaker and its K - 1 image sources nearest the array's centroid.
+        ranges: (M, K) noise-free ranges, metres.
+    """
+
+    room: Room
+    mics: np.ndarray
+    loudspeaker: np.ndarray
+    sources: np.ndarray
+    ranges: np.ndarray
+
+
+def fig3_scene(
+    rng: np.random.Generator,
+    *,
+    n_mics: int = 6,
+    n_images: int = 5,
+    cube: float = 1.0,
+    room_size: tuple[float, float, float] = FIG3_ROOM_SIZE,
+) -> CalibrationScene:
+    """The Fig. 3 setup: ``n_mics`` microphones uniform in a ``cube``-metre cube at the centre of
+    the shoebox, a loudspeaker uniform in the room, and its ``n_images`` first-order image sources
+    nearest the array (higher orders are left out: in a shoebox, second-order images coincide in
+    pairs, which would repeat a source)."""
+    room = Room.shoebox(room_size)
+    centre = np.asarray(room_size) / 2
+    mics = centre + rng.uniform(-cube / 2, cube / 2, size=(n_mics, 3))
+    loudspeaker = random_points_in_room(room, 1, rng=rng)[0]
+    candidates = room.image_sources(loudspeaker, 1).positions
+    dist = np.linalg.norm(candidates - mics.mean(axis=0), axis=1)
+    sources = np.vstack([loudspeaker, candidates[np.argsort(dist)[:n_images]]])
+    return CalibrationScene(room, mics, loudspeaker, sources, range_matrix(mics, sources))
+
+
+@dataclass(frozen=True)
+class CalibrationExperiment:
+    """One simulated calibration and its errors against the truth.
+
+    Attributes:
+        scene: the true configuration.
+        ranges: (M, K) noisy ranges given to the solver.
+        sigma: range noise standard deviation, metres.
+        result: what :func:`calibrate` returned.
+        mic_error: RMS microphone error after the best rigid motion (with reflection), metres.
+        mic_crlb: the receiver-gauge CRLB of that RMS error, metres (NaN at sigma = 0, inf when
+            the configuration is flexible to first order).
+    """
+
+    scene: CalibrationScene
+    ranges: np.ndarray
+    sigma: float
+    result: Calibration
+    mic_error: float
+    mic_crlb: float
+
+
+def calibration_experiment(
+    sigma: float, rng: np.random.Generator, **calibrate_options
+) -> CalibrationExperiment:
+    """A Fig. 3 scene, ranges with N(0, sigma^2) noise, :func:`calibrate`, and the error vs CRLB.
+
+    ``calibrate_options`` go to :func:`calibrate` (noise_std defaults to sigma, rng to ``rng``).
+    """
+    scene = fig3_scene(rng)
+    ranges = add_range_noise(scene.ranges, sigma, rng=rng) if sigma > 0 else scene.ranges
+    calibrate_options.setdefault("noise_std", sigma)
+    calibrate_options.setdefault("rng", rng)
+    result = calibrate(ranges, **calibrate_options)
+    error = align(result.receivers, scene.mics, reflection=True).rmse
+    bound = _receiver_crlb(scene.mics, scene.sources, sigma)
+    return CalibrationExperiment(scene, ranges, sigma, result, error, bound)
+
+
+def _receiver_crlb(receivers: np.ndarray, sources: np.ndarray, sigma: float) -> float:
+    """Receiver-gauge CRLB of the RMS receiver error: NaN at sigma = 0, inf when the configuration
+    is flexible to first order (the ranges alone do not determine it)."""
+    if sigma <= 0:
+        return float("nan")
+    try:
+        return mdu_crlb(receivers, sources, sigma).receiver_rmse
+    except DegenerateGeometryError:
+        return float("inf")
+
+
+#: The room of the paper's Fig. 5, metres.
+FIG5_ROOM_SIZE = (5.0, 4.0, 2.6)
+
+
+@dataclass(frozen=True)
+class SlamExperiment:
+    """One simulated Fig. 5 run: errors of the EDM answer, EDM + GTSAM, and GTSAM alone.
+
+    Attributes:
+        trajectory: (M, 3) true positions; landmarks: (7, 3) loudspeaker and first-order images.
+        ranges: (M, 7) noisy ranges; sigma: their noise, metres; bounds: whether step bounds
+            were given; step_bounds: (lower, upper), each (M - 1,), or None.
+        result: what :func:`rangeslam.mdu.slam` returned.
+        baseline_receivers / baseline_sources: GTSAM from a GTSAM-style start (no EDM).
+        edm_error, error, baseline_error: trajectory RMS error after rigid alignment (with
+            reflection), metres.
+        source_error: landmark RMS error of EDM + GTSAM after the trajectory's alignment, each
+            landmark taken up to its mirror image in the trajectory's plane (eq. 12 is planar).
+        crlb: receiver-gauge CRLB of the trajectory error from the ranges alone (inf when the
+            ranges alone do not determine it).
+        nees: normalised estimation error squared of the whole trajectory against
+            ``result.trajectory_cov`` (NaN without it); nees_dof: its degrees of freedom
+            (M d - 6), the mean NEES of a consistent estimator.
+        converged: ``result.converged``.
+        seconds: wall time of the :func:`rangeslam.mdu.slam` call (the whole pipeline).
+    """
+
+    trajectory: np.ndarray
+    landmarks: np.ndarray
+    ranges: np.ndarray
+    sigma: float
+    bounds: bool
+    step_bounds: tuple[np.ndarray, np.ndarray] | None
+    result: object
+    baseline_receivers: np.ndarray
+    baseline_sources: np.ndarray
+    edm_error: float
+    error: float
+    baseline_error: float
+    source_error: float
+    crlb: float
+    nees: float
+    nees_dof: int
+    converged: bool
+    seconds: float
+
+
+def trajectory_nees(alignment, cov: np.ndarray | None, truth: np.ndarray) -> tuple[float, int]:
+    """NEES of an aligned trajectory: e^T P^+ e with e (M d,) the error after ``alignment`` and
+    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ drops the rigid
+    motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
+    m, d = truth.shape
+    dof = m * d - d * (d + 1) // 2
+    if dof <= 0:
+        raise InvalidInputError(f"{m} points in {d}-D leave nothing beyond a rigid motion")
+    if cov is None:
+        return float("nan"), dof
+    rot = np.kron(np.eye(m), alignment.rotation)
+    w, v = np.linalg.eigh(rot @ cov @ rot.T)
+    w, v = w[-dof:], v[:, -dof:]
+    proj = v.T @ (alignment.aligned - truth).ravel()
+    return float(np.sum(proj**2 / w)), dof
+
+
+def mean_nees(nees, dofs, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean NEES per degree of freedom over trials (those with a finite NEES), and the two-sided
+    ``level`` chi-square band of that mean for a consistent estimator: (mean, low, high); NaNs
+    when no trial has one."""
+    from scipy.stats import chi2
+
+    nees, dofs = np.asarray(nees, dtype=float), np.asarray(dofs, dtype=float)
+    good = np.isfinite(nees)
+    if not good.any():
+        return float("nan"), float("nan"), float("nan")
+    total = float(dofs[good].sum())
+    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], total) / total
+    return float(nees[good].sum() / total), float(lo), float(hi)
+
+
+def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
+    got = alignment.apply(sources)
+    mirrored = got.copy()
+    mirrored[:, 2] = 2 * height - got[:, 2]
+    d = np.minimum(
+        np.linalg.norm(got - landmarks, axis=1), np.linalg.norm(mirrored - landmarks, axis=1)
+    )
+    return float(np.sqrt(np.mean(d**2)))
+
+
+def gtsam_style_start(
+    ranges: np.ndarray, step_bounds, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The start GTSAM's range-only examples use when nothing better is known: a random walk of
+    the nominal steps (the bounds' midpoints, else what the ranges imply) and landmarks uniform in
+    a box of the largest range; the same draw as :func:`rangeslam.mdu.slam`'s extra starts."""
+    from rangeslam.mdu.slam import nominal_steps, random_start
+
+    observed = np.isfinite(ranges)
+    bounds = None if step_bounds is None else tuple(np.asarray(b) for b in step_bounds)
+    steps = nominal_steps(bounds, ranges, observed)
+    return random_start(steps, ranges.shape[1], 3, float(np.max(ranges[observed])), rng)
+
+
+def _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior):
+    from rangeslam.solvers.gtsam_graph import refine_graph
+
+    try:
+        base = refine_graph(
+            start_x,
+            start_s,
+            ranges,
+            noise_std=max(sigma, 1e-4),
+            step_bounds=step_bounds,
+            step_prior=step_prior,
+            covariances=False,
+            max_iterations=5000,
+        )
+    except SolverError:  # a diverged baseline counts as its failure, not as an error of the run
+        return start_x, start_s
+    return base.receivers, base.sources
+
+
+def slam_experiment(
+    m: int,
+    sigma: float,
+    bounds: bool,
+    rng: np.random.Generator,
+    *,
+    bounds_placement: str = "centred",
+    baseline: bool = True,
+    **slam_options,
+) -> SlamExperiment:
+    """Fig. 5: the lemniscate of eq. (12) from a random phase, M steps of t_n = 0.3 n, a
+    loudspeaker uniform in the 5 x 4 x 2.6 m room and its 6 first-order images; ranges with
+    N(0, sigma^2) noise; step bounds of width 40% of the true step, or none.
+
+    ``bounds_placement``: "centred" (the paper's +-20% of the true step) or "random" (the true
+    step uniform inside bounds of the same width: the model the "uniform" step prior assumes, so
+    the one in which its covariances can be judged, and a check that nothing relies on the truth
+    sitting in the middle). ``baseline=False`` skips GTSAM alone (its fields are then NaN)."""
+    from rangeslam.mdu.slam import slam
+    from rangeslam.sim.trajectories import lemniscate, step_lengths
+
+    room = Room.shoebox(FIG5_ROOM_SIZE)
+    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
+    source = random_points_in_room(room, 1, rng=rng)[0]
+    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
+    ranges = range_matrix(traj, landmarks)
+    if sigma > 0:
+        ranges = add_range_noise(ranges, sigma, rng=rng)
+    steps = step_lengths(traj)
+    step_prior = slam_options.get("step_prior", "uniform")
+    if bounds_placement == "centred" or (bounds_placement == "random" and not bounds):
+        lower = 0.8 * steps
+    elif bounds_placement == "random":
+        lower = steps * (1 - 0.4 * rng.uniform(size=m - 1))
+    else:
+        raise InvalidInputError(
+            f"bounds_placement must be 'centred' or 'random'; got {bounds_placement!r}"
+        )
+    step_bounds = (lower, lower + 0.4 * steps) if bounds else None
+    slam_options.setdefault("noise_std", sigma)
+    t0 = time.perf_counter()
+    result = slam(ranges, step_bounds=step_bounds, rng=rng, **slam_options)
+    seconds = time.perf_counter() - t0
+    a = align(result.receivers, traj, reflection=True)
+    start_x, start_s = gtsam_style_start(ranges, step_bounds, rng)
+    if not baseline:
+        base_x, base_s = np.full_like(traj, np.nan), np.full_like(landmarks, np.nan)
+    else:
+        base_x, base_s = _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior)
+    bound = _receiver_crlb(traj, landmarks, sigma)
+    nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
+    return SlamExperiment(
+        trajectory=traj,
+        landmarks=landmarks,
+        ranges=ranges,
+        sigma=sigma,
+        bounds=bounds,
+        step_bounds=step_bounds,
+        result=result,
+        baseline_receivers=base_x,
+        baseline_sources=base_s,
+        edm_error=align(result.edm_receivers, traj, reflection=True).rmse,
+        error=a.rmse,
+        baseline_error=align(base_x, traj, reflection=True).rmse if baseline else float("nan"),
+        source_error=_planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
+        crlb=bound,
+        nees=nees,
+        nees_dof=dof,
+        converged=result.converged,
+        seconds=seconds,
+    )

@@ -1,0 +1,227 @@
+"""Cramer-Rao lower bounds for range measurements with i.i.d. Gaussian noise. Pure numpy.
+
+For a point x observed through ranges r_m = ||x - a_m|| + e_m, e_m ~ N(0, sigma_m^2), the Fisher
+information is F = sum_m u_m u_m^T / sigma_m^2 with u_m = (x - a_m) / ||x - a_m||, and any
+unbiased estimator has covariance >= F^-1. The bound on the RMSE is sqrt(trace F^-1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rangeslam._validation import as_mask, as_point, as_points, shape_str
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+from rangeslam.geometry.rigid_motion import receiver_gauge_projection
+
+__all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "wall_crlb"]
+
+
+def _check_sigma(sigma: float) -> None:
+    """A range noise standard deviation must be positive (at 0 the information is infinite)."""
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+
+
+def multilateration_crlb(
+    anchors: ArrayLike,
+    point: ArrayLike,
+    sigma: float | ArrayLike,
+    *,
+    mask: ArrayLike | None = None,
+) -> np.ndarray:
+    """(d, d) CRLB covariance of a point located from ranges to known anchors (M, d).
+
+    ``sigma`` is the range noise standard deviation in metres, a scalar or one per anchor (M,).
+    ``sqrt(trace(result))`` bounds the RMSE of any unbiased estimator.
+    """
+    a = as_points(anchors, "anchors")
+    m, d = a.shape
+    x = as_point(point, "point", dim=d)
+    observed = as_mask(mask, "mask", shape=(m,))
+    s = (
+        np.broadcast_to(np.asarray(sigma, dtype=float), (m,))
+        if np.ndim(sigma) == 0
+        else np.asarray(sigma, float)
+    )
+    if s.shape != (m,):
+        raise InvalidInputError(
+            f"sigma must be a scalar or have shape ({m},); got {shape_str(s.shape)}"
+        )
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise InvalidInputError(
+            "sigma must be positive and finite (the bound is infinite information at 0)"
+        )
+    diff = x - a[observed]
+    dist = np.linalg.norm(diff, axis=1)
+    if np.any(dist == 0):
+        raise DegenerateGeometryError(
+            "point coincides with an anchor: the range gradient is undefined there"
+        )
+    u = diff / dist[:, None] / s[observed][:, None]
+    fisher = u.T @ u
+    eig = np.linalg.eigvalsh(fisher)
+    if eig[0] <= 1e-12 * eig[-1]:
+        raise DegenerateGeometryError(
+            "the Fisher information is singular: the anchors' directions from the point do not span R^d"
+        )
+    return np.linalg.solve(fisher, np.eye(d))
+
+
+def wall_crlb(
+    mics: ArrayLike,
+    sources: ArrayLike,
+    normals: ArrayLike,
+    offsets: ArrayLike,
+    sigma: float,
+    *,
+    points: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """CRLB of the walls reconstructed from first-order echoes heard by known microphones.
+
+    The unknowns are the J loudspeakers (J, d) and the K walls, each image source tied to its
+    source and wall (the joint model of :func:`rangeslam.reconstruct_room`); the ranges are
+    i.i.d. N(0, sigma^2) in metres, ``mask`` (J, M, 1+K) True where observed.
+
+    Returns:
+        offset_std: (K,) bound on the standard deviation of each wall plane's offset measured at
+            ``points[k]`` (a point on wall k, such as its centroid; by default the foot of the
+            perpendicular from the first source), metres.
+        normal_std: (K,) bound on the standard deviation of each wall normal's angle, radians.
+    """
+    from rangeslam.localization.room_reconstruction import JointWallModel
+
+    m = as_points(mics, "mics")
+    d = m.shape[1]
+    s = as_points(sources, "sources", dim=d)
+    n = as_points(normals, "normals", dim=d)
+    o = np.asarray(offsets, dtype=float)
+    k_n, j_n = len(n), len(s)
+    if o.shape != (k_n,):
+        raise InvalidInputError(f"offsets must have shape ({k_n},); got {shape_str(o.shape)}")
+    _check_sigma(sigma)
+    if points is None:
+        p = s[0] + (o - n @ s[0])[:, None] * n
+    else:
+        p = as_points(points, "points", dim=d)
+        if p.shape != (k_n, d):
+            raise InvalidInputError(
+                f"points must have shape ({k_n}, {d}); got {shape_str(p.shape)}"
+            )
+    observed = as_mask(mask, "mask", shape=(j_n, len(m), 1 + k_n))
+    # Centre on the sources' mean, inside the room, so that no wall passes through the origin.
+    c = s.mean(axis=0)
+    w = n * (o - n @ c)[:, None]
+    theta = np.concatenate([(s - c).ravel(), w.ravel()])
+    model = JointWallModel(m - c, np.zeros((j_n, len(m), 1 + k_n)), observed)
+    jac = model.jacobian(theta) / sigma
+    fisher = jac.T @ jac
+    eig = np.linalg.eigvalsh(fisher)
+    if eig[0] <= 1e-12 * eig[-1]:
+        raise DegenerateGeometryError(
+            "the Fisher information of the walls is singular: too few echoes"
+        )
+    cov = np.linalg.solve(fisher, np.eye(len(theta)))
+    offset_std = np.empty(k_n)
+    normal_std = np.empty(k_n)
+    for k in range(k_n):
+        sl = slice((j_n + k) * d, (j_n + k + 1) * d)
+        cw = cov[sl, sl]
+        nk, rho = w[k] / np.linalg.norm(w[k]), np.linalg.norm(w[k])
+        proj = np.eye(d) - np.outer(nk, nk)
+        # offset at p: e = n.(p - c) - |w|, de/dw = (I - n n^T)(p - c)/|w| - n  (n = w/|w|)
+        grad = proj @ (p[k] - c) / rho - nk
+        offset_std[k] = np.sqrt(grad @ cw @ grad)
+        normal_std[k] = np.sqrt(np.trace(proj @ cw @ proj)) / rho
+    return offset_std, normal_std
+
+
+@dataclass(frozen=True)
+class MDUBound:
+    """Anchor-free CRLB of multidimensional unfolding (M receivers, K sources, all unknown).
+
+    Attributes:
+        receiver_cov: (M, d, d) bound on each receiver's error covariance, in the chosen gauge.
+        source_cov: (K, d, d) the same for the sources.
+        receiver_rmse: sqrt(mean over receivers of trace(receiver_cov)), metres.
+        source_rmse: the same over the sources, metres.
+        gauge: "receivers" (errors after rigidly aligning the receivers alone) or "all".
+        null_dimension: dimension of the Fisher information's null space (d(d+1)/2 when only
+            rigid motions are unobservable: 3 in 2-D, 6 in 3-D).
+    """
+
+    receiver_cov: np.ndarray
+    source_cov: np.ndarray
+    receiver_rmse: float
+    source_rmse: float
+    gauge: str
+    null_dimension: int
+
+
+def mdu_crlb(
+    receivers: ArrayLike,
+    sources: ArrayLike,
+    sigma: float,
+    *,
+    mask: ArrayLike | None = None,
+    gauge: str = "receivers",
+) -> MDUBound:
+    """CRLB of receivers (M, d) and sources (K, d) located from their ranges alone (eq. 9 setting).
+
+    Ranges r_mk = ||x_m - s_k|| + N(0, sigma^2) for the pairs in ``mask`` (M, K) (True = observed).
+    The Fisher information F = J^T J / sigma^2 is singular along the rigid motions, so the bound
+    depends on how the estimate is aligned before its error is taken:
+
+    - ``gauge="all"``: errors after aligning all points: the pseudo-inverse F^+;
+    - ``gauge="receivers"``: errors after aligning the receivers alone (as in Fig. 3): P F^+ P^T
+      with P = I - T (T_r^T T_r)^-1 T_r^T S_r, which removes the rigid motion (basis T) fitted to
+      the receiver rows (T_r, selected by S_r) of the error. This differs from F^+.
+
+    Raises DegenerateGeometryError when more than the rigid motions are unobservable.
+    """
+    x = as_points(receivers, "receivers")
+    d = x.shape[1]
+    s = as_points(sources, "sources", dim=d)
+    m, k = len(x), len(s)
+    observed = as_mask(mask, "mask", shape=(m, k))
+    if gauge not in ("receivers", "all"):
+        raise InvalidInputError(f"gauge must be 'receivers' or 'all'; got {gauge!r}")
+    _check_sigma(sigma)
+    pairs = np.argwhere(observed)
+    diff = x[pairs[:, 0]] - s[pairs[:, 1]]
+    dist = np.linalg.norm(diff, axis=1)
+    if np.any(dist == 0):
+        raise DegenerateGeometryError(
+            "a receiver coincides with a source: the range gradient is undefined"
+        )
+    u = diff / dist[:, None]
+    jac = np.zeros((len(pairs), (m + k) * d))
+    for row, ((i, j), uu) in enumerate(zip(pairs, u, strict=True)):
+        jac[row, i * d : (i + 1) * d] = uu
+        jac[row, (m + j) * d : (m + j + 1) * d] = -uu
+    fisher = jac.T @ jac / sigma**2
+    eig, vec = np.linalg.eigh(fisher)
+    n_rigid = d * (d + 1) // 2
+    null = eig <= 1e-9 * eig[-1]
+    if null.sum() > n_rigid:
+        raise DegenerateGeometryError(
+            f"{int(null.sum())} unobservable directions, more than the {n_rigid} rigid motions: "
+            "too few ranges (or a degenerate configuration) for unique unfolding"
+        )
+    cov = (vec[:, ~null] / eig[~null]) @ vec[:, ~null].T  # F^+ (eigh, no explicit inverse)
+    if gauge == "receivers":
+        proj = receiver_gauge_projection(x, s)
+        cov = proj @ cov @ proj.T
+    blocks = np.array([cov[i * d : (i + 1) * d, i * d : (i + 1) * d] for i in range(m + k)])
+    rec, src = blocks[:m], blocks[m:]
+    return MDUBound(
+        receiver_cov=rec,
+        source_cov=src,
+        receiver_rmse=float(np.sqrt(np.mean(np.trace(rec, axis1=1, axis2=2)))),
+        source_rmse=float(np.sqrt(np.mean(np.trace(src, axis1=1, axis2=2)))),
+        gauge=gauge,
+        null_dimension=int(null.sum()),
+    )

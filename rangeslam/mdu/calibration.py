@@ -1,0 +1,463 @@
+"""Zero-knowledge calibration (Problem 2): receivers and sources from the ranges between them.
+
+Multidimensional unfolding (MDU, eq. 9): the M x K ranges between receivers (microphones) and
+sources (a loudspeaker and its image sources, or acoustic events) are the off-diagonal block of an
+(M + K) x (M + K) EDM. :func:`calibrate` completes it with Dattorro's convex iteration (eq. 10,
+:mod:`rangeslam.solvers.sdp`), embeds it in ``dim`` dimensions, refines the points by least squares on the
+ranges (:mod:`rangeslam.solvers.least_squares`) and checks the answer against the noise. The problem has local
+minima (the convex iteration can stall at a wrong rank-d point), so a failed attempt is restarted
+from a random direction Z until an answer passes the check; the result says whether one did.
+
+Everything is recovered up to a rigid motion *and a reflection* (ranges cannot tell handedness).
+The result is expressed with the receivers' centroid at the origin and their principal axes along
+the coordinate axes (signs fixed by the receivers' third moments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rangeslam._robust import mad_sigma, studentized
+from rangeslam._validation import check_int, frozen
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
+from rangeslam.geometry.edm import edm, range_matrix
+from rangeslam.localization.multilateration import multilaterate
+from rangeslam.mdu.core import (
+    EXACT_RTOL,
+    MAX_RELATIVE_RMS,
+    SAME_RTOL,
+    canonical_frame,
+    check_determined,
+    convex_iteration_runs,
+    mdu_edm,
+    mdu_mask,
+    passes_residual_test,
+    unknowns_up_to_rigid_motion,
+    validated_ranges,
+)
+from rangeslam.solvers.least_squares import (
+    UnfoldingFit,
+    refine_unfolding,
+    unfolding_jacobian,
+    unfolding_residuals,
+)
+
+if TYPE_CHECKING:
+    from rangeslam.solvers.sdp import EDMCompletion
+
+__all__ = ["Calibration", "calibrate"]
+
+# An RMS residual below this fraction of the median range is exact data (round-off only). The SDP
+# alone (refine=False) is accurate to about 1e-6 of the scale with Clarabel's tolerances.
+_EXACT_RTOL = {True: EXACT_RTOL, False: 1e-4}
+# Outlier test on studentized residuals, in standard deviations.
+_INLIER_K = 3.0
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Result of :func:`calibrate`. M receivers, K sources, d = 2 or 3.
+
+    Attributes:
+        receivers: (M, d) receiver positions, metres (centroid at 0, principal axes as axes).
+        sources: (K, d) source positions in the same frame, metres.
+        residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
+        observed: (M, K) the mask that was given (True where a range was observed).
+        inliers: (M, K) the ranges used in the final fit (``observed`` unless ``robust``).
+        residual_rms: RMS residual over the inliers, metres.
+        noise_estimate: sqrt(sum of squared inlier residuals / redundancy), metres; NaN when the
+            data have no redundancy.
+        redundancy: inlier ranges minus unknowns up to a rigid motion (the chi-square degrees of
+            freedom of the residual test).
+        converged: the answer passed the residual test against ``noise_std``, or without it won
+            the vote of two starts (see :func:`calibrate`).
+        message: why not, when ``converged`` is False; empty otherwise.
+        attempts: convex-iteration runs made (see ``max_attempts`` of :func:`calibrate`).
+        iterations: SDP solves over all attempts.
+        random_starts: least-squares runs from random points made after the attempts failed.
+        origin: "convex_iteration" or "random_start": where the answer's starting point came from.
+        eigen_gap: eigen-gap of the SDP solution the answer was refined from (0 = rank d; NaN
+            when the answer came from a random start).
+        sdp_status: solver status of that SDP solve ("" for a random start).
+        solver: the solver that produced it ("" for a random start).
+    """
+
+    receivers: np.ndarray
+    sources: np.ndarray
+    residuals: np.ndarray
+    observed: np.ndarray
+    inliers: np.ndarray
+    residual_rms: float
+    noise_estimate: float
+    redundancy: int
+    converged: bool
+    message: str
+    attempts: int
+    iterations: int
+    random_starts: int
+    origin: str
+    eigen_gap: float
+    sdp_status: str
+    solver: str
+
+    @property
+    def n_outliers(self) -> int:
+        """Observed ranges left out of the final fit."""
+        return int(np.sum(self.observed & ~self.inliers))
+
+
+@dataclass
+class _Candidate:
+    fit: UnfoldingFit
+    inliers: np.ndarray
+    completion: EDMCompletion | None
+    ssr: float
+    key: float
+    message: str
+
+    def edm(self) -> np.ndarray:
+        return edm(np.vstack([self.fit.receivers, self.fit.sources]))
+
+
+def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
+    """The SDP's points as an UnfoldingFit (used when refine=False)."""
+    residuals = np.where(mask, range_matrix(points[:m], points[m:]) - ranges, np.nan)
+    return UnfoldingFit(
+        receivers=points[:m],
+        sources=points[m:],
+        residuals=residuals,
+        rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
+        converged=True,
+        message="",
+        nfev=0,
+    )
+
+
+def _reject_outliers(fit, ranges, mask, dim, noise_std):
+    """Studentized-residual test (3 sigma), refit without the outliers, until the set is stable.
+
+    sigma is ``noise_std`` when given, else 1.4826 MAD of the studentized residuals. Ranges are
+    only dropped while every point keeps at least ``dim`` of them and the data stay redundant.
+    """
+    m = mask.shape[0]
+    use = mask.copy()
+    pairs = np.argwhere(mask)
+    seen: list[np.ndarray] = []
+    for _ in range(20):
+        pts = np.vstack([fit.receivers, fit.sources])
+        abs_res = np.abs(unfolding_residuals(pts, m, ranges[mask], pairs))
+        stud = studentized(abs_res, unfolding_jacobian(pts, m, pairs), use[mask])
+        sigma = noise_std if noise_std else mad_sigma(stud)
+        new = mask.copy()
+        new[mask] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay in
+        try:
+            check_determined(new, dim, "the inlier set")
+        except InvalidInputError:
+            return fit, use, "outlier rejection stopped: dropping more ranges would leave too few; "
+        if int(new.sum()) <= unknowns_up_to_rigid_motion(sum(mask.shape), dim):
+            return fit, use, "outlier rejection stopped: no redundancy left; "
+        if np.array_equal(new, use) or any(np.array_equal(new, old) for old in seen):
+            return fit, use, ""
+        seen.append(use)
+        use = new
+        fit = refine_unfolding(fit.receivers, fit.sources, ranges, use)
+    return fit, use, "inlier set still changing after 20 re-fits; "
+
+
+def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: float, rng):
+    """Resection: move each point to where a robust multilateration from the others puts it, when
+    more of its ranges then agree (within ``threshold``). Returns (fit, number of points moved).
+
+    A robust loss lets a single misplaced point (a receiver or source folded to the wrong side)
+    shed its ranges as outliers at a small cost; this step finds and fixes such points.
+    """
+    m = len(fit.receivers)
+    points = np.vstack([fit.receivers, fit.sources])
+    moved = 0
+    for i in range(len(points)):
+        is_receiver = i < m
+        anchors = points[m:] if is_receiver else points[:m]
+        r = ranges[i] if is_receiver else ranges[:, i - m]
+        obs = observed[i] if is_receiver else observed[:, i - m]
+        if obs.sum() < dim + 2:
+            continue
+
+        def agreeing(p, anchors=anchors, r=r, obs=obs):
+            return int(
+                np.sum(np.abs(np.linalg.norm(anchors[obs] - p, axis=1) - r[obs]) <= threshold)
+            )
+
+        try:
+            cand = multilaterate(
+                anchors,
+                r,
+                mask=obs,
+                robust=True,
+                inlier_threshold=threshold,
+                max_hypotheses=200,
+                rng=rng,
+            )
+        except (DegenerateGeometryError, InvalidInputError):
+            continue
+        if agreeing(cand.position) > agreeing(points[i]):
+            points[i] = cand.position
+            moved += 1
+    if moved:
+        fit = _embedding_fit(points, m, ranges, observed)
+    return fit, moved
+
+
+def _robust_refit(fit: UnfoldingFit, ranges, observed, dim: int, scale: float, rng):
+    """Cauchy-loss least squares straight from the SDP's points (a Gaussian step first would be
+    pulled by the outliers), alternated with resection of misplaced points; ends refined."""
+    note = ""
+    for _ in range(3):
+        fit = refine_unfolding(
+            fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
+        )
+        fit, moved = _repair_points(fit, ranges, observed, dim, 3 * scale, rng)
+        if not moved:
+            return fit, note
+        note += f"{moved} points re-placed by resection; "
+    fit = refine_unfolding(
+        fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
+    )
+    return fit, note
+
+
+def calibrate(
+    ranges: ArrayLike,
+    *,
+    dim: int = 3,
+    mask: ArrayLike | None = None,
+    noise_std: float | None = None,
+    refine: bool = True,
+    robust: bool = False,
+    max_attempts: int = 8,
+    random_starts: int = 100,
+    fit_weight: float = 10.0,
+    max_iterations: int = 50,
+    gap_tol: float = 1e-6,
+    rng: np.random.Generator | int | None = None,
+) -> Calibration:
+    """Locate M receivers and K sources, all unknown, from their ranges (MDU, eqs. 8-10).
+
+    Args:
+        ranges: (M, K) range from receiver m to source k, metres; entries outside ``mask`` are
+            ignored (they may be NaN).
+        dim: 2 or 3.
+        mask: (M, K) boolean, True where observed; None means all observed.
+        noise_std: standard deviation of the range noise, metres, if known. An answer is accepted
+            when its sum of squared residuals passes a chi-square test at the 0.999 level (or is
+            exact to 1e-8 of the median range). Without it, all ``max_attempts`` runs are made
+            (slower) and the lowest-residual configuration is accepted when two starts reached it
+            and its RMS residual is under 2% of the median range; a wrong local minimum that wins
+            this vote is then reported as converged, so pass ``noise_std`` when you know it.
+        refine: refine the SDP's points by least squares on the ranges (Gaussian ML). Without it
+            the SDP's points are returned and "exact" means within 1e-4 of the scale.
+        robust: for wrong echo picks. The SDP fits with an L1 loss instead of s-stress; each
+            run is refined with a Cauchy loss (scale ``noise_std``, or 1.4826 MAD of the first
+            fit's residuals), then ranges whose studentized residual exceeds 3 sigma (sigma =
+            ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
+            until the set is stable. Runs are ranked by their Cauchy cost over all ranges. No
+            random starts are made.
+        max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
+            10, 0.1 and 100, then from random Z cycling the same weights.
+        random_starts: when no convex-iteration run passes, least squares from up to this many
+            random starting points (a last resort, measured to rescue most of the 2-4% of Fig. 3
+            configurations the runs miss; only with ``refine``).
+        fit_weight: lambda of eq. (10), on data scaled to unit median range.
+        max_iterations: SDP solves per convex-iteration run.
+        gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
+            fraction of its trace (it also stops when the gap stalls).
+        rng: numpy Generator (or seed) for the random restarts.
+
+    Returns a :class:`Calibration`; ``converged`` is False (with a message) when no attempt passed
+    the check. Raises InvalidInputError for bad input or an under-determined mask. An SDP run that
+    fails with both Clarabel and the SCS fallback is noted in the message and the others go on;
+    SolverError (with the statuses) when no run gives a usable answer.
+    """
+    r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
+    m, k = r.shape
+    for name, value, low in (
+        ("max_attempts", max_attempts, 1),
+        ("max_iterations", max_iterations, 1),
+        ("random_starts", random_starts, 0),
+    ):
+        check_int(value, name, low)
+    # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
+    from rangeslam.solvers.sdp import EDMCompletionSDP
+
+    if robust and not refine:
+        raise InvalidInputError(
+            "robust=True needs refine=True (wrong picks are found by refitting)"
+        )
+    if not (np.isfinite(fit_weight) and fit_weight > 0):
+        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
+    if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
+        raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
+    rng = np.random.default_rng(rng)
+    n = m + k
+    w = mdu_mask(observed)
+    d_tilde = mdu_edm(r)
+    problem = EDMCompletionSDP(w, loss="l1" if robust else "l2")
+    exact_rms = _EXACT_RTOL[bool(refine)] * scale
+
+    solver_failures: list[str] = []
+
+    def starting_points():
+        """Yield (points (N, d), completion or None): convex-iteration runs, then random starts."""
+        for completion in convex_iteration_runs(
+            problem,
+            d_tilde,
+            w,
+            dim,
+            max_attempts=max_attempts,
+            fit_weight=fit_weight,
+            max_iterations=max_iterations,
+            gap_tol=gap_tol,
+            rng=rng,
+            failures=solver_failures,
+        ):
+            yield completion.points, completion
+        if len(solver_failures) == max_attempts:
+            return  # the SDP failed every time: raise below rather than guess
+        if refine and not robust:  # last resort: least squares from random points
+            for _ in range(random_starts):
+                yield rng.standard_normal((n, dim)) * scale, None
+
+    cauchy_scale = noise_std if noise_std else None
+    best: _Candidate | None = None
+    confirmed = False
+    iterations = attempts = starts = 0
+    for pts, completion in starting_points():
+        if completion is not None:
+            attempts += 1
+            iterations += completion.iterations
+        else:
+            starts += 1
+        fit = _embedding_fit(pts, m, r, observed)
+        inliers, note = observed, ""
+        if robust:
+            if cauchy_scale is None:  # from the first SDP's points: 1.4826 MAD of the residuals
+                cauchy_scale = max(
+                    1.4826 * float(np.median(np.abs(fit.residuals[observed]))), exact_rms
+                )
+            fit, note = _robust_refit(fit, r, observed, dim, cauchy_scale, rng)
+            fit, inliers, rejection_note = _reject_outliers(fit, r, observed, dim, noise_std)
+            note += rejection_note
+        elif refine:
+            fit = refine_unfolding(pts[:m], pts[m:], r, observed)
+        ssr = float(np.sum(fit.residuals[inliers] ** 2))
+        if not np.isfinite(ssr):
+            continue  # a diverged fit is no candidate
+        # Robust runs are ranked by the Cauchy cost of all observed ranges (inlier sets differ).
+        key = _cauchy_cost(fit, r, observed, cauchy_scale) if robust else ssr
+        cand = _Candidate(fit, inliers, completion, ssr, key, note)
+        # Votes count refined fits only: raw SDP points from different weights never coincide.
+        same = refine and best is not None and _same(cand, best, scale)
+        confirmed = confirmed or same
+        if best is None or key < best.key:
+            confirmed = confirmed and same
+            best = cand
+        # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
+        # so robust runs are all made and ranked by their cost over all ranges.
+        if not robust and _accepted(best, noise_std, exact_rms, n, dim):
+            break
+        # Without a noise level a wrong minimum cannot be told from noise by its residual: every
+        # convex-iteration run is made, and the lowest configuration must have been reached twice.
+        if noise_std is None and confirmed and attempts + len(solver_failures) == max_attempts:
+            break
+
+    if best is None:
+        raise SolverError(
+            "calibration found no usable solution: every SDP run failed"
+            if len(solver_failures) == max_attempts
+            else "calibration found no usable solution: every fit diverged",
+            status="; ".join(dict.fromkeys(solver_failures)) or None,
+        )
+    fit = best.fit
+    n_in = int(best.inliers.sum())
+    redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
+    redundancy_all = int(observed.sum()) - unknowns_up_to_rigid_motion(n, dim)
+    n_dropped = int(observed.sum()) - n_in
+    rms = float(np.sqrt(best.ssr / n_in))
+    message = best.message
+    if solver_failures:
+        message += f"{len(solver_failures)} SDP runs failed ({solver_failures[0]}); "
+    exact = rms <= exact_rms
+    if redundancy == 0:
+        converged = False
+        message += (
+            "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
+            "solutions and the data cannot tell which is right; "
+        )
+    elif robust and n_dropped > redundancy_all / 2:
+        converged = False
+        message += (
+            f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
+            f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
+            "fit by dropping enough ranges); "
+        )
+    elif (
+        exact
+        or _accepted(best, noise_std, exact_rms, n, dim)
+        or (noise_std is None and confirmed and rms <= MAX_RELATIVE_RMS * scale)
+    ):
+        converged = True
+    else:
+        converged = False
+        if noise_std is not None:
+            message += (
+                f"no start in {attempts + starts} passed the residual test: best RMS residual "
+                f"{rms:.3g} m for noise_std {noise_std:.3g} m (a local minimum, or wrong ranges); "
+            )
+        else:
+            message += (
+                f"no configuration was reached twice from {attempts + starts} starts (best RMS residual "
+                f"{rms:.3g} m); pass noise_std to test the residual instead; "
+            )
+    if (refine or robust) and not fit.converged:
+        converged = False
+        message += f"least squares failed: {fit.message}; "
+    receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
+    residuals = np.where(observed, fit.residuals, np.nan)
+    return Calibration(
+        receivers=frozen(receivers),
+        sources=frozen(sources),
+        residuals=frozen(residuals),
+        observed=frozen(observed),
+        inliers=frozen(best.inliers.copy()),
+        residual_rms=rms,
+        noise_estimate=float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan"),
+        redundancy=int(redundancy),
+        converged=bool(converged),
+        message=message.rstrip("; "),
+        attempts=attempts,
+        iterations=iterations,
+        random_starts=starts,
+        origin="random_start" if best.completion is None else "convex_iteration",
+        eigen_gap=np.nan if best.completion is None else best.completion.eigen_gap,
+        sdp_status="" if best.completion is None else best.completion.status,
+        solver="" if best.completion is None else best.completion.solver,
+    )
+
+
+def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
+    m = len(fit.receivers)
+    pts = np.vstack([fit.receivers, fit.sources])
+    pairs = np.argwhere(observed)
+    res = unfolding_residuals(pts, m, ranges[observed], pairs)
+    return float(np.sum(np.log1p((res / scale) ** 2)))
+
+
+def _same(a: _Candidate, b: _Candidate, scale: float) -> bool:
+    return bool(np.max(np.abs(a.edm() - b.edm())) <= SAME_RTOL * scale**2)
+
+
+def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, dim: int) -> bool:
+    return passes_residual_test(c.ssr, int(c.inliers.sum()), n, dim, noise_std, exact_rms)

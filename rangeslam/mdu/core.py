@@ -1,0 +1,254 @@
+"""The unfolding shared by every MDU estimator (calibrate, slam, unknown emission times).
+
+Eq. (9): the M x K ranges between receivers and sources are the off-diagonal block of an
+(M + K) x (M + K) EDM with weight W; :func:`mdu_mask` and :func:`mdu_edm` build W and D-tilde.
+The restart schedule of the convex iteration (eq. 10), the count of unknowns up to the gauge (a
+rigid motion and a reflection), the canonical frame results are expressed in, the residual test
+and verdict, and the rotation of covariances into that frame live here, so that every estimator
+applies them the same way.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rangeslam._validation import as_float_array, as_mask, as_ranges, shape_str
+from rangeslam.errors import InvalidInputError, SolverError
+
+__all__ = [
+    "CHI2_LEVEL",
+    "EXACT_RTOL",
+    "MAX_RELATIVE_RMS",
+    "SAME_RTOL",
+    "SIGMA_FLOOR",
+    "WEIGHT_FACTORS",
+    "canonical_frame",
+    "check_determined",
+    "convex_iteration_runs",
+    "least_steps",
+    "mdu_edm",
+    "mdu_mask",
+    "passes_residual_test",
+    "residual_verdict",
+    "rotated_covariances",
+    "unknowns_up_to_rigid_motion",
+    "validated_ranges",
+]
+
+if TYPE_CHECKING:
+    from rangeslam.solvers.gtsam_graph import GraphFit
+
+# Exact data: RMS range residual at most this fraction of the median range (round-off only).
+EXACT_RTOL = 1e-8
+# Without noise_std, an answer is accepted when two attempts reach it; "the same" means squared
+# distances agreeing to this fraction of the squared scale.
+SAME_RTOL = 1e-5
+# Significance of the chi-square residual test that accepts an answer when noise_std is given.
+CHI2_LEVEL = 0.999
+
+
+# An answer whose RMS residual exceeds this fraction of the median range explains nothing.
+MAX_RELATIVE_RMS = 0.02
+
+
+# Fit weights of successive attempts, relative to fit_weight. A run that stalls at a wrong
+# rank-d point with one weight often reaches the right one with another (measured on Fig. 3).
+WEIGHT_FACTORS = (1.0, 10.0, 0.1, 100.0)
+
+
+def mdu_mask(mask: np.ndarray) -> np.ndarray:
+    """W of eq. (9): (M + K, M + K), True on the observed receiver-source pairs only."""
+    m, k = mask.shape
+    w = np.zeros((m + k, m + k), dtype=bool)
+    w[:m, m:] = mask
+    w[m:, :m] = mask.T
+    return w
+
+
+def mdu_edm(ranges: np.ndarray) -> np.ndarray:
+    """D-tilde of eq. (9): (M + K, M + K) with the squared ranges in the off-diagonal blocks."""
+    m, k = ranges.shape
+    d = np.zeros((m + k, m + k))
+    d[:m, m:] = ranges**2
+    d[m:, :m] = (ranges**2).T
+    return d
+
+
+def unknowns_up_to_rigid_motion(n_points: int, dim: int) -> int:
+    """Coordinates of ``n_points`` points in ``dim`` dimensions minus the rigid motions."""
+    return n_points * dim - dim * (dim + 1) // 2
+
+
+def check_determined(mask: np.ndarray, dim: int, name: str) -> None:
+    """Refuse masks that leave the unfolding under-determined (with a message that says why)."""
+    m, k = mask.shape
+    n_obs = int(mask.sum())
+    need = unknowns_up_to_rigid_motion(m + k, dim)
+    if n_obs < need:
+        raise InvalidInputError(
+            f"{name} leaves the problem under-determined: {n_obs} observed ranges for {need} "
+            f"unknowns ({m} receivers and {k} sources in {dim}-D, up to a rigid motion)"
+        )
+    for axis, what in ((1, "receiver"), (0, "source")):
+        counts = mask.sum(axis=axis)
+        if np.any(counts < dim):
+            i = int(np.argmin(counts))
+            raise InvalidInputError(
+                f"{name} leaves the problem under-determined: {what} {i} has {int(counts[i])} "
+                f"observed ranges; each point needs at least {dim} in {dim}-D"
+            )
+
+
+def canonical_frame(receivers: np.ndarray, sources: np.ndarray):
+    """Move the receivers' centroid to 0 and their principal axes (largest variance first) onto
+    the coordinates, each pointing so that the receivers' third moment along it is >= 0. Ranges
+    cannot tell a reflection, so the frame may be left-handed; it is unique for generic arrays.
+
+    Returns (receivers, sources, rotation): new coordinates are (p - centroid) @ rotation.
+    """
+    centre = receivers.mean(axis=0)
+    _, vec = np.linalg.eigh(np.cov((receivers - centre).T, bias=True))
+    rot = vec[:, ::-1]
+    rot *= np.where(np.sum(((receivers - centre) @ rot) ** 3, axis=0) < 0, -1.0, 1.0)
+    return (receivers - centre) @ rot, (sources - centre) @ rot, rot
+
+
+def validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_std):
+    """Check the inputs shared by :func:`calibrate` and :func:`rangeslam.mdu.slam`.
+
+    Returns (ranges (M, K) with unobserved entries 0, observed mask (M, K), median observed range).
+    """
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    r_in = as_float_array(ranges, "ranges")
+    if r_in.ndim != 2:
+        raise InvalidInputError(
+            f"ranges must be an (M, K) array of distances; got {shape_str(r_in.shape)}"
+        )
+    observed = as_mask(mask, "mask", shape=r_in.shape)
+    r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
+    check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
+    scale = float(np.median(r[observed]))
+    if not scale > 0:
+        raise InvalidInputError("ranges must not all be zero where observed")
+    return r, observed, scale
+
+
+def convex_iteration_runs(
+    problem,
+    d_tilde: np.ndarray,
+    w: np.ndarray,
+    dim: int,
+    *,
+    max_attempts: int,
+    fit_weight: float,
+    max_iterations: int,
+    gap_tol: float,
+    rng: np.random.Generator,
+    failures: list[str],
+    bounds=None,
+):
+    """Yield the EDMCompletion of up to ``max_attempts`` convex-iteration runs (eq. 10).
+
+    "Several weights": the first runs start from Z = I (trace minimisation) with the fit weight
+    scaled by each of WEIGHT_FACTORS in turn; later runs start from random Z, cycling them. A
+    run whose SDP fails with every solver is lost: its status is appended to ``failures``.
+    """
+    from rangeslam.solvers.sdp import complete_edm, random_direction
+
+    n = w.shape[0]
+    for attempt in range(max_attempts):
+        factor = WEIGHT_FACTORS[attempt % len(WEIGHT_FACTORS)]
+        z0 = None if attempt < len(WEIGHT_FACTORS) else random_direction(n, dim, rng)
+        try:
+            yield complete_edm(
+                d_tilde,
+                w,
+                dim,
+                fit_weight=fit_weight * factor,
+                max_iterations=max_iterations,
+                tol=gap_tol,
+                z0=z0,
+                bounds=bounds,
+                problem=problem,
+            )
+        except SolverError as exc:
+            failures.append(str(exc.status))
+
+
+def passes_residual_test(
+    ssr: float, n_ranges: int, n_points: int, dim: int, noise_std: float | None, exact_rms: float
+) -> bool:
+    """Exact data (RMS residual <= exact_rms), or a sum of squared range residuals below the
+    0.999 chi-square quantile for the redundancy, in units of noise_std^2."""
+    if ssr <= exact_rms**2 * n_ranges:
+        return True
+    redundancy = n_ranges - unknowns_up_to_rigid_motion(n_points, dim)
+    if noise_std is None or redundancy <= 0 or noise_std == 0:
+        return False
+    from scipy.stats import chi2
+
+    return bool(ssr <= chi2.ppf(CHI2_LEVEL, redundancy) * noise_std**2)
+
+
+# The range sigma of the graph never goes below this fraction of the median range: from the EDM
+# answer, GTSAM's LM made no step at all at 1e-6 and recovers exact data at 1e-4 ...
+SIGMA_FLOOR = 1e-4
+
+
+def least_steps(r: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(M - 1,) the least each step can be by the triangle inequality, max_k |r_(i+1)k - r_ik|
+    over the landmarks heard at both steps (0 where none is)."""
+    both = observed[:-1] & observed[1:]
+    return np.where(both, np.abs(np.diff(r, axis=0)), 0.0).max(axis=1)
+
+
+def rotated_covariances(fit: GraphFit, rot: np.ndarray):
+    """A fit's receiver (M, d, d), source (K, d, d) and joint trajectory (M d, M d) covariances
+    in the frame x -> x @ rot (e.g. :func:`rangeslam.mdu.calibration.canonical_frame`'s); covariances
+    rotate with the frame, a translation leaves them unchanged."""
+    m, dim = fit.receivers.shape
+    cov_r = np.einsum("ji,njk,kl->nil", rot, fit.receiver_cov, rot)
+    cov_s = np.einsum("ji,njk,kl->nil", rot, fit.source_cov, rot)
+    rot_all = np.kron(np.eye(m), rot)
+    return cov_r, cov_s, rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
+
+
+def residual_verdict(
+    ssr: float,
+    observed: np.ndarray,
+    dim: int,
+    noise_std: float | None,
+    scale: float,
+    *,
+    chi_square: bool,
+    bounded: bool,
+) -> tuple[bool, str]:
+    """Whether a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
+    (M, K) ranges) is acceptable, and if not why: the chi-square test against ``noise_std`` when
+    ``chi_square``, else RMS <= 2% of the median range ``scale``; never without redundant ranges
+    unless step bounds are ``bounded``."""
+    n_obs = int(observed.sum())
+    n = sum(observed.shape)
+    rms = float(np.sqrt(ssr / n_obs))
+    message = ""
+    if chi_square:
+        ok = passes_residual_test(ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale)
+        if not ok:
+            message += (
+                f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
+                f"{noise_std:.3g} m; "
+            )
+    else:
+        ok = rms <= MAX_RELATIVE_RMS * scale
+        if not ok:
+            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
+    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
+        ok = False
+        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    return ok, message

@@ -1,0 +1,142 @@
+"""Nonlinear least-squares refinement of an unfolding on the ranges themselves (scipy back end).
+
+Multidimensional unfolding (eq. 4): receivers x_m (M, d) and sources s_k (K, d), both unknown, fit
+to observed ranges r_mk by minimising sum over observed (m, k) of rho((||x_m - s_k|| - r_mk)^2).
+This is the maximum-likelihood estimate under Gaussian range noise (rho = identity) and the step
+after the SDP of eq. (10), which fits squared distances and carries a rank penalty. The gauge (a
+rigid motion) stays free: Levenberg-Marquardt's damping handles the rank-deficient Jacobian, and
+the result is returned in the frame of the starting point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rangeslam._validation import as_mask, as_points, as_ranges, frozen
+from rangeslam.errors import InvalidInputError
+
+__all__ = ["UnfoldingFit", "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
+
+LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+
+
+@dataclass(frozen=True)
+class UnfoldingFit:
+    """Result of :func:`refine_unfolding`.
+
+    Attributes:
+        receivers: (M, d) refined receivers, metres.
+        sources: (K, d) refined sources, metres.
+        residuals: (M, K) fitted minus measured range, metres; NaN where not in the fit's mask.
+        rms: RMS of the residuals in the fit, metres.
+        converged: scipy reported convergence (status > 0).
+        message: scipy's message.
+        nfev: residual evaluations.
+    """
+
+    receivers: np.ndarray
+    sources: np.ndarray
+    residuals: np.ndarray
+    rms: float
+    converged: bool
+    message: str
+    nfev: int
+
+
+def unfolding_residuals(points: np.ndarray, m: int, ranges: np.ndarray, pairs: np.ndarray):
+    """Residuals ||x_i - s_j|| - r_ij over ``pairs`` (P, 2) of (receiver, source) indices.
+
+    ``points`` (M + K, d) stacks receivers then sources; ``ranges`` (P,) are the measured ranges.
+    """
+    diff = points[pairs[:, 0]] - points[m + pairs[:, 1]]
+    return np.linalg.norm(diff, axis=1) - ranges
+
+
+def unfolding_jacobian(points: np.ndarray, m: int, pairs: np.ndarray) -> np.ndarray:
+    """(P, (M + K) d) Jacobian of :func:`unfolding_residuals` in the stacked, row-major points."""
+    n, d = points.shape
+    diff = points[pairs[:, 0]] - points[m + pairs[:, 1]]
+    dist = np.linalg.norm(diff, axis=1)
+    u = diff / np.maximum(dist, 1e-300)[:, None]
+    jac = np.zeros((len(pairs), n * d))
+    rows = np.arange(len(pairs))[:, None]
+    cols = np.arange(d)[None, :]
+    jac[rows, pairs[:, [0]] * d + cols] = u
+    jac[rows, (m + pairs[:, [1]]) * d + cols] = -u
+    return jac
+
+
+def refine_unfolding(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    mask: np.ndarray,
+    *,
+    loss: str = "linear",
+    loss_scale: float = 1.0,
+    max_nfev: int | None = None,
+) -> UnfoldingFit:
+    """Least-squares unfolding started at ``receivers`` (M, d), ``sources`` (K, d).
+
+    ``ranges`` (M, K) metres, ``mask`` (M, K) True for the ranges to fit. ``loss`` is scipy's
+    robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt; the others by a trust-region
+    reflective method, as is the Gaussian case with fewer ranges than coordinates),
+    ``loss_scale`` its inlier scale in metres. The problem is scaled to unit median range before
+    scipy sees it.
+    """
+    if loss not in LOSSES:
+        raise InvalidInputError(f"loss must be one of {LOSSES}; got {loss!r}")
+    if not (np.isfinite(loss_scale) and loss_scale > 0):
+        raise InvalidInputError(f"loss_scale must be positive and finite; got {loss_scale!r}")
+    receivers = as_points(receivers, "receivers")
+    m, d = receivers.shape
+    sources = as_points(sources, "sources", dim=d)
+    mask = as_mask(mask, "mask", shape=(m, len(sources)))
+    ranges = as_ranges(ranges, "ranges", shape=(m, len(sources)), observed=mask)
+    if not mask.any():
+        raise InvalidInputError("mask observes no range")
+    pairs = np.argwhere(mask)
+    scale = float(np.median(ranges[mask]))
+    if not scale > 0:
+        scale = 1.0
+    r = ranges[mask] / scale
+    start = np.vstack([receivers, sources]) / scale
+
+    def fun(theta: np.ndarray) -> np.ndarray:
+        return unfolding_residuals(theta.reshape(-1, d), m, r, pairs)
+
+    def jac(theta: np.ndarray) -> np.ndarray:
+        return unfolding_jacobian(theta.reshape(-1, d), m, pairs)
+
+    tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
+    # MINPACK's LM needs at least as many residuals as unknowns; the gauge (a rigid motion) makes
+    # fewer enough, and the trust-region method takes those.
+    if loss == "linear" and len(pairs) >= start.size:
+        fit = least_squares(fun, start.ravel(), jac=jac, method="lm", max_nfev=max_nfev, **tols)
+    else:
+        fit = least_squares(
+            fun,
+            start.ravel(),
+            jac=jac,
+            method="trf",
+            loss=loss,
+            x_scale="jac",
+            f_scale=loss_scale / scale,
+            max_nfev=max_nfev,
+            **tols,
+        )
+    points = fit.x.reshape(-1, d) * scale
+    residuals = np.full(mask.shape, np.nan)
+    residuals[mask] = fit.fun * scale
+    return UnfoldingFit(
+        receivers=frozen(points[:m]),
+        sources=frozen(points[m:]),
+        residuals=frozen(residuals),
+        rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
+        converged=bool(fit.status > 0),
+        message=str(fit.message),
+        nfev=int(fit.nfev),
+    )
