@@ -18,9 +18,9 @@ import numpy as np
 from _common import machine, markdown_table, timed
 
 from rangeslam import reconstruct_room
-from rangeslam.app.experiments import wall_errors
 from rangeslam.datasets import load_dechorate
 from rangeslam.datasets.dechorate import ECHO_LABELS
+from rangeslam.evaluation.metrics import wall_errors
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "dechorate"
 

@@ -23,7 +23,8 @@ import numpy as np
 from _common import machine, markdown_table
 
 from rangeslam.app.benchmarking import BOUND_SETTINGS
-from rangeslam.app.experiments import mean_nees, slam_experiment
+from rangeslam.app.experiments import slam_experiment
+from rangeslam.evaluation.metrics import mean_nees
 
 
 def nees_summary(runs) -> str:

@@ -21,7 +21,7 @@ import numpy as np
 from _common import machine, markdown_table, timed
 
 from rangeslam import Room, align
-from rangeslam.acoustics.tracking import walk_from_rirs
+from rangeslam.acoustics.walk import walk_from_rirs
 from rangeslam.app.experiments import FIG5_ROOM_SIZE
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu import slam

@@ -7,8 +7,9 @@ The method follows Dokmanic, Daudet and Vetterli, "From acoustic room reconstruc
 from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
 from rangeslam.acoustics.labelling import EchoLabelling, RoomFromRirs, label_echoes, room_from_rirs
 from rangeslam.acoustics.pipeline import LoadedRirs, RunResult, load_rirs, run_rirs
-from rangeslam.acoustics.tracking import EchoTracks, WalkFromRirs, track_echoes, walk_from_rirs
-from rangeslam.beacons.slam import (
+from rangeslam.acoustics.tracking import EchoTracks, track_echoes
+from rangeslam.acoustics.walk import WalkFromRirs, walk_from_rirs
+from rangeslam.beacons import (
     BeaconSlamResult,
     RangeOdometry,
     beacon_slam,

@@ -7,6 +7,7 @@ from rangeslam import InvalidInputError, SolverError, align, calibrate, mdu_crlb
 from rangeslam.app.experiments import calibration_experiment, fig3_scene
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.sim.scenes import add_outliers, add_range_noise
+from rangeslam.status import Status
 
 
 def _fig3_runs(sigma, rng, n=100):
@@ -100,6 +101,7 @@ def test_minimal_configuration_is_not_claimed(rng):
     x, s = rng.uniform(0, 2, (4, 3)), rng.uniform(-2, 4, (6, 3))
     out = calibrate(range_matrix(x, s), noise_std=0.0, max_attempts=1, rng=rng)
     assert not out.converged and "minimal configuration" in out.message
+    assert out.status is Status.NOT_IDENTIFIABLE
     assert out.redundancy == 0
 
 
@@ -109,7 +111,7 @@ def test_failure_is_reported_not_hidden(rng):
     scene = fig3_scene(rng)
     noisy = add_range_noise(scene.ranges, 0.01, rng=rng)
     out = calibrate(noisy, noise_std=1e-6, max_attempts=2, random_starts=3, rng=rng)
-    assert not out.converged
+    assert not out.converged and out.status is Status.INCONSISTENT
     assert "no start in 5 passed the residual test" in out.message
     assert out.attempts == 2 and out.random_starts == 3
     assert out.residual_rms > 1e-4
@@ -124,6 +126,7 @@ def test_unknown_noise_needs_a_second_start_to_agree(rng):
     noisy = add_range_noise(range_matrix(x, s), 1e-3, rng=rng)
     once = calibrate(noisy, max_attempts=1, random_starts=0, rng=rng)
     assert not once.converged and "reached twice" in once.message
+    assert once.status is Status.NO_AGREEMENT
 
 
 def test_unknown_noise_vote_on_a_well_posed_array(rng):

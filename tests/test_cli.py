@@ -79,3 +79,22 @@ def test_out_that_is_a_file(tmp_path, capsys):
         main(["demo", "--out", str(blocker)])
     assert exc.value.code == 2
     assert "cannot write to --out" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "folder"),
+    [
+        (["demo"], "rangeslam-out"),
+        (["bench", "fig3"], "rangeslam-bench"),
+        (["run", "x.npz"], "rangeslam-run"),
+    ],
+)
+def test_default_output_folder_is_created(tmp_path, monkeypatch, argv, folder):
+    """Without --out, each command's default output folder is created in the working directory
+    (argparse applies ``type`` only to string defaults: a Path default was never created)."""
+    from rangeslam.app.parser import build_parser
+
+    monkeypatch.chdir(tmp_path)
+    args = build_parser().parse_args(argv)
+    assert args.out == tmp_path / folder or args.out.resolve() == tmp_path / folder
+    assert (tmp_path / folder).is_dir()

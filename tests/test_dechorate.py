@@ -12,6 +12,7 @@ import pytest
 from rangeslam import DataFormatError, align, calibrate, reconstruct_room
 from rangeslam.app.experiments import wall_errors
 from rangeslam.datasets import load_dechorate
+from rangeslam.status import Status
 
 
 @pytest.fixture
@@ -84,6 +85,7 @@ def test_single_loudspeakers_locate_themselves(data, seed):
         if j == 0:
             assert res.converged, res.message
         elif not res.converged:
+            assert res.status is Status.OUTLIERS, res.message
             assert res.message.startswith("wall 3:"), res.message
 
 

@@ -8,12 +8,14 @@ import pytest
 
 from rangeslam import InvalidInputError, Room, align
 from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection
-from rangeslam.acoustics.tracking import EchoTracks, track_echoes, walk_from_rirs
+from rangeslam.acoustics.tracking import EchoTracks, track_echoes
+from rangeslam.acoustics.walk import walk_from_rirs
 from rangeslam.app.experiments import FIG5_ROOM_SIZE
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.sim.rir import shoebox_rirs
 from rangeslam.sim.scenes import random_points_in_room
 from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.status import Status
 
 FS = 16000.0
 C = SPEED_OF_SOUND
@@ -196,7 +198,7 @@ def test_walk_from_rirs_with_too_few_echoes_is_not_converged(rng):
     one another, move up to 38 cm a step, so no curve can be followed: said, never answered."""
     rirs, _, _, bounds, _ = fig5_walk(rng, 1, m=6)
     w = walk_from_rirs(rirs, FS, step_bounds=bounds, rng=rng, n_start=4)
-    assert not w.converged
+    assert w.status in (Status.NOT_IDENTIFIABLE, Status.SOLVER_FAILED), w.message
     assert "tracked" in w.message or "EDM start" in w.message, w.message
     assert w.slam is None and w.ranges is None and w.mask is None and w.columns == ()
 
@@ -209,6 +211,8 @@ def test_walk_with_wrong_step_bounds_is_not_converged(rng):
         rirs, FS, step_bounds=(1.3 * 0.9 * lo / 0.8, 1.3 * 1.1 * hi / 1.2), keyframes=keys, rng=rng
     )
     assert not w.converged and w.message
+    # on the bounds (NOT_IDENTIFIABLE), LM unsettled (SOLVER_FAILED) or the residual test failed
+    assert w.status in (Status.NOT_IDENTIFIABLE, Status.SOLVER_FAILED, Status.INCONSISTENT)
 
 
 def test_walk_from_rirs_bad_input(rng):

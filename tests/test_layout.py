@@ -65,7 +65,9 @@ def private_crossings() -> list[str]:
                 if node.level or source.startswith("rangeslam"):
                     for alias in node.names:
                         if _is_private(alias.name):
-                            out.append(f"{here}: from {'.' * node.level}{source} import {alias.name}")
+                            out.append(
+                                f"{here}: from {'.' * node.level}{source} import {alias.name}"
+                            )
                         package_modules.add(alias.asname or alias.name)
             elif isinstance(node, ast.Import):
                 for alias in node.names:

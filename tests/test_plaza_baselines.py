@@ -18,8 +18,9 @@ from rangeslam import InvalidInputError, align
 from rangeslam.baselines.ekf_range_odometry import ekf_range_odometry
 from rangeslam.baselines.gtsam_range_example import gtsam_range_example
 from rangeslam.baselines.odometry_only import odometry_only
-from rangeslam.beacons.slam import BeaconSlamResult
+from rangeslam.beacons import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset, plaza
+from rangeslam.status import Status
 
 pytest.importorskip("gtsam")  # the Plaza files ship with GTSAM's wheel
 
@@ -189,7 +190,7 @@ def test_gtsam_example_cholesky_failure_is_reported(p1):
     GTSAM's message kept, poses after the last estimate NaN, no range counted as an inlier."""
     res = gtsam_range_example(p1, rng=np.random.default_rng(GTSAM_SEED), factorization="CHOLESKY")
     _check_shapes(res, p1, "gtsam example")
-    assert not res.converged
+    assert not res.converged and res.status is Status.SOLVER_FAILED
     assert "Indeterminate" in res.message
     assert np.isnan(res.poses[-1]).all()
     assert not res.range_inlier.any()
@@ -345,6 +346,7 @@ def test_ekf_divergence_is_reported(rng):
         replace(data, odometry=odo), range_sigma=SIM_RANGE_SD, odometry_sigma=SIM_ODO_SD, rng=rng
     )
     assert not res.converged and "diverged at pose 1001" in res.message
+    assert res.status is Status.SOLVER_FAILED
     assert np.all(np.isfinite(res.poses[:1001])) and np.all(np.isnan(res.poses[1001:]))
 
 

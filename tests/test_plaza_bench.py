@@ -54,14 +54,15 @@ def test_bad_method_is_refused(capsys):
 
 def test_evaluate_is_rigid_alignment(p1):
     """A result that is the truth moved rigidly has zero error; NaN poses are left out."""
-    from rangeslam.beacons.slam import BeaconSlamResult
+    from rangeslam.beacons import BeaconSlamResult
+    from rangeslam.status import Status
 
     truth = p1.truth_at(p1.pose_time)
     c, s = np.cos(0.4), np.sin(0.4)
     moved = truth @ np.array([[c, -s], [s, c]]).T + [5.0, -3.0]
     beacons = p1.beacons @ np.array([[c, -s], [s, c]]).T + [5.0, -3.0]
     poses = np.column_stack([moved, np.zeros(len(moved))])
-    res = BeaconSlamResult("x", p1.pose_time, poses, beacons, None, None, True)
+    res = BeaconSlamResult("x", p1.pose_time, poses, beacons, None, None, Status.CONVERGED)
     ev = pb.evaluate(res, p1)
     assert np.max(ev.errors) < 1e-9 and np.max(ev.beacon_errors) < 1e-9
     poses[-10:] = np.nan

@@ -24,6 +24,7 @@ from rangeslam.acoustics.pipeline import (
 )
 from rangeslam.app.cli import main
 from rangeslam.sim.rir import shoebox_rirs
+from rangeslam.status import Status
 
 C = 343.0  # pyroomacoustics' speed of sound
 FS = 48000
@@ -226,6 +227,7 @@ def test_too_few_echoes_is_not_converged_and_exits_1(rng, tmp_path, capsys):
     _, mics, rirs = scene(rng, max_order=0)
     res = run_rirs(rirs, FS, mics=mics, c=C, rng=0)
     assert not res.converged and res.wall_normals is None
+    assert res.status is Status.NOT_IDENTIFIABLE  # no echoes of the walls to label
     assert "did not converge" in res.message
     path = tmp_path / "rirs.npz"
     np.savez(path, rirs=rirs, fs=FS, mics=mics)
@@ -420,7 +422,7 @@ def test_cli_run_refuses_ambiguous_knowledge(tmp_path, capsys):
 
 
 def fake_walk_module(trajectory, landmarks, converged=True):
-    """A stand-in rangeslam.acoustics.tracking whose walk_from_rirs detects the echoes and returns the
+    """A stand-in rangeslam.acoustics.walk whose walk_from_rirs detects the echoes and returns the
     given answer: for the plumbing of walk mode (RunResult, CLI output), not its accuracy."""
     calls = {}
 
@@ -476,7 +478,7 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
     walk, rirs, bounds = walk_scene()
     marks = np.array([[1.2, 2.9, 1.4], [-1.2, 2.9, 1.4]])
     fake, calls = fake_walk_module(walk, marks)
-    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.tracking", fake)
+    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.walk", fake)
     res = run_rirs(rirs, 16000, step_bounds=(bounds[0], bounds[1]), c=C, rng=0)
     assert res.mode == "walk" and res.converged and res.source is None
     np.testing.assert_array_equal(res.trajectory, walk)
@@ -497,7 +499,7 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
     # the --step-bounds file as (M - 1, 2) works alike; a non-finite answer is never converged
     np.savetxt(tmp_path / "b.txt", bounds.T)
     fake2, _ = fake_walk_module(np.full_like(walk, np.nan), marks)
-    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.tracking", fake2)
+    monkeypatch.setitem(sys.modules, "rangeslam.acoustics.walk", fake2)
     argv = ["run", str(path), "--step-bounds", str(tmp_path / "b.txt"), "--out", str(out)]
     assert main(argv) == 1
     assert "not finite" in capsys.readouterr().err
@@ -547,7 +549,8 @@ def test_dechorate_npz_with_the_measured_preset(dechorate_dir, tmp_path, capsys)
     errs = evaluate_run(res, source=loaded.source, room_size=loaded.room_size)
     assert errs.source_error < 0.05
     assert errs.wall_errors[SHOEBOX_WALLS.index("ceiling zH")] < 0.03
-    assert not res.converged and "do not bound a room" in res.message
+    assert not res.converged and res.status is Status.OUT_OF_RANGE
+    assert "do not bound a room" in res.message
     out = tmp_path / "out"
     code = main(
         ["run", str(dechorate_dir / "rirs_src0_12mics.npz"), "--measured", "--out", str(out)]

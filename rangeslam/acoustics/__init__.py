@@ -2,7 +2,9 @@
 
 - :mod:`.echoes`: echo detection in one RIR (direct path and echoes, eq. 1).
 - :mod:`.labelling`: which peak is which image source for a known array; RIRs to a room.
-- :mod:`.tracking`: echoes of a moving microphone followed from RIR to RIR; RIRs to a walk.
+- :mod:`.label_search`, :mod:`.label_audit`: the point search and the column audit of the labelling.
+- :mod:`.tracking`: echoes of a moving microphone followed from RIR to RIR.
+- :mod:`.walk`: RIRs of a moving microphone to its trajectory and landmarks.
 - :mod:`.pipeline`: RIR files plus what is known to a room map or a walk.
 """
 
@@ -28,7 +30,8 @@ from rangeslam.acoustics.pipeline import (
     run_rirs,
     shoebox_wall_errors,
 )
-from rangeslam.acoustics.tracking import EchoTracks, WalkFromRirs, track_echoes, walk_from_rirs
+from rangeslam.acoustics.tracking import EchoTracks, track_echoes
+from rangeslam.acoustics.walk import WalkFromRirs, walk_from_rirs
 
 __all__ = [
     "MEASURED_RIR_OPTIONS",

@@ -61,7 +61,7 @@ import inspect
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -69,6 +69,7 @@ from numpy.typing import ArrayLike
 from scipy.ndimage import median_filter
 from scipy.signal import fftconvolve, find_peaks, hilbert
 
+from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
@@ -102,8 +103,6 @@ _BASELINE_WIDTHS = 16
 # Envelope half-width at half maximum of the band-limited impulse (|sinc(t / 2)|), samples: the
 # unit of pulse width, which scales the default separation, the baseline and the side-lobe test.
 _IMPULSE_HALFWIDTH = 1.2067
-# Median absolute deviation of a normal sample, in standard deviations.
-_MAD_TO_STD = 1.4826
 # Consecutive samples at the largest magnitude that make a RIR "clipped".
 CLIP_RUN = 3
 # The autocorrelation of an excitation is kept out to where it falls below this (relative) level.
@@ -359,25 +358,7 @@ class _Params:
         direct_fraction: float,
         baseline: bool,
     ) -> _Params:
-        exc = None
-        pulse = np.ones(1)
-        width = 1.0
-        if excitation is not None:
-            exc = as_float_array(excitation, "excitation")
-            if exc.ndim != 1 or len(exc) == 0:
-                raise InvalidInputError(
-                    f"excitation must have shape (E,) with E >= 1; got {shape_str(exc.shape)}"
-                )
-            bad = np.flatnonzero(~np.isfinite(exc))
-            if len(bad):
-                raise InvalidInputError(
-                    f"excitation must be finite; sample {int(bad[0])} is {exc[bad[0]]}"
-                )
-            energy = float(exc @ exc)
-            if energy == 0.0:
-                raise InvalidInputError("excitation must not be all zeros")
-            pulse = _autocorrelation(exc / math.sqrt(energy))
-            width = max(1.0, _envelope_halfwidth(pulse) / _IMPULSE_HALFWIDTH)
+        exc, pulse, width = _pulse_model(excitation)
         sep = 2.0 * width
         if max_echoes is not None and (
             isinstance(max_echoes, bool)
@@ -399,21 +380,7 @@ class _Params:
         max_sample = math.inf
         if max_time is not None:
             max_sample = _as_real(max_time, "max_time", low=0.0) * fs
-        span = None
-        if noise_window is not None:
-            try:
-                t0, t1 = (float(t) for t in noise_window)  # type: ignore[union-attr]
-            except (TypeError, ValueError) as exc_:
-                raise InvalidInputError(
-                    f"noise_window must be (start, stop) in seconds; got {noise_window!r}"
-                ) from exc_
-            n0, n1 = max(0, math.ceil(t0 * fs)), min(length, math.floor(t1 * fs) + 1)
-            if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1) or n1 - n0 < 8:
-                raise InvalidInputError(
-                    f"noise_window must be (start, stop) seconds with 0 <= start < stop, covering at "
-                    f"least 8 of the {length} samples; got {noise_window!r} ({max(n1 - n0, 0)} samples)"
-                )
-            span = (n0, n1)
+        span = None if noise_window is None else _noise_span(noise_window, fs, length)
         return cls(
             fs=fs,
             pulse=pulse,
@@ -429,6 +396,44 @@ class _Params:
             direct_fraction=direct_fraction,
             baseline=bool(baseline),
         )
+
+
+def _pulse_model(excitation: ArrayLike | None) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """The checked excitation (E,) (None: none), the pulse it gives (its normalised
+    autocorrelation; the band-limited impulse's single sample without one) and the pulse's width
+    relative to the band-limited impulse's (>= 1)."""
+    if excitation is None:
+        return None, np.ones(1), 1.0
+    exc = as_float_array(excitation, "excitation")
+    if exc.ndim != 1 or len(exc) == 0:
+        raise InvalidInputError(
+            f"excitation must have shape (E,) with E >= 1; got {shape_str(exc.shape)}"
+        )
+    bad = np.flatnonzero(~np.isfinite(exc))
+    if len(bad):
+        raise InvalidInputError(f"excitation must be finite; sample {int(bad[0])} is {exc[bad[0]]}")
+    energy = float(exc @ exc)
+    if energy == 0.0:
+        raise InvalidInputError("excitation must not be all zeros")
+    pulse = _autocorrelation(exc / math.sqrt(energy))
+    return exc, pulse, max(1.0, _envelope_halfwidth(pulse) / _IMPULSE_HALFWIDTH)
+
+
+def _noise_span(noise_window, fs: float, length: int) -> tuple[int, int]:
+    """The samples [n0, n1) of ``noise_window`` (start, stop) seconds, at least 8 of ``length``."""
+    try:
+        t0, t1 = (float(t) for t in noise_window)
+    except (TypeError, ValueError) as exc_:
+        raise InvalidInputError(
+            f"noise_window must be (start, stop) in seconds; got {noise_window!r}"
+        ) from exc_
+    n0, n1 = max(0, math.ceil(t0 * fs)), min(length, math.floor(t1 * fs) + 1)
+    if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1) or n1 - n0 < 8:
+        raise InvalidInputError(
+            f"noise_window must be (start, stop) seconds with 0 <= start < stop, covering at "
+            f"least 8 of the {length} samples; got {noise_window!r} ({max(n1 - n0, 0)} samples)"
+        )
+    return n0, n1
 
 
 def _envelope_halfwidth(pulse: np.ndarray) -> float:
@@ -547,6 +552,43 @@ def _detect(x: np.ndarray, p: _Params, name: str, *, stacklevel: int) -> EchoDet
             stacklevel=stacklevel,
         )
     length = len(x)
+    y = _filtered(x, p)
+    last = length - 1 if p.max_sample >= length else math.floor(p.max_sample) + _REACH
+    span = y[: last + 1]
+    peak = float(np.abs(span).max())
+    noisy = span if p.noise_span is None else y[p.noise_span[0] : p.noise_span[1]]
+    noise = MAD_TO_STD * float(np.median(np.abs(noisy - np.median(noisy))))
+    if p.threshold is not None:
+        thr = p.threshold
+    else:
+        thr = max(p.noise_factor * noise, p.relative_threshold * peak)
+    found = EchoDetection(
+        times=frozen(np.zeros(0)),
+        amplitudes=frozen(np.zeros(0)),
+        direct=None,
+        noise_level=noise,
+        threshold=thr,
+        fs=p.fs,
+        clipped=clipped,
+    )
+    if peak == 0.0 or peak <= thr:
+        return found
+    # zero padding so that windows around any sample (and pulses) fit
+    pad = len(p.pulse) // 2 + _HALF + _REACH + 4
+    r = np.concatenate([np.zeros(pad), y, np.zeros(pad)])
+    kept = _greedy_echoes(r, pad, np.abs(span), length, p, thr)
+    _refit_echoes(r, kept, p.pulse)
+    kept = [e for e in kept if e[0] - pad <= p.max_sample and abs(e[1]) > thr]
+    if not kept:
+        return found
+    times, amps, direct = _direct_and_strongest(kept, pad, p)
+    return replace(found, times=frozen(times), amplitudes=frozen(amps), direct=direct)
+
+
+def _filtered(x: np.ndarray, p: _Params) -> np.ndarray:
+    """(L,) the RIR correlated with the excitation (lags >= 0, excitation-energy units; x itself
+    without one), its slowly varying baseline removed when ``p.baseline``."""
+    length = len(x)
     if p.excitation is None:
         y = x
     else:
@@ -560,32 +602,14 @@ def _detect(x: np.ndarray, p: _Params, name: str, *, stacklevel: int) -> EchoDet
         y = y - median_filter(
             _smooth(np.concatenate([y[:1], y, y[-1:]])), size=2 * half + 1, mode="mirror"
         )
-    last = length - 1 if p.max_sample >= length else math.floor(p.max_sample) + _REACH
-    span = y[: last + 1]
-    peak = float(np.abs(span).max())
-    noisy = span if p.noise_span is None else y[p.noise_span[0] : p.noise_span[1]]
-    noise = _MAD_TO_STD * float(np.median(np.abs(noisy - np.median(noisy))))
-    if p.threshold is not None:
-        thr = p.threshold
-    else:
-        thr = max(p.noise_factor * noise, p.relative_threshold * peak)
+    return y
 
-    empty = EchoDetection(
-        times=frozen(np.zeros(0)),
-        amplitudes=frozen(np.zeros(0)),
-        direct=None,
-        noise_level=noise,
-        threshold=thr,
-        fs=p.fs,
-        clipped=clipped,
-    )
-    if peak == 0.0 or peak <= thr:
-        return empty
 
-    # zero padding so that windows around any sample (and pulses) fit
-    pad = len(p.pulse) // 2 + _HALF + _REACH + 4
-    r = np.concatenate([np.zeros(pad), y, np.zeros(pad)])
-    mag = np.abs(span)
+def _greedy_echoes(r, pad: int, mag, length: int, p: _Params, thr: float) -> list[list[float]]:
+    """Strongest candidate first, each echo fitted (:func:`_refine`) and its pulse subtracted
+    from the zero-padded signal ``r`` (in place), unless too close to a stronger echo or no bigger
+    than a stronger one's misfit and side lobes (module docstring, step 5). Returns
+    [[time in padded samples, amplitude]]."""
     cand, _ = find_peaks(
         np.concatenate([[0.0], mag, [0.0]]),
         height=np.nextafter(thr, np.inf),
@@ -593,7 +617,6 @@ def _detect(x: np.ndarray, p: _Params, name: str, *, stacklevel: int) -> EchoDet
     )
     cand = cand - 1
     cand = cand[np.argsort(-mag[cand], kind="stable")]
-
     # how far from an echo's peak its misfit is looked for: its main lobe, within the separation
     reach = max(1, min(math.ceil(p.separation), math.ceil(2 * p.width)))
     kept: list[list[float]] = []  # [time in padded samples, amplitude]
@@ -618,19 +641,26 @@ def _detect(x: np.ndarray, p: _Params, name: str, *, stacklevel: int) -> EchoDet
         _add_pulse(r, p.pulse, tau, -amp)
         kept.append([tau, amp])
         misfit.append(_peak_magnitude(r, round(tau), reach))
-    # one more pass: each echo refined again with every other pulse subtracted
+    return kept
+
+
+def _refit_echoes(r, kept: list[list[float]], pulse: np.ndarray) -> None:
+    """One more pass: each echo of ``kept`` refined again (in place) with every other pulse
+    subtracted from ``r``; a refit that moves more than _REACH samples is not taken."""
     for e in kept:
-        _add_pulse(r, p.pulse, e[0], e[1])
-        tau, amp = _refine(r, round(e[0]), p.pulse)
+        _add_pulse(r, pulse, e[0], e[1])
+        tau, amp = _refine(r, round(e[0]), pulse)
         if abs(tau - e[0]) <= _REACH:
             e[0], e[1] = tau, amp
         else:
             tau, amp = e
-        _add_pulse(r, p.pulse, tau, -amp)
-    kept = [e for e in kept if e[0] - pad <= p.max_sample and abs(e[1]) > thr]
-    if not kept:
-        return empty
+        _add_pulse(r, pulse, tau, -amp)
 
+
+def _direct_and_strongest(kept, pad: int, p: _Params) -> tuple[np.ndarray, np.ndarray, int]:
+    """Times (s, ascending) and amplitudes of the echoes, the index of the direct path (the
+    earliest with ``direct_fraction`` of the largest amplitude), at most ``max_echoes`` kept
+    (the direct path and the strongest others)."""
     times = np.array([e[0] - pad for e in kept]) / p.fs
     amps = np.array([e[1] for e in kept])
     order = np.argsort(times, kind="stable")
@@ -643,15 +673,7 @@ def _detect(x: np.ndarray, p: _Params, name: str, *, stacklevel: int) -> EchoDet
         keep = np.sort(np.concatenate([[direct], strongest]))
         direct = int(np.searchsorted(keep, direct))
         times, amps = times[keep], amps[keep]
-    return EchoDetection(
-        times=frozen(times),
-        amplitudes=frozen(amps),
-        direct=direct,
-        noise_level=noise,
-        threshold=thr,
-        fs=p.fs,
-        clipped=clipped,
-    )
+    return times, amps, direct
 
 
 def _add_pulse(r: np.ndarray, pulse: np.ndarray, tau: float, amp: float) -> None:

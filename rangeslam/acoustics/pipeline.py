@@ -7,12 +7,14 @@ Two things can be known besides the RIRs, and they decide what is estimated:
   sources by geometric consensus, Problem 1 of the paper for the walls);
 - bounds on the steps of one microphone moving through the room (one RIR per step): the
   trajectory and the landmarks (the loudspeaker and its image sources), by
-  :func:`rangeslam.acoustics.tracking.walk_from_rirs` (detect, track the echoes from step to step,
+  :func:`rangeslam.acoustics.walk.walk_from_rirs` (detect, track the echoes from step to step,
   range-only SLAM of section 4 with the eq. (11) step bounds).
 
-:func:`load_rirs` reads an ``.npz`` or WAV files; :func:`run_rirs` runs either pipeline and returns
-a :class:`RunResult`; :func:`evaluate_run` compares it with ground truth when there is some. The
-``rangeslam run`` command is these three calls plus output.
+:func:`load_rirs` (:mod:`rangeslam.datasets.rir_files`, re-exported here) reads an ``.npz`` or
+WAV files; :func:`run_rirs` runs either pipeline and returns a :class:`RunResult`;
+:func:`evaluate_run` compares it with ground truth when there is some
+(:mod:`rangeslam.evaluation.metrics`). The ``rangeslam run`` command is these three calls plus
+output.
 
 Bad input is refused before anything is estimated (:class:`~rangeslam.errors.InvalidInputError`, or
 :class:`~rangeslam.errors.DataFormatError` naming the file): RIRs of different lengths or sampling
@@ -20,22 +22,17 @@ rates (never padded, cropped or resampled: sample 0 must be the emission in ever
 infinite samples, a missing sampling rate, arrays of the wrong shape. A silent RIR (every sample 0)
 is not an error: it gives a :class:`SilentRirWarning` and its row is masked (no range from it). A
 clipped one (3 or more consecutive samples at its largest magnitude, the detector's test) gives a
-:class:`~rangeslam.acoustics.echoes.ClippedRirWarning` and is masked too, unless ``clipped="use"``: a flat
-top of 4 samples on the direct path of one RIR of ten moved its range by 1 cm and the loudspeaker
-by 4 cm (from 0.01 mm), with the labelling and the reconstruction still converged (their residual
-tests do not see an error that size from a compact array); so it is left out rather than passed
-on as a converged answer. Too few echoes for the geometry is a result with ``converged`` False and
-the reason in ``message``.
+:class:`~rangeslam.acoustics.echoes.ClippedRirWarning` and is masked too, unless
+``clipped="use"`` (see :func:`run_rirs`). Too few echoes for the geometry is a result whose
+``status`` says why (``converged`` False) with the reason in ``message``.
 """
 
 from __future__ import annotations
 
 import math
-import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -43,7 +40,16 @@ from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_float_array, as_points, frozen, shape_str
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
-from rangeslam.errors import DataFormatError, InvalidInputError
+from rangeslam.datasets.rir_files import (
+    LoadedRirs,
+    SilentRirWarning,
+    check_fs,
+    first_bad,
+    load_rirs,
+)
+from rangeslam.errors import InvalidInputError
+from rangeslam.evaluation.metrics import SHOEBOX_WALLS, shoebox_wall_errors, trajectory_rmse
+from rangeslam.status import HasStatus, Status
 
 __all__ = [
     "MEASURED_RIR_OPTIONS",
@@ -73,307 +79,27 @@ MEASURED_RIR_OPTIONS: dict[str, Any] = {
     "label_options": {"tolerance": 0.04, "n_images": None},
 }
 
-#: Names of the walls of ``Room.shoebox(size)`` (its order), as :func:`shoebox_wall_errors` uses.
-SHOEBOX_WALLS = ("west x0", "east xL", "south y0", "north yW", "floor z0", "ceiling zH")
-
 _ARRAY_OPTIONS = ("direct_template", "label_options", "reconstruct_options")
 _WALK_OPTIONS = ("keyframes", "track_options", "slam_options")
-
-
-class SilentRirWarning(UserWarning):
-    """A RIR has every sample 0: no range can come from it, its row is masked."""
-
-
-# ---- loading ------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class LoadedRirs:
-    """RIRs read by :func:`load_rirs`, with whatever else the file said. M RIRs of L samples.
-
-    Attributes:
-        rirs: (M, L) float64, sample n at time n / fs from the emission; int PCM scaled to [-1, 1).
-        fs: sampling rate, Hz.
-        names: (M,) where each row came from: ``"file.npz:rirs[m]"``, ``"mic03.wav"``,
-            ``"array.wav:channel 2"``.
-        mics: (M, d) microphone positions, metres, when an npz held them (``mics``, or dEchorate's
-            ``mics_v3``); else None.
-        step_bounds: (2, M - 1) lower and upper bounds on each step, metres (npz ``step_bounds``);
-            else None.
-        c: speed of sound, m/s (npz ``c``); else None.
-        source: (d,) true loudspeaker position (npz ``source`` or ``src_v3``), for evaluation only.
-        room_size: (3,) true shoebox size (npz ``room_size``), for evaluation only.
-        trajectory: true microphone positions of a walk, (M, d) at every RIR or at the keyframes
-            (npz ``trajectory``), for evaluation.
-        keyframes: (M,) the RIRs that are SLAM steps (npz ``keyframes``), when there are more
-            RIRs than steps; else None.
-    """
-
-    rirs: np.ndarray
-    fs: float
-    names: tuple[str, ...]
-    mics: np.ndarray | None = None
-    step_bounds: np.ndarray | None = None
-    c: float | None = None
-    source: np.ndarray | None = None
-    room_size: np.ndarray | None = None
-    trajectory: np.ndarray | None = None
-    keyframes: np.ndarray | None = None
-
-    @property
-    def n_rirs(self) -> int:
-        """M."""
-        return int(self.rirs.shape[0])
-
-
-def _natural_key(path: Path) -> list:
-    """Sort key of a file name with its numbers compared as numbers (mic2 before mic10)."""
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
-
-
-def _check_fs(fs: object, name: str = "fs") -> float:
-    if isinstance(fs, bool) or not isinstance(fs, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
-    if not (math.isfinite(fs) and fs > 0):
-        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
-    return float(fs)
-
-
-def _first_bad(x: np.ndarray) -> tuple[int, ...] | None:
-    bad = np.argwhere(~np.isfinite(x))
-    return None if len(bad) == 0 else tuple(int(i) for i in bad[0])
-
-
-def load_rirs(
-    path_or_paths: str | Path | Sequence[str | Path], *, fs: float | None = None
-) -> LoadedRirs:
-    """Read M RIRs from one ``.npz``, one multichannel WAV, or several mono WAVs.
-
-    Args:
-        path_or_paths: one of
-            - an ``.npz`` with ``rirs`` (M, L) and ``fs`` (scalar, Hz), and optionally ``mics``
-              (M, 3) (or dEchorate's ``mics_v3``), ``step_bounds`` (2, M - 1), ``keyframes``
-              (the RIRs that are steps, when not all are), ``c`` (m/s), and
-              ground truth for evaluation: ``source`` (or ``src_v3``), ``room_size``,
-              ``trajectory`` (M, 3); other arrays are ignored;
-            - a WAV file: each channel is one RIR;
-            - a directory: its WAV files, one mono RIR each, in natural order of their names
-              (``mic2.wav`` before ``mic10.wav``);
-            - a list of WAV files, one mono RIR each, in the order given.
-        fs: sampling rate, Hz, for an npz without ``fs``. When the files state one, ``fs`` must
-            agree with it (it is a check, never a resampling).
-
-    Integer PCM is scaled to [-1, 1) (divided by 2^(bits - 1); 8-bit is unsigned, centred first);
-    float WAVs are read as they are.
-
-    Raises:
-        DataFormatError naming the file: unreadable, wrong shapes, NaN or infinite samples, files
-        of different lengths or sampling rates (nothing is padded, cropped or resampled), a
-        multichannel file among several, ``fs`` missing or contradicting the file.
-        InvalidInputError: no such file, a directory without WAV files, a bad ``fs``.
-    """
-    if fs is not None:
-        fs = _check_fs(fs)
-    if isinstance(path_or_paths, str | Path):
-        p = Path(path_or_paths)
-        if p.is_dir():
-            paths = sorted(
-                (q for q in p.iterdir() if q.suffix.lower() == ".wav" and q.is_file()),
-                key=_natural_key,
-            )
-            if not paths:
-                npz = sorted(q.name for q in p.glob("*.npz"))
-                hint = f"; it holds {', '.join(npz[:3])}: pass that file" if npz else ""
-                raise InvalidInputError(f"path_or_paths: no .wav files in the directory {p}{hint}")
-        else:
-            paths = [p]
-    elif isinstance(path_or_paths, Sequence):
-        paths = [Path(q) for q in path_or_paths]
-        if not paths:
-            raise InvalidInputError("path_or_paths must name at least one file; got none")
-    else:
-        raise InvalidInputError(
-            f"path_or_paths must be a path or a list of paths; got {type(path_or_paths).__name__}"
-        )
-    for q in paths:
-        if not q.is_file():
-            raise InvalidInputError(f"path_or_paths: {q} is not a file")
-    suffixes = {q.suffix.lower() for q in paths}
-    if ".npz" in suffixes:
-        if len(paths) != 1:
-            raise InvalidInputError(
-                "path_or_paths: give one .npz, or WAV files; got "
-                + ", ".join(str(q) for q in paths[:4])
-            )
-        return _load_npz(paths[0], fs)
-    for q in paths:
-        if q.suffix.lower() != ".wav":
-            raise DataFormatError(f"{q}: not a .wav or .npz file")
-    return _load_wavs(paths, fs)
-
-
-def _npz_array(raw: dict, keys: tuple[str, ...], p: Path, shape: tuple[int | None, ...]):
-    """The first of ``keys`` in ``raw`` as finite float64 of ``shape`` (None: any size), or None."""
-    for key in keys:
-        if key in raw:
-            try:
-                arr = np.asarray(raw[key], dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise DataFormatError(f"{p}: {key} is not numeric ({exc})") from exc
-            if arr.ndim != len(shape) or any(
-                s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)
-            ):
-                want = shape_str(tuple("*" if s is None else s for s in shape))  # type: ignore[misc]
-                raise DataFormatError(
-                    f"{p}: {key} must have shape {want}; got {shape_str(arr.shape)}"
-                )
-            bad = _first_bad(arr)
-            if bad is not None:
-                raise DataFormatError(f"{p}: {key}{list(bad)} is {arr[bad]}, not a finite number")
-            return arr
-    return None
-
-
-def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
-    try:
-        with np.load(p, allow_pickle=False) as data:
-            raw = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
-    if "rirs" not in raw:
-        raise DataFormatError(f"{p}: no 'rirs' array (M, L); it holds {sorted(raw)}")
-    try:
-        rirs = np.array(raw["rirs"], dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataFormatError(f"{p}: rirs is not numeric ({exc})") from exc
-    if rirs.ndim != 2 or rirs.shape[1] < 3 or rirs.shape[0] < 1:
-        raise DataFormatError(
-            f"{p}: rirs must have shape (M, L), one RIR per row; got {shape_str(rirs.shape)}"
-        )
-    bad = _first_bad(rirs)
-    if bad is not None:
-        raise DataFormatError(f"{p}: rirs[{bad[0]}] sample {bad[1]} is {rirs[bad]}")
-    m = rirs.shape[0]
-    file_fs = _npz_array(raw, ("fs",), p, ())
-    if file_fs is None and fs is None:
-        raise DataFormatError(f"{p}: no 'fs' array; give the sampling rate (fs=, --fs)")
-    if file_fs is not None:
-        file_fs = float(file_fs)
-        if not file_fs > 0:
-            raise DataFormatError(f"{p}: fs must be a positive number of Hz; got {file_fs:g}")
-        if fs is not None and fs != file_fs:
-            raise DataFormatError(f"{p}: fs is {file_fs:g} Hz, but fs={fs:g} was given")
-    mics = _npz_array(raw, ("mics", "mics_v3"), p, (m, None))
-    if mics is not None and mics.shape[1] not in (2, 3):
-        raise DataFormatError(f"{p}: mics must have shape ({m}, 3); got {shape_str(mics.shape)}")
-    bounds = _npz_array(raw, ("step_bounds",), p, (2, None))
-    c = _npz_array(raw, ("c",), p, ())
-    if c is not None and not c > 0:
-        raise DataFormatError(f"{p}: c must be a positive speed of sound in m/s; got {c}")
-    source = _npz_array(raw, ("source", "src_v3"), p, (None,))
-    size = _npz_array(raw, ("room_size",), p, (3,))
-    trajectory = _npz_array(raw, ("trajectory",), p, (None, None))
-    keys = None
-    if "keyframes" in raw:
-        keys = np.asarray(raw["keyframes"])
-        if keys.ndim != 1 or not np.issubdtype(keys.dtype, np.integer):
-            raise DataFormatError(f"{p}: keyframes must be (M,) integers; got {keys.dtype}")
-    n_steps = m if keys is None else len(keys)
-    if bounds is not None and bounds.shape != (2, n_steps - 1):
-        raise DataFormatError(
-            f"{p}: step_bounds must have shape (2, {n_steps - 1}) for {n_steps} steps; got "
-            f"{shape_str(bounds.shape)}"
-        )
-    return LoadedRirs(
-        rirs=frozen(rirs),
-        fs=float(file_fs if file_fs is not None else fs),
-        names=tuple(f"{p.name}:rirs[{i}]" for i in range(m)),
-        mics=None if mics is None else frozen(mics),
-        step_bounds=None if bounds is None else frozen(bounds),
-        c=None if c is None else float(c),
-        source=None if source is None else frozen(source),
-        room_size=None if size is None else frozen(size),
-        trajectory=None if trajectory is None else frozen(trajectory),
-        keyframes=None if keys is None else frozen(keys.astype(int)),
-    )
-
-
-def _read_wav(q: Path) -> tuple[float, np.ndarray]:
-    """(fs, (C, N) float64) of one WAV file, int PCM scaled to [-1, 1)."""
-    from scipy.io import wavfile
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", wavfile.WavFileWarning)  # unknown chunks (cue, list)
-            rate, data = wavfile.read(q)
-    except (OSError, ValueError) as exc:
-        raise DataFormatError(f"{q}: not a readable WAV file ({exc})") from exc
-    if data.dtype == np.uint8:
-        x = (data.astype(float) - 128.0) / 128.0
-    elif np.issubdtype(data.dtype, np.integer):
-        x = data.astype(float) / float(2 ** (8 * data.dtype.itemsize - 1))
-    else:
-        x = data.astype(float)
-    x = x.reshape(len(x), -1).T
-    if x.shape[1] < 3:
-        raise DataFormatError(f"{q}: holds {x.shape[1]} samples; a RIR needs at least 3")
-    bad = _first_bad(x)
-    if bad is not None:
-        where = f"channel {bad[0]} " if x.shape[0] > 1 else ""
-        raise DataFormatError(f"{q}: {where}sample {bad[1]} is {x[bad]}, not a finite number")
-    return float(rate), x
-
-
-def _load_wavs(paths: list[Path], fs: float | None) -> LoadedRirs:
-    read = []
-    for q in paths:
-        rate, x = _read_wav(q)
-        if rate <= 0:
-            raise DataFormatError(f"{q}: sampling rate {rate:g} Hz in the header")
-        if fs is not None and rate != fs:
-            raise DataFormatError(f"{q}: sampled at {rate:g} Hz, but fs={fs:g} was given")
-        if len(paths) > 1 and x.shape[0] > 1:
-            raise DataFormatError(
-                f"{q}: has {x.shape[0]} channels; with several files each must be mono (one RIR "
-                "per file), or give one multichannel file"
-            )
-        q0, rate0, x0 = read[0] if read else (q, rate, x)
-        if rate != rate0:
-            raise DataFormatError(
-                f"{q}: sampled at {rate:g} Hz, but {q0} at {rate0:g} Hz; RIRs must share one "
-                "sampling rate (resample them first)"
-            )
-        if x.shape[1] != x0.shape[1]:
-            raise DataFormatError(
-                f"{q}: has {x.shape[1]} samples, but {q0} has {x0.shape[1]}; RIRs must all have "
-                "the same length, sample 0 at the emission (nothing is padded or cropped)"
-            )
-        read.append((q, rate, x))
-    names = [
-        name
-        for q, _, x in read
-        for name in ([q.name] if len(x) == 1 else [f"{q.name}:channel {c}" for c in range(len(x))])
-    ]
-    return LoadedRirs(
-        rirs=frozen(np.vstack([x for _, _, x in read])), fs=read[0][1], names=tuple(names)
-    )
 
 
 # ---- running ------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)
-class RunResult:
+class RunResult(HasStatus):
     """Result of :func:`run_rirs`. M RIRs; d = 3 for an array, 2 or 3 for a walk.
 
     Attributes:
         mode: "array" (known microphones: the room) or "walk" (step bounds: the trajectory).
         result: the pipeline's own result:
             :class:`~rangeslam.acoustics.labelling.RoomFromRirs` (array) or
-            ``rangeslam.acoustics.tracking.WalkFromRirs`` (walk), with the detections and everything
+            ``rangeslam.acoustics.walk.WalkFromRirs`` (walk), with the detections and everything
             in between.
-        converged: the pipeline converged (array: labelling and reconstruction converged and the
-            walls bound a room; walk: tracking and SLAM converged) and gave a finite answer.
+        status: :attr:`~rangeslam.status.Status.CONVERGED` when the pipeline converged (array:
+            labelling and reconstruction converged and the walls bound a room; walk: tracking and
+            SLAM converged) and gave a finite answer; else the pipeline's own status, or
+            ``SOLVER_FAILED`` for an answer that is not finite. ``converged`` is derived from it.
         message: what happened, including the RIRs that were silent or clipped.
         fs: Hz. c: m/s.
         mics: (M, 3) the microphone positions given (array mode).
@@ -396,7 +122,7 @@ class RunResult:
 
     mode: str
     result: Any
-    converged: bool
+    status: Status
     message: str
     fs: float
     c: float
@@ -447,7 +173,7 @@ def _as_rirs(rirs: ArrayLike | Sequence[ArrayLike]) -> np.ndarray:
             f"rirs must have shape (M, L), one RIR of at least 3 samples per row; "
             f"got {shape_str(x.shape)}"
         )
-    bad = _first_bad(x)
+    bad = first_bad(x)
     if bad is not None:
         raise InvalidInputError(f"rirs must be finite; rirs[{bad[0]}] sample {bad[1]} is {x[bad]}")
     return x
@@ -469,7 +195,7 @@ def _check_bounds(step_bounds: Any, m: int, what: str = "RIRs") -> np.ndarray:
             f"step_bounds must be (lower, upper), each (M - 1,) = ({m - 1},) for {m} {what}; got "
             f"shape {shape_str(b.shape)}"
         )
-    bad = _first_bad(b)
+    bad = first_bad(b)
     if bad is not None:
         raise InvalidInputError(f"step_bounds must be finite; entry {bad} is {b[bad]}")
     if np.any(b[0] < 0) or np.any(b[0] > b[1]):
@@ -507,13 +233,14 @@ def run_rirs(
             :func:`rangeslam.acoustics.labelling.room_from_rirs`.
         step_bounds: (lower, upper), each (M - 1,), or a (2, M - 1) array: bounds on the distance
             the microphone moves between consecutive RIRs, metres: walk mode,
-            ``rangeslam.acoustics.tracking.walk_from_rirs``. Exactly one of ``mics`` and
+            ``rangeslam.acoustics.walk.walk_from_rirs``. Exactly one of ``mics`` and
             ``step_bounds``.
         c: speed of sound, m/s.
         dim: 3 for an array; 2 or 3 for a walk.
         rng: Generator or seed, passed down.
-        clipped: what to do with a clipped RIR: "mask" (default: leave it out, as a silent one;
-            module docstring) or "use" (keep it; its echo times near the clipped samples are less
+        clipped: what to do with a clipped RIR: "mask" (default: leave it out, as a silent one:
+            a clipped direct path can move the answer by centimetres while every residual test
+            still passes) or "use" (keep it; its echo times near the clipped samples are less
             accurate). Both warn (:class:`~rangeslam.acoustics.echoes.ClippedRirWarning`).
         direct_template, label_options, reconstruct_options: array mode: as
             :func:`~rangeslam.acoustics.labelling.room_from_rirs`. For measured RIRs pass
@@ -525,8 +252,8 @@ def run_rirs(
         track_options, slam_options: walk mode: as ``walk_from_rirs``.
 
     Returns:
-        A :class:`RunResult`; ``converged`` False with the reason in ``message`` when there were
-        too few echoes for the geometry or a solver did not converge.
+        A :class:`RunResult`; a ``status`` other than CONVERGED, with the reason in ``message``,
+        when there were too few echoes for the geometry or a solver did not converge.
 
     Raises:
         InvalidInputError naming the argument: RIRs not (M, L), of different lengths, with NaN or
@@ -536,57 +263,120 @@ def run_rirs(
     """
     rng = np.random.default_rng(rng)
     x = _as_rirs(rirs)
-    m = x.shape[0]
-    fs = _check_fs(fs)
+    fs = check_fs(fs)
+    c = _check_c(c)
+    if isinstance(dim, bool) or dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    options = RirRunOptions(
+        direct_template=direct_template,
+        detect_options=detect_options,
+        label_options=label_options,
+        reconstruct_options=reconstruct_options,
+        keyframes=keyframes,
+        track_options=track_options,
+        slam_options=slam_options,
+    )
+    mode = _check_mode(mics, step_bounds, options)
+    pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
+    bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
+    screen = _screen_rirs(x, clipped)
+    if mode == "array":
+        answer = _run_array(screen.rirs, fs, pts, c=c, rng=rng, options=options)
+    else:
+        answer = _run_walk(screen.rirs, fs, bounds, c=c, dim=dim, rng=rng, options=options)
+    return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts)
+
+
+@dataclass(frozen=True)
+class RirRunOptions:
+    """The tuning of :func:`run_rirs`'s pipelines, None where not given: ``direct_template``,
+    ``label_options``, ``reconstruct_options`` (array mode, as
+    :func:`~rangeslam.acoustics.labelling.room_from_rirs`); ``keyframes``, ``track_options``,
+    ``slam_options`` (walk mode, as ``walk_from_rirs``); ``detect_options`` (both)."""
+
+    direct_template: tuple[float, float] | None = None
+    detect_options: dict[str, Any] | None = None
+    label_options: dict[str, Any] | None = None
+    reconstruct_options: dict[str, Any] | None = None
+    keyframes: Any = None
+    track_options: dict[str, Any] | None = None
+    slam_options: dict[str, Any] | None = None
+
+
+def _check_c(c: object) -> float:
+    """The speed of sound as a positive finite float, m/s."""
     if isinstance(c, bool) or not isinstance(c, int | float | np.integer | np.floating):
         raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
     if not (math.isfinite(c) and c > 0):
         raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
-    c = float(c)
-    if isinstance(dim, bool) or dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    return float(c)
+
+
+def _check_mode(mics: Any, step_bounds: Any, options: RirRunOptions) -> str:
+    """The mode: "array" (mics given) or "walk" (step_bounds given); refuses both, neither, and
+    options of the other mode."""
     if (mics is None) == (step_bounds is None):
         raise InvalidInputError(
             "give exactly one of mics (a known array: the room) and step_bounds (a moving "
             "microphone: its trajectory); got " + ("both" if mics is not None else "neither")
         )
     mode = "array" if mics is not None else "walk"
-    given = {
-        "direct_template": direct_template,
-        "label_options": label_options,
-        "reconstruct_options": reconstruct_options,
-        "keyframes": keyframes,
-        "track_options": track_options,
-        "slam_options": slam_options,
-    }
     other = _WALK_OPTIONS if mode == "array" else _ARRAY_OPTIONS
-    wrong = [k for k in other if given[k] is not None]
+    wrong = [k for k in other if getattr(options, k) is not None]
     if wrong:
         raise InvalidInputError(
             f"{wrong[0]} applies to the other mode; with "
             + ("mics (array mode)" if mode == "array" else "step_bounds (walk mode)")
             + f" pass only {', '.join(('detect_options', *(_ARRAY_OPTIONS if mode == 'array' else _WALK_OPTIONS)))}"
         )
+    return mode
 
-    if mode == "array":
-        if dim != 3:
-            raise InvalidInputError(f"dim must be 3 with mics (rooms are 3-D); got {dim}")
-        pts = as_points(mics, "mics", dim=3)
-        if len(pts) != m:
-            raise InvalidInputError(
-                f"mics must have one row per RIR, shape ({m}, 3); got {shape_str(pts.shape)}"
-            )
-    elif keyframes is None:
-        bounds = _check_bounds(step_bounds, m)
-    else:
-        keys = np.asarray(keyframes)
-        if keys.ndim != 1 or not np.issubdtype(keys.dtype, np.integer):
-            raise InvalidInputError(
-                f"keyframes must be (M,) integer indices of RIRs; got {shape_str(keys.shape)} "
-                f"{keys.dtype}"
-            )
-        bounds = _check_bounds(step_bounds, len(keys), "keyframes")
 
+def _check_mics(mics: ArrayLike, dim: int, m: int) -> np.ndarray:
+    """(M, 3) microphone positions, one per RIR (array mode is 3-D)."""
+    if dim != 3:
+        raise InvalidInputError(f"dim must be 3 with mics (rooms are 3-D); got {dim}")
+    pts = as_points(mics, "mics", dim=3)
+    if len(pts) != m:
+        raise InvalidInputError(
+            f"mics must have one row per RIR, shape ({m}, 3); got {shape_str(pts.shape)}"
+        )
+    return pts
+
+
+def _check_walk_bounds(step_bounds: Any, keyframes: ArrayLike | None, m: int) -> np.ndarray:
+    """(2, K - 1) step bounds for the K steps: every RIR, or the ``keyframes``."""
+    if keyframes is None:
+        return _check_bounds(step_bounds, m)
+    keys = np.asarray(keyframes)
+    if keys.ndim != 1 or not np.issubdtype(keys.dtype, np.integer):
+        raise InvalidInputError(
+            f"keyframes must be (M,) integer indices of RIRs; got {shape_str(keys.shape)} "
+            f"{keys.dtype}"
+        )
+    return _check_bounds(step_bounds, len(keys), "keyframes")
+
+
+@dataclass(frozen=True, eq=False)
+class RirScreen:
+    """The RIRs the pipeline sees, and which were left out: rirs (M, L) with masked rows zeroed;
+    silent, clipped, masked (M,) bool; ``clipped_mode`` "mask" or "use"."""
+
+    rirs: np.ndarray
+    silent: np.ndarray
+    clipped: np.ndarray
+    masked: np.ndarray
+    clipped_mode: str
+
+
+# Why clipped RIRs are masked by default: a flat top of 4 samples on the direct path of one RIR
+# of ten moved its range by 1 cm and the loudspeaker by 4 cm (from 0.01 mm), with the labelling
+# and the reconstruction still converged (their residual tests do not see an error that size from
+# a compact array); so it is left out rather than passed on as a converged answer.
+def _screen_rirs(x: np.ndarray, clipped: str) -> RirScreen:
+    """Find silent and clipped RIRs, warn about each, and zero the rows left out (a row of zeros:
+    no detection, a masked row)."""
+    m = x.shape[0]
     if clipped not in ("mask", "use"):
         raise InvalidInputError(f"clipped must be 'mask' or 'use'; got {clipped!r}")
     silent = ~np.any(x != 0, axis=1)
@@ -596,7 +386,7 @@ def run_rirs(
         warnings.warn(
             f"rirs[{i}] is silent (every sample is 0): no range from it, its row is masked",
             SilentRirWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
     runs = [clip_run(r) for r in x]
     is_clipped = np.array([n >= CLIP_RUN for n, _ in runs], dtype=bool)
@@ -609,149 +399,171 @@ def run_rirs(
                 f"largest magnitude {abs(x[i, at]):.6g}; its row is masked (clipped='use' keeps "
                 "it, with less accurate echo times near those samples)",
                 ClippedRirWarning,
-                stacklevel=2,
+                stacklevel=3,
             )
         if masked.all():
             raise InvalidInputError(
                 f"rirs: every one of the {m} RIRs is silent or clipped; pass clipped='use' to "
                 "use the clipped ones"
             )
-        x = np.where(masked[:, None], 0.0, x)  # a row of zeros: no detection, a masked row
+        x = np.where(masked[:, None], 0.0, x)
+    return RirScreen(x, silent, is_clipped, np.asarray(masked, dtype=bool), clipped)
 
-    if mode == "array":
-        from rangeslam.acoustics.labelling import room_from_rirs
 
-        res = room_from_rirs(
-            x,
-            fs,
-            pts,
-            c=c,
-            rng=rng,
-            direct_template=direct_template,
-            detect_options=detect_options,
-            label_options=label_options,
-            reconstruct_options=reconstruct_options,
-        )
-        rec, lab = res.reconstruction, res.labelling
-        source = rec.sources[0] if rec is not None else lab.source
-        source = frozen(np.array(source, dtype=float)) if np.all(np.isfinite(source)) else None
-        if rec is not None:
-            images = frozen(np.array(rec.image_sources[0]))
-            normals = frozen(np.array(rec.wall_normals))
-            offsets = frozen(np.array(rec.wall_offsets))
-            support = frozen(np.array(lab.support[1:], dtype=int))
-        else:
-            images = normals = offsets = support = None
-        trajectory = landmarks = keys_out = None
-        finite = source is not None and (
-            normals is None or bool(np.all(np.isfinite(normals)) and np.all(np.isfinite(offsets)))
-        )
-    else:
-        try:
-            from rangeslam.acoustics.tracking import walk_from_rirs
-        except ImportError as exc:  # the walk pipeline ships with rangeslam.acoustics.tracking
-            raise ImportError(
-                "walk mode (step_bounds) needs rangeslam.acoustics.tracking.walk_from_rirs, which this "
-                f"installation lacks ({exc})"
-            ) from exc
+@dataclass(frozen=True, eq=False)
+class PipelineAnswer:
+    """What either pipeline found, in :class:`RunResult`'s fields (None where the mode has none);
+    ``finite``: the answer is finite (the loudspeaker, walls, trajectory and landmarks)."""
 
-        extra = {} if keyframes is None else {"keyframes": keyframes}
-        res = walk_from_rirs(
-            x,
-            fs,
-            step_bounds=(bounds[0], bounds[1]),
-            c=c,
-            dim=dim,
-            rng=rng,
-            detect_options=detect_options,
-            track_options=track_options,
-            slam_options=slam_options,
-            **extra,
-        )
-        source = images = normals = offsets = support = None
-        keys_out = getattr(res, "keyframes", None)
-        keys_out = frozen(np.arange(m) if keys_out is None else np.array(keys_out, dtype=int))
-        s = res.slam
-        if s is not None:
-            trajectory = frozen(np.array(s.receivers, dtype=float))
-            landmarks = frozen(np.array(s.sources, dtype=float))
-            finite = bool(np.all(np.isfinite(trajectory)) and np.all(np.isfinite(landmarks)))
-        else:
-            trajectory = landmarks = None
-            finite = False
+    result: Any
+    finite: bool
+    source: np.ndarray | None = None
+    image_sources: np.ndarray | None = None
+    wall_normals: np.ndarray | None = None
+    wall_offsets: np.ndarray | None = None
+    wall_support: np.ndarray | None = None
+    trajectory: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
+    keyframes: np.ndarray | None = None
 
-    dets = tuple(res.detections)
-    no_echoes = np.array([not d.found for d in dets], dtype=bool)
-    converged = bool(res.converged) and finite
+
+def _run_array(
+    x: np.ndarray, fs: float, pts: np.ndarray, *, c: float, rng, options: RirRunOptions
+) -> PipelineAnswer:
+    """Array mode: :func:`~rangeslam.acoustics.labelling.room_from_rirs`, and the loudspeaker,
+    first-order image sources and walls it found."""
+    from rangeslam.acoustics.labelling import room_from_rirs
+
+    res = room_from_rirs(
+        x,
+        fs,
+        pts,
+        c=c,
+        rng=rng,
+        direct_template=options.direct_template,
+        detect_options=options.detect_options,
+        label_options=options.label_options,
+        reconstruct_options=options.reconstruct_options,
+    )
+    rec, lab = res.reconstruction, res.labelling
+    source = rec.sources[0] if rec is not None else lab.source
+    source = frozen(np.array(source, dtype=float)) if np.all(np.isfinite(source)) else None
+    if rec is None:
+        return PipelineAnswer(result=res, finite=source is not None, source=source)
+    normals = frozen(np.array(rec.wall_normals))
+    offsets = frozen(np.array(rec.wall_offsets))
+    finite = source is not None and bool(
+        np.all(np.isfinite(normals)) and np.all(np.isfinite(offsets))
+    )
+    return PipelineAnswer(
+        result=res,
+        finite=finite,
+        source=source,
+        image_sources=frozen(np.array(rec.image_sources[0])),
+        wall_normals=normals,
+        wall_offsets=offsets,
+        wall_support=frozen(np.array(lab.support[1:], dtype=int)),
+    )
+
+
+def _run_walk(
+    x: np.ndarray, fs: float, bounds: np.ndarray, *, c: float, dim: int, rng, options: RirRunOptions
+) -> PipelineAnswer:
+    """Walk mode: ``rangeslam.acoustics.walk.walk_from_rirs`` with the eq. (11) step
+    bounds, and the trajectory and landmarks of its SLAM."""
+    try:
+        from rangeslam.acoustics.walk import walk_from_rirs
+    except ImportError as exc:  # the walk pipeline ships with rangeslam.acoustics.walk
+        raise ImportError(
+            "walk mode (step_bounds) needs rangeslam.acoustics.walk.walk_from_rirs, which this "
+            f"installation lacks ({exc})"
+        ) from exc
+
+    extra = {} if options.keyframes is None else {"keyframes": options.keyframes}
+    res = walk_from_rirs(
+        x,
+        fs,
+        step_bounds=(bounds[0], bounds[1]),
+        c=c,
+        dim=dim,
+        rng=rng,
+        detect_options=options.detect_options,
+        track_options=options.track_options,
+        slam_options=options.slam_options,
+        **extra,
+    )
+    keys = getattr(res, "keyframes", None)
+    keys = frozen(np.arange(len(x)) if keys is None else np.array(keys, dtype=int))
+    s = res.slam
+    if s is None:
+        return PipelineAnswer(result=res, finite=False, keyframes=keys)
+    trajectory = frozen(np.array(s.receivers, dtype=float))
+    landmarks = frozen(np.array(s.sources, dtype=float))
+    return PipelineAnswer(
+        result=res,
+        finite=bool(np.all(np.isfinite(trajectory)) and np.all(np.isfinite(landmarks))),
+        trajectory=trajectory,
+        landmarks=landmarks,
+        keyframes=keys,
+    )
+
+
+def _pipeline_status(res: Any) -> Status:
+    """The status of a pipeline's result (its own ``status``; for a result that only says
+    ``converged``, CONVERGED or SOLVER_FAILED)."""
+    status = getattr(res, "status", None)
+    if status is not None:
+        return Status(status)
+    return Status.CONVERGED if res.converged else Status.SOLVER_FAILED
+
+
+def _verdict(
+    mode: str, answer: PipelineAnswer, screen: RirScreen, *, fs: float, c: float, mics: Any
+) -> RunResult:
+    """The :class:`RunResult`: the pipeline's status (SOLVER_FAILED for an answer that is not
+    finite), and a message naming the RIRs left out or without echoes."""
+    res, m = answer.result, len(screen.silent)
+    no_echoes = np.array([not d.found for d in res.detections], dtype=bool)
+    status = _pipeline_status(res)
     notes = []
-    if res.converged and not finite:
+    if status is Status.CONVERGED and not answer.finite:
+        status = Status.SOLVER_FAILED
         notes.append("the answer is not finite: not converged")
     for flags, what in (
-        (silent, "silent (masked)"),
-        (is_clipped, "clipped (masked)" if clipped == "mask" else "clipped (used)"),
-        (no_echoes & ~masked, "without any echo detected (masked)"),
+        (screen.silent, "silent (masked)"),
+        (
+            screen.clipped,
+            "clipped (masked)" if screen.clipped_mode == "mask" else "clipped (used)",
+        ),
+        (no_echoes & ~screen.masked, "without any echo detected (masked)"),
     ):
         if flags.any():
             rows = ", ".join(f"rirs[{i}]" for i in np.flatnonzero(flags))
             notes.append(f"{int(flags.sum())} of {m} RIRs {what}: {rows}")
-    message = "; ".join([res.message, *notes])
     return RunResult(
         mode=mode,
         result=res,
-        converged=converged,
-        message=message,
+        status=status,
+        message="; ".join([res.message, *notes]),
         fs=fs,
         c=c,
-        mics=frozen(pts) if mode == "array" else None,
-        source=source,
-        image_sources=images,
-        wall_normals=normals,
-        wall_offsets=offsets,
-        wall_support=support,
-        trajectory=trajectory,
-        landmarks=landmarks,
-        keyframes=keys_out,
-        silent=frozen(silent),
-        clipped=frozen(is_clipped),
-        masked=frozen(np.asarray(masked, dtype=bool)),
+        mics=None if mics is None else frozen(mics),
+        source=answer.source,
+        image_sources=answer.image_sources,
+        wall_normals=answer.wall_normals,
+        wall_offsets=answer.wall_offsets,
+        wall_support=answer.wall_support,
+        trajectory=answer.trajectory,
+        landmarks=answer.landmarks,
+        keyframes=answer.keyframes,
+        silent=frozen(screen.silent),
+        clipped=frozen(screen.clipped),
+        masked=frozen(screen.masked),
         no_echoes=frozen(no_echoes),
     )
 
 
 # ---- evaluation against ground truth ------------------------------------------------------------
-
-
-def shoebox_wall_errors(
-    wall_normals: ArrayLike,
-    wall_offsets: ArrayLike,
-    room_size: ArrayLike,
-    *,
-    max_angle: float = 25.0,
-) -> np.ndarray:
-    """(6,) metres: how far each wall of the shoebox [0, L] x [0, W] x [0, H] is from its estimate.
-
-    For true wall k (``Room.shoebox`` order, :data:`SHOEBOX_WALLS`), the estimated wall with the
-    nearest normal; the error is the distance from the centre of the true wall (the room's centre
-    projected onto it) to that plane. inf when no estimated normal is within ``max_angle`` degrees.
-    """
-    from rangeslam.geometry.room import Room
-
-    normals = as_points(wall_normals, "wall_normals", dim=3)
-    offsets = as_float_array(wall_offsets, "wall_offsets")
-    if offsets.shape != (len(normals),):
-        raise InvalidInputError(
-            f"wall_offsets must have shape ({len(normals)},); got {shape_str(offsets.shape)}"
-        )
-    room = Room.shoebox(room_size)
-    centre = np.asarray(room_size, dtype=float) / 2
-    out = []
-    for n_true, o_true in zip(room.normals, room.offsets, strict=True):
-        p = centre + (o_true - n_true @ centre) * n_true
-        cos = normals @ n_true
-        j = int(np.argmax(cos))
-        ok = cos[j] > np.cos(np.radians(max_angle))
-        out.append(abs(normals[j] @ p - offsets[j]) if ok else np.inf)
-    return np.array(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -780,8 +592,6 @@ def evaluate_run(
     """Compare ``run`` with what is known of the truth: the loudspeaker (3,), the shoebox size (3,)
     (walls at 0 and L, 0 and W, 0 and H), the trajectory (M, d) at the keyframes or at every RIR.
     Missing estimates give inf."""
-    from rangeslam.geometry.alignment import align
-
     src_err = walls = traj = None
     if source is not None and run.mode == "array":
         s = as_float_array(source, "source").reshape(-1)
@@ -803,7 +613,7 @@ def evaluate_run(
                     f"trajectory must have shape {shape_str(run.trajectory.shape)}; got "
                     f"{shape_str(truth.shape)}"
                 )
-            traj = float(align(run.trajectory, truth, reflection=True).rmse)
+            traj = trajectory_rmse(run.trajectory, truth)
     return RunErrors(
         source_error=src_err,
         wall_errors=None if walls is None else frozen(walls),

@@ -12,20 +12,15 @@ differ between runs), so that the CSV of a seed is the same whatever the paralle
 
 from __future__ import annotations
 
-import csv
-import json
-import platform
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from importlib import metadata
-from pathlib import Path
 
 import numpy as np
 
-from rangeslam.app.experiments import mean_nees
+from rangeslam.app.reports import markdown, versions, write_csv, write_summary, write_tum
 from rangeslam.errors import InvalidInputError
-from rangeslam.geometry.alignment import align
+from rangeslam.evaluation.metrics import mean_nees, trajectory_rmse
 
 __all__ = [
     "BENCHES",
@@ -145,6 +140,7 @@ def plan(
 
 
 def _fig3_trial(params: dict, rng: np.random.Generator, outcome: TrialOutcome) -> None:
+    """A Fig. 3 trial: calibration error against its CRLB, convergence, time, into ``outcome``."""
     from rangeslam.app.experiments import calibration_experiment
 
     t0 = time.perf_counter()
@@ -158,6 +154,8 @@ def _fig3_trial(params: dict, rng: np.random.Generator, outcome: TrialOutcome) -
 def _slam_trial(
     params: dict, rng: np.random.Generator, outcome: TrialOutcome, *, ekf: bool, keep: bool
 ) -> None:
+    """A Fig. 5 trial: every SLAM method's error, the CRLB, NEES and time, into ``outcome``
+    (the EKFs when ``ekf``; the trajectories when ``keep``)."""
     from rangeslam.app.experiments import slam_experiment
 
     e = slam_experiment(
@@ -181,37 +179,44 @@ def _slam_trial(
         "gtsam": e.baseline_receivers,
     }
     if ekf:
-        from rangeslam.baselines.ekf_slam import ekf_slam
-
-        for name, smooth in (("ekf", False), ("ekf_rts", True)):
-            t0 = time.perf_counter()
-            try:
-                # A genuine filter: the first steps (at most 5) are its delayed-initialisation
-                # window, the rest are filtered. (Its own default waits until a linearisation
-                # test passes, which on the planar Fig. 5 walk is never: a batch fit of all M.)
-                out = ekf_slam(
-                    e.ranges,
-                    step_bounds=e.step_bounds,
-                    noise_std=params["sigma"],
-                    smooth=smooth,
-                    init_steps=min(EKF_WINDOW, params["m"]),
-                    rng=rng,
-                )
-            except Exception as exc:  # the EKF failing is its result, not the trial's
-                outcome.row[f"{name}_error_m"] = float("nan")
-                outcome.row[f"{name}_status"] = _one_line(exc)
-                continue
-            outcome.seconds[name] = time.perf_counter() - t0
-            outcome.row[f"{name}_error_m"] = align(
-                out.receivers, e.trajectory, reflection=True
-            ).rmse
-            outcome.row[f"{name}_converged"] = bool(out.converged)
-            estimates[name] = out.receivers
+        estimates.update(_ekf_trial(e, params, rng, outcome))
     if keep:
         outcome.trajectories.update(truth=e.trajectory, **estimates)
 
 
+def _ekf_trial(e, params: dict, rng: np.random.Generator, outcome: TrialOutcome) -> dict:
+    """The filterpy EKF, filtered and RTS-smoothed, on a Fig. 5 trial's ranges: their errors
+    (and why they failed) into ``outcome``; returns their trajectories (M, 3) by name."""
+    from rangeslam.baselines.ekf_slam import ekf_slam
+
+    estimates = {}
+    for name, smooth in (("ekf", False), ("ekf_rts", True)):
+        t0 = time.perf_counter()
+        try:
+            # A genuine filter: the first steps (at most 5) are its delayed-initialisation
+            # window, the rest are filtered. (Its own default waits until a linearisation
+            # test passes, which on the planar Fig. 5 walk is never: a batch fit of all M.)
+            out = ekf_slam(
+                e.ranges,
+                step_bounds=e.step_bounds,
+                noise_std=params["sigma"],
+                smooth=smooth,
+                init_steps=min(EKF_WINDOW, params["m"]),
+                rng=rng,
+            )
+        except Exception as exc:  # the EKF failing is its result, not the trial's
+            outcome.row[f"{name}_error_m"] = float("nan")
+            outcome.row[f"{name}_status"] = _one_line(exc)
+            continue
+        outcome.seconds[name] = time.perf_counter() - t0
+        outcome.row[f"{name}_error_m"] = trajectory_rmse(out.receivers, e.trajectory)
+        outcome.row[f"{name}_converged"] = bool(out.converged)
+        estimates[name] = out.receivers
+    return estimates
+
+
 def _one_line(exc: BaseException) -> str:
+    """The exception as one line of at most 300 characters: its type and first line."""
     return f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
 
 
@@ -272,6 +277,7 @@ def run_trials(
 
 
 def _run_dask(trials, scheduler: str, keep: bool, bar) -> list[TrialOutcome]:
+    """Run ``trials`` on the Dask cluster at ``scheduler``, in order; bad addresses refused."""
     try:
         from dask.distributed import Client, as_completed
     except ImportError as exc:
@@ -287,58 +293,6 @@ def _run_dask(trials, scheduler: str, keep: bool, bar) -> list[TrialOutcome]:
         return client.gather(futures)
 
 
-def write_csv(path: str | Path, rows: Sequence[dict]) -> Path:
-    """One row per trial; floats with 6 significant digits (the last bits of a float depend on
-    the BLAS's threading, the CSV must not)."""
-    columns: list[str] = []
-    for row in rows:
-        columns += [c for c in row if c not in columns]
-    path = Path(path)
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns, restval="")
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in row.items()})
-    return path
-
-
-def write_tum(
-    path: str | Path,
-    positions: np.ndarray,
-    step_seconds: float = 1.0,
-    *,
-    times: np.ndarray | None = None,
-) -> Path:
-    """A trajectory in the TUM format (``timestamp tx ty tz qx qy qz qw``; identity orientation,
-    one step per ``step_seconds`` unless ``times`` (M,) are given), which evo reads
-    (``evo_ape tum truth.tum est.tum -a``). Rows that are not finite (a method that stopped) are
-    not written."""
-    x = np.asarray(positions, dtype=float)
-    if x.ndim != 2 or x.shape[1] not in (2, 3):
-        raise InvalidInputError(f"positions must have shape (M, 2) or (M, 3); got {x.shape}")
-    if x.shape[1] == 2:
-        x = np.column_stack([x, np.zeros(len(x))])
-    t = np.arange(len(x)) * step_seconds if times is None else np.asarray(times, dtype=float)
-    if t.shape != (len(x),):
-        raise InvalidInputError(f"times must have shape ({len(x)},); got {t.shape}")
-    ok = np.all(np.isfinite(x), axis=1)
-    data = np.column_stack([t, x, np.zeros((len(x), 3)), np.ones(len(x))])[ok]
-    path = Path(path)
-    np.savetxt(path, data, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
-    return path
-
-
-def versions() -> dict[str, str]:
-    """Versions of Python and of the packages the numbers depend on."""
-    out = {"python": platform.python_version()}
-    for name in ("rangeslam", "numpy", "scipy", "cvxpy", "clarabel", "scs", "gtsam", "filterpy"):
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return out
-
-
 def _stats(values) -> tuple[float, float]:
     """(mean, median) of the finite values (failed trials have none), NaNs when there are none."""
     v = np.asarray(values, dtype=float)
@@ -349,22 +303,27 @@ def _stats(values) -> tuple[float, float]:
 
 
 def _cells(rows: Sequence[dict]) -> dict[int, list[dict]]:
+    """The rows grouped by cell, in order of first appearance."""
     cells: dict[int, list[dict]] = {}
     for row in rows:
         cells.setdefault(row["cell"], []).append(row)
     return cells
 
 
-def summary_table(
-    bench: str, rows: Sequence[dict], seconds: Sequence[dict]
-) -> tuple[list[str], list[list[str]], list[dict]]:
-    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. Errors in
-    cm; a failed trial counts as a failure of every method and is left out of the means."""
-    times = {id(r): s for r, s in zip(rows, seconds, strict=True)}
-    header: list[str]
-    table, records = [], []
+def _column(rows: Sequence[dict], name: str) -> np.ndarray:
+    """The values of column ``name`` over ``rows`` as float64 (NaN where a row has none)."""
+    return np.array([r.get(name, np.nan) for r in rows], dtype=float)
+
+
+def bench_methods(bench: str) -> list[str]:
+    """The SLAM methods of a fig5 or compare run (the EKFs only in compare)."""
+    return [m for m in SLAM_METHODS if bench == "compare" or not m.startswith("ekf")]
+
+
+def _summary_header(bench: str) -> list[str]:
+    """The Markdown header of a run's summary table."""
     if bench == "fig3":
-        header = [
+        return [
             "sigma (mm)",
             "trials",
             "failed",
@@ -375,111 +334,104 @@ def summary_table(
             "converged",
             "time median (s)",
         ]
-    else:
-        methods = [m for m in SLAM_METHODS if bench == "compare" or not m.startswith("ekf")]
-        header = ["sigma (mm)", "bounds", "M", "trials", "failed"]
-        header += [f"{METHOD_NAMES[m]} mean / median (cm), < 10 cm" for m in methods]
-        header += [
-            "CRLB median (cm)",
-            "NEES / dof",
-            "EDM start kept",
-            "time median (s): "
-            + ", ".join(METHOD_NAMES[m] for m in methods if m in ("edm_gtsam", "ekf")),
-        ]
+    methods = bench_methods(bench)
+    header = ["sigma (mm)", "bounds", "M", "trials", "failed"]
+    header += [f"{METHOD_NAMES[m]} mean / median (cm), < 10 cm" for m in methods]
+    header += [
+        "CRLB median (cm)",
+        "NEES / dof",
+        "EDM start kept",
+        "time median (s): "
+        + ", ".join(METHOD_NAMES[m] for m in methods if m in ("edm_gtsam", "ekf")),
+    ]
+    return header
+
+
+def _fig3_cell(cell_rows: list[dict], ok: list[dict], rec: dict, times: dict) -> list[str]:
+    """One Fig. 3 cell: median error against median CRLB (mm), success and convergence rates,
+    median time; fills ``rec`` with the same figures and returns the Markdown row."""
+    first, n, failed = cell_rows[0], rec["trials"], rec["failed"]
+    err, crlb = _column(ok, "mic_error_m"), _column(ok, "crlb_m")
+    med_e, med_c = np.median(err) if ok else np.nan, np.median(crlb) if ok else np.nan
+    success = (
+        float(np.sum(err < 3 * crlb)) / n if first["sigma"] > 0 else float(np.sum(err < 1e-3)) / n
+    )
+    conv = float(np.sum(_column(ok, "converged"))) / n
+    _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
+    rec.update(
+        median_error_m=med_e,
+        median_crlb_m=med_c,
+        success=success,
+        converged=conv,
+        median_seconds=t,
+    )
+    return [
+        f"{first['sigma'] * 1e3:g}",
+        str(n),
+        str(failed),
+        f"{med_e * 1e3:.3g}",
+        f"{med_c * 1e3:.3g}",
+        f"{med_e / med_c:.2f}" if med_c > 0 else "-",
+        f"{success * 100:.0f}%",
+        f"{conv * 100:.0f}%",
+        f"{t:.2f}",
+    ]
+
+
+def _slam_cell(
+    cell_rows: list[dict], ok: list[dict], rec: dict, times: dict, methods: list[str]
+) -> list[str]:
+    """One Fig. 5 / compare cell: each method's mean / median error (cm) and success rate, the
+    CRLB, the mean NEES per dof, how often the EDM start was kept, median times; fills ``rec``
+    with the same figures and returns the Markdown row."""
+    first, n = cell_rows[0], rec["trials"]
+    cells = [
+        f"{first['sigma'] * 1e3:g}",
+        "+-20%" if first["bounds"] else "none",
+        str(first["m"]),
+        str(n),
+        str(rec["failed"]),
+    ]
+    for m in methods:
+        e = _column(ok, f"{m}_error_m")
+        mean, med = _stats(e)
+        success = float(np.sum(e < SUCCESS_M)) / n
+        rec[m] = {"mean_error_m": mean, "median_error_m": med, "success": success}
+        cells.append(f"{mean * 100:.2f} / {med * 100:.2f}, {success * 100:.0f}%")
+    crlb = float(np.median(_column(ok, "crlb_m"))) if ok else float("nan")  # inf: not identifiable
+    ratio, _, _ = mean_nees(_column(ok, "nees"), _column(ok, "nees_dof"))
+    kept = float(np.mean(_column(ok, "edm_start_kept"))) if ok else float("nan")
+    rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
+    t = {
+        m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
+        for m in ("edm_gtsam", "ekf")
+        if m in methods
+    }
+    rec["median_seconds"] = t
+    return [
+        *cells,
+        f"{crlb * 100:.2f}",
+        f"{ratio:.2f}",
+        f"{kept * 100:.0f}%",
+        ", ".join(f"{v:.2f}" for v in t.values()),
+    ]
+
+
+def summary_table(
+    bench: str, rows: Sequence[dict], seconds: Sequence[dict]
+) -> tuple[list[str], list[list[str]], list[dict]]:
+    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. Errors in
+    cm; a failed trial counts as a failure of every method and is left out of the means."""
+    times = {id(r): s for r, s in zip(rows, seconds, strict=True)}
+    table, records = [], []
     for cell_rows in _cells(rows).values():
         first = cell_rows[0]
         ok = [r for r in cell_rows if r["status"] == "ok"]
-        n, failed = len(cell_rows), len(cell_rows) - len(ok)
         rec = {k: first[k] for k in ("sigma", "bounds", "m") if k in first}
-        rec.update(trials=n, failed=failed)
-
-        def col(name: str, rs=ok) -> np.ndarray:
-            return np.array([r.get(name, np.nan) for r in rs], dtype=float)
-
+        rec.update(trials=len(cell_rows), failed=len(cell_rows) - len(ok))
         if bench == "fig3":
-            err, crlb = col("mic_error_m"), col("crlb_m")
-            med_e, med_c = np.median(err) if ok else np.nan, np.median(crlb) if ok else np.nan
-            success = (
-                float(np.sum(err < 3 * crlb)) / n
-                if first["sigma"] > 0
-                else float(np.sum(err < 1e-3)) / n
-            )
-            conv = float(np.sum(col("converged"))) / n
-            _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
-            rec.update(
-                median_error_m=med_e,
-                median_crlb_m=med_c,
-                success=success,
-                converged=conv,
-                median_seconds=t,
-            )
-            table.append(
-                [
-                    f"{first['sigma'] * 1e3:g}",
-                    str(n),
-                    str(failed),
-                    f"{med_e * 1e3:.3g}",
-                    f"{med_c * 1e3:.3g}",
-                    f"{med_e / med_c:.2f}" if med_c > 0 else "-",
-                    f"{success * 100:.0f}%",
-                    f"{conv * 100:.0f}%",
-                    f"{t:.2f}",
-                ]
-            )
+            table.append(_fig3_cell(cell_rows, ok, rec, times))
         else:
-            cells = [
-                f"{first['sigma'] * 1e3:g}",
-                "+-20%" if first["bounds"] else "none",
-                str(first["m"]),
-                str(n),
-                str(failed),
-            ]
-            for m in methods:
-                e = col(f"{m}_error_m")
-                mean, med = _stats(e)
-                success = float(np.sum(e < SUCCESS_M)) / n
-                rec[m] = {"mean_error_m": mean, "median_error_m": med, "success": success}
-                cells.append(f"{mean * 100:.2f} / {med * 100:.2f}, {success * 100:.0f}%")
-            crlb = float(np.median(col("crlb_m"))) if ok else float("nan")  # inf: not identifiable
-            ratio, _, _ = mean_nees(col("nees"), col("nees_dof"))
-            kept = float(np.mean(col("edm_start_kept"))) if ok else float("nan")
-            rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
-            t = {
-                m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
-                for m in ("edm_gtsam", "ekf")
-                if m in methods
-            }
-            rec["median_seconds"] = t
-            cells += [
-                f"{crlb * 100:.2f}",
-                f"{ratio:.2f}",
-                f"{kept * 100:.0f}%",
-                ", ".join(f"{v:.2f}" for v in t.values()),
-            ]
-            table.append(cells)
+            table.append(_slam_cell(cell_rows, ok, rec, times, bench_methods(bench)))
         records.append(rec)
-    return header, table, records
-
-
-def markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A Markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def write_summary(path: str | Path, **content) -> Path:
-    """The JSON summary (seed, versions, options, per-cell figures); NaN written as null."""
-
-    def clean(v):
-        if isinstance(v, float) and not np.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        return v
-
-    path = Path(path)
-    path.write_text(json.dumps(clean(content), indent=2) + "\n")
-    return path
+    return _summary_header(bench), table, records

@@ -13,12 +13,19 @@ import numpy as np
 
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.evaluation.crlb import mdu_crlb
+from rangeslam.evaluation.metrics import (
+    mean_nees,
+    planar_source_error,
+    trajectory_nees,
+    wall_errors,
+)
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.room import Room
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.mdu.calibration import Calibration, calibrate
 from rangeslam.sim.scenes import add_outliers, add_range_noise, echo_ranges, random_points_in_room
+from rangeslam.status import HasStatus, Status
 
 __all__ = [
     "CalibrationExperiment",
@@ -28,6 +35,7 @@ __all__ = [
     "calibration_experiment",
     "demo_rooms",
     "fig3_scene",
+    "mean_nees",
     "room_experiment",
     "slam_experiment",
     "wall_errors",
@@ -62,20 +70,6 @@ class RoomExperiment:
     offset_errors: np.ndarray
     normal_errors_deg: np.ndarray
     source_errors: np.ndarray
-
-
-def wall_errors(
-    room: Room, normals: np.ndarray, offsets: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order.
-
-    The offset error of wall k is the distance from the true wall's centroid p_k (the paper's
-    description of a wall by n_k and p_k) to the estimated plane, |n_k_est . p_k - o_k_est|: the
-    offset where the wall is, independent of where the coordinate origin happens to be.
-    """
-    cos = np.clip(np.einsum("kd,kd->k", normals, room.normals), -1.0, 1.0)
-    offset_err = np.abs(np.einsum("kd,kd->k", normals, room.wall_centroids) - offsets)
-    return offset_err, np.degrees(np.arccos(cos))
 
 
 def room_experiment(
@@ -233,7 +227,7 @@ FIG5_ROOM_SIZE = (5.0, 4.0, 2.6)
 
 
 @dataclass(frozen=True)
-class SlamExperiment:
+class SlamExperiment(HasStatus):
     """One simulated Fig. 5 run: errors of the EDM answer, EDM + GTSAM, and GTSAM alone.
 
     Attributes:
@@ -251,7 +245,7 @@ class SlamExperiment:
         nees: normalised estimation error squared of the whole trajectory against
             ``result.trajectory_cov`` (NaN without it); nees_dof: its degrees of freedom
             (M d - 6), the mean NEES of a consistent estimator.
-        converged: ``result.converged``.
+        status: ``result.status`` (``converged`` is derived from it).
         seconds: wall time of the :func:`rangeslam.mdu.slam` call (the whole pipeline).
     """
 
@@ -271,50 +265,8 @@ class SlamExperiment:
     crlb: float
     nees: float
     nees_dof: int
-    converged: bool
+    status: Status
     seconds: float
-
-
-def trajectory_nees(alignment, cov: np.ndarray | None, truth: np.ndarray) -> tuple[float, int]:
-    """NEES of an aligned trajectory: e^T P^+ e with e (M d,) the error after ``alignment`` and
-    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ drops the rigid
-    motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
-    m, d = truth.shape
-    dof = m * d - d * (d + 1) // 2
-    if dof <= 0:
-        raise InvalidInputError(f"{m} points in {d}-D leave nothing beyond a rigid motion")
-    if cov is None:
-        return float("nan"), dof
-    rot = np.kron(np.eye(m), alignment.rotation)
-    w, v = np.linalg.eigh(rot @ cov @ rot.T)
-    w, v = w[-dof:], v[:, -dof:]
-    proj = v.T @ (alignment.aligned - truth).ravel()
-    return float(np.sum(proj**2 / w)), dof
-
-
-def mean_nees(nees, dofs, level: float = 0.95) -> tuple[float, float, float]:
-    """Mean NEES per degree of freedom over trials (those with a finite NEES), and the two-sided
-    ``level`` chi-square band of that mean for a consistent estimator: (mean, low, high); NaNs
-    when no trial has one."""
-    from scipy.stats import chi2
-
-    nees, dofs = np.asarray(nees, dtype=float), np.asarray(dofs, dtype=float)
-    good = np.isfinite(nees)
-    if not good.any():
-        return float("nan"), float("nan"), float("nan")
-    total = float(dofs[good].sum())
-    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], total) / total
-    return float(nees[good].sum() / total), float(lo), float(hi)
-
-
-def _planar_source_error(alignment, sources, landmarks, height: float) -> float:
-    got = alignment.apply(sources)
-    mirrored = got.copy()
-    mirrored[:, 2] = 2 * height - got[:, 2]
-    d = np.minimum(
-        np.linalg.norm(got - landmarks, axis=1), np.linalg.norm(mirrored - landmarks, axis=1)
-    )
-    return float(np.sqrt(np.mean(d**2)))
 
 
 def gtsam_style_start(
@@ -332,6 +284,7 @@ def gtsam_style_start(
 
 
 def _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior):
+    """GTSAM's graph alone from the given start: (receivers, sources), the start when it fails."""
     from rangeslam.solvers.gtsam_graph import refine_graph
 
     try:
@@ -414,10 +367,10 @@ def slam_experiment(
         edm_error=align(result.edm_receivers, traj, reflection=True).rmse,
         error=a.rmse,
         baseline_error=align(base_x, traj, reflection=True).rmse if baseline else float("nan"),
-        source_error=_planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
+        source_error=planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
         crlb=bound,
         nees=nees,
         nees_dof=dof,
-        converged=result.converged,
+        status=Status(result.status),
         seconds=seconds,
     )

@@ -12,18 +12,17 @@ from the true start pose (the gauge, as GTSAM's example hard-codes it); the alig
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
-from rangeslam.beacons.slam import (
+from rangeslam.beacons import (
     BeaconSlamResult,
     RangeOdometry,
     beacon_slam,
     beacon_slam_incremental,
 )
 from rangeslam.errors import RangeSlamError
-from rangeslam.geometry.alignment import align
+from rangeslam.evaluation.metrics import PositionErrors, ape, ape_statistics
 
 __all__ = [
     "DEFAULT_METHODS",
@@ -86,32 +85,16 @@ def run_method(method: str, dataset, rng: np.random.Generator, n_poses: int | No
     return res
 
 
-@dataclass(frozen=True)
-class Evaluation:
-    """APE of one result: position errors (n,) after rigid alignment, beacon errors (B,)."""
-
-    errors: np.ndarray
-    beacon_errors: np.ndarray
-    aligned: np.ndarray
-    aligned_beacons: np.ndarray
+#: APE of one result (:class:`rangeslam.evaluation.metrics.PositionErrors`).
+Evaluation = PositionErrors
 
 
-def evaluate(result: BeaconSlamResult, dataset) -> Evaluation:
+def evaluate(result: BeaconSlamResult, dataset) -> PositionErrors:
     """Rigidly align the result's positions onto the ground truth at its pose times (as evo's APE)
     and carry the beacons along. Poses that are NaN (a method that stopped) are left out of the
     alignment and count as missing in the errors (NaN)."""
-    n = len(result.pose_time)
     truth = dataset.truth_at(result.pose_time)
-    ok = np.all(np.isfinite(result.poses[:, :2]), axis=1)
-    fit = align(result.poses[ok, :2], truth[ok])
-    aligned = np.full((n, 2), np.nan)
-    aligned[ok] = fit.aligned
-    errors = np.full(n, np.nan)
-    errors[ok] = fit.errors
-    beacons = fit.apply(np.nan_to_num(result.beacons))
-    beacons[~np.all(np.isfinite(result.beacons), axis=1)] = np.nan
-    beacon_errors = np.linalg.norm(beacons - dataset.beacons, axis=1)
-    return Evaluation(errors, beacon_errors, aligned, beacons)
+    return ape(result.poses[:, :2], truth, result.beacons, dataset.beacons)
 
 
 def _median(values) -> float:
@@ -124,19 +107,21 @@ def _median(values) -> float:
 
 
 def _row(method: str, trial: int, result: BeaconSlamResult | None, dataset, error: str = ""):
+    """One CSV row of a run: its APE, beacon errors, range calibration, timings and verdict
+    (only the method, trial and failure when there is no result)."""
     row = {"method": method, "trial": trial, "status": "ok" if not error else f"failed: {error}"}
     if result is None:
         return row
     ev = evaluate(result, dataset)
-    e = ev.errors[np.isfinite(ev.errors)]
+    stats = ape_statistics(ev.errors)
     duration = float(result.pose_time[-1] - result.pose_time[0])
     row.update(
         poses=len(result.pose_time),
-        mean=float(e.mean()),
-        median=float(np.median(e)),
-        max=float(e.max()),
-        rmse=float(np.sqrt(np.mean(e**2))),
-        missing_poses=int(np.sum(~np.isfinite(ev.errors))),
+        mean=stats.mean,
+        median=stats.median,
+        max=stats.max,
+        rmse=stats.rmse,
+        missing_poses=stats.missing,
         beacons_placed=int(np.sum(np.isfinite(ev.beacon_errors))),
         beacon_max=float(np.nanmax(ev.beacon_errors))
         if np.any(np.isfinite(ev.beacon_errors))
@@ -199,7 +184,16 @@ def dataset_beacons(rows) -> list[str]:
 
 
 def _fmt(x, digits: int = 2) -> str:
+    """``x`` with ``digits`` decimals; "-" for None or a non-finite value."""
     return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _median_and_worst(rows: list[dict], key: str, digits: int = 2) -> str:
+    """Column ``key`` of ``rows``: the one value, or the median and the worst (largest)."""
+    values = np.array([r[key] for r in rows], dtype=float)
+    if len(values) == 1:
+        return _fmt(values[0], digits)
+    return f"{_fmt(np.median(values), digits)} (worst {_fmt(np.max(values), digits)})"
 
 
 def methods_table(rows) -> tuple[list[str], list[list[str]]]:
@@ -225,21 +219,14 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
         if not ok:
             table.append([method, f"{len(mine)} (0)", mine[0]["status"], "", "", "", "", "", ""])
             continue
-
-        def cell(key, digits=2, rows_=ok):
-            values = np.array([r[key] for r in rows_], dtype=float)
-            if len(values) == 1:
-                return _fmt(values[0], digits)
-            return f"{_fmt(np.median(values), digits)} (worst {_fmt(np.max(values), digits)})"
-
         table.append(
             [
                 method,
                 f"{len(mine)} ({conv})",
-                cell("mean"),
-                cell("median"),
-                cell("max"),
-                cell("beacon_max"),
+                _median_and_worst(ok, "mean"),
+                _median_and_worst(ok, "median"),
+                _median_and_worst(ok, "max"),
+                _median_and_worst(ok, "beacon_max"),
                 f"{min(r['beacons_placed'] for r in ok)}/{len(dataset_beacons(ok))}",
                 _fmt(float(np.median([r["range_scale"] for r in ok])), 4),
                 _fmt(float(np.median([r["seconds"] for r in ok])), 1),
@@ -249,6 +236,7 @@ def methods_table(rows) -> tuple[list[str], list[list[str]]]:
 
 
 def lengths_table(rows) -> tuple[list[str], list[list[str]]]:
+    """Markdown table of the length rows: cost (time, per pose, x real time), error, verdict."""
     header = [
         "poses",
         "method",

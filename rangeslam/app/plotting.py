@@ -29,6 +29,7 @@ _VIEWS = (("top view", (0, 1), ("x [m]", "y [m]")), ("side view", (0, 2), ("x [m
 
 
 def _outline(ax, room: Room, axes: tuple[int, int], **style) -> None:
+    """The room's outline projected on two coordinate ``axes`` (the convex hull of its corners)."""
     pts = room.vertices[:, list(axes)]
     hull = ConvexHull(pts)
     loop = np.append(hull.vertices, hull.vertices[0])
@@ -102,6 +103,7 @@ def _scatter_room_points(ax, axes, mics, image_sources, true_sources, estimated_
 
 
 def _save(fig, path: str | Path) -> Path:
+    """Write ``fig`` to ``path`` (120 dpi), close it, return the path."""
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=120)
@@ -175,7 +177,17 @@ def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Pa
     return _save(fig, path)
 
 
+def _top_view_axes(ax) -> None:
+    """Style a top view: x and y in metres, equal aspect, a light grid, a small legend."""
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
 def _ellipse(ax, centre, cov2, nsig: float = 2.0, **style) -> None:
+    """The ``nsig``-sigma ellipse of the 2 x 2 covariance ``cov2`` (m^2) around ``centre``."""
     from matplotlib.patches import Ellipse
 
     w, v = np.linalg.eigh(cov2)
@@ -214,11 +226,7 @@ def plot_slam_estimate(
         ax.plot(est[:, 0], est[:, 1], style.replace("s", "x"), c="tab:red", ms=5, label="estimate")
         for p, c in zip(est, cov, strict=True):
             _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        _top_view_axes(ax)
         ax.set_title(f"{name}, top view, 2-sigma ellipses (GTSAM)")
     if title:
         fig.suptitle(title)
@@ -405,11 +413,7 @@ def plot_walk_estimate(
         if cov is not None:
             for p, c in zip(est, cov, strict=True):
                 _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        _top_view_axes(ax)
         frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
         ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
     if title:

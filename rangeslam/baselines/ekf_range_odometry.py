@@ -13,7 +13,7 @@ Kirubarajan, "Estimation with Applications to Tracking and Navigation", 2001, ch
   through the motion's Jacobian.
 * Pose 0 is ``start_pose`` with zero covariance: it fixes the gauge (as the true start does in
   GTSAM's RangeISAMExample_plaza2).
-* Range model: as :func:`rangeslam.beacons.slam.beacon_slam`'s, measured range = (1 + s) |p - l|
+* Range model: as :func:`rangeslam.beacons.beacon_slam`'s, measured range = (1 + s) |p - l|
   + b with s and b estimated (``range_calibration`` "affine", the default), s alone ("scale"), b
   alone ("offset") or neither (None), under zero-mean Gaussian priors (``calibration_sigma``:
   SD 0.2 on s and 10 m on b by default, as beacon_slam's). With ``per_beacon`` False (the default)
@@ -66,27 +66,7 @@ the other beacons (the buffered positions' own errors are neglected: a filter th
 poses has no correlation to give). The buffered ranges are used by the fit only (not again as
 updates); those within the gate count as inliers.
 
-Measured on Plaza1 (about 0.4 s for 9,657 predictions and 3,529 ranges; with the defaults the
-beacons are initialised at poses 435-450, about 90 s in); position error after rigid alignment,
-mean / median / max, and the beacons' distances from the truth:
-
-- defaults (affine, shared): 0.29 / 0.21 / 1.59 m; beacons 0.21-0.39 m off; scale 1.0641 (fitted
-  against the ground truth, range on true distance with intercept: 1.0694, intercept 0.03 m),
-  b = -0.06 m; all ranges used. ``calibration_sigma`` (0.05, 10), (1, 10) and (0.2, 5) give the
-  same 0.29 m mean.
-- "scale", shared: 0.28 / 0.21 / 1.48 m; beacons 0.15-0.31 m off; scale 1.0643.
-- None: 1.12 / 1.11 / 2.47 m; beacons 2.4-2.9 m off (pushed out by the unmodelled scale).
-- "offset", shared: 1.12 / 1.11 / 2.49 m; beacons 2.9-3.4 m off; b = -0.47 m.
-- "offset", ``per_beacon`` (a constant bias per beacon, this baseline's former model): 1.31 /
-  1.23 / 4.41 m, barely better than odometry alone (1.34 / 1.30 / 4.33 m); beacons 1.2-7.9 m off;
-  biases 1.4, -4.9, -2.0 and 1.7 m, not the 2.6-2.9 m of ``data.range_bias()``: Plaza1's range
-  error is a scale (range minus true distance is about 0.07 times the distance, per-beacon
-  intercepts -0.02 to 0.10 m), which a constant bias can only trade against the beacon's distance.
-- "affine", ``per_beacon``: 0.57 / 0.48 / 2.57 m; beacons 0.9-3.4 m off; scales 1.05-1.07 and
-  offsets -2.3 to 3.9 m (each pair from one beacon's ranges alone).
-
-The defaults ``odometry_sigma`` are a little above the per-step odometry errors measured on Plaza1
-(about 0.015 m along and across the track per 0.2 s step).
+The figures behind the defaults, measured on Plaza1, are in a comment below the imports.
 """
 
 from __future__ import annotations
@@ -94,6 +74,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -103,24 +84,131 @@ from scipy.stats import chi2
 
 from rangeslam._validation import frozen
 from rangeslam.baselines.odometry_only import resolve_start_pose
-from rangeslam.beacons.slam import RANGE_CALIBRATIONS, BeaconSlamResult
+from rangeslam.beacons.options import RANGE_CALIBRATIONS
+from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
+from rangeslam.status import Status
 
-__all__ = ["ekf_range_odometry"]
+__all__ = ["EkfRangeOptions", "ekf_range_odometry"]
 
 log = logging.getLogger(__name__)
+
+# Measured on Plaza1 (about 0.4 s for 9,657 predictions and 3,529 ranges; with the defaults the
+# beacons are initialised at poses 435-450, about 90 s in); position error after rigid alignment,
+# mean / median / max, and the beacons' distances from the truth. They justify the defaults
+# (affine calibration shared by all beacons):
+# - defaults (affine, shared): 0.29 / 0.21 / 1.59 m; beacons 0.21-0.39 m off; scale 1.0641 (fitted
+#   against the ground truth, range on true distance with intercept: 1.0694, intercept 0.03 m),
+#   b = -0.06 m; all ranges used. calibration_sigma (0.05, 10), (1, 10) and (0.2, 5) give the
+#   same 0.29 m mean.
+# - "scale", shared: 0.28 / 0.21 / 1.48 m; beacons 0.15-0.31 m off; scale 1.0643.
+# - None: 1.12 / 1.11 / 2.47 m; beacons 2.4-2.9 m off (pushed out by the unmodelled scale).
+# - "offset", shared: 1.12 / 1.11 / 2.49 m; beacons 2.9-3.4 m off; b = -0.47 m.
+# - "offset", per_beacon (a constant bias per beacon, this baseline's former model): 1.31 /
+#   1.23 / 4.41 m, barely better than odometry alone (1.34 / 1.30 / 4.33 m); beacons 1.2-7.9 m
+#   off; biases 1.4, -4.9, -2.0 and 1.7 m, not the 2.6-2.9 m of data.range_bias(): Plaza1's range
+#   error is a scale (range minus true distance is about 0.07 times the distance, per-beacon
+#   intercepts -0.02 to 0.10 m), which a constant bias can only trade against the distance.
+# - "affine", per_beacon: 0.57 / 0.48 / 2.57 m; beacons 0.9-3.4 m off; scales 1.05-1.07 and
+#   offsets -2.3 to 3.9 m (each pair from one beacon's ranges alone).
+# The default odometry_sigma is a little above the per-step odometry errors measured on Plaza1
+# (about 0.015 m along and across the track per 0.2 s step).
 
 
 class _Filter(ExtendedKalmanFilter):
     """filterpy's EKF with the odometry motion (move, then turn) as its state prediction."""
 
     def predict_x(self, u=0):
+        """x += d cos(theta), y += d sin(theta), theta += dtheta for u = (d, dtheta)."""
         d, dtheta = u
         theta = self.x[2]
         self.x[0] += d * math.cos(theta)
         self.x[1] += d * math.sin(theta)
         self.x[2] += dtheta
+
+
+@dataclass(frozen=True, eq=False)  # arrays
+class EkfRangeOptions:
+    """The settings of :func:`ekf_range_odometry` (see its arguments), validated on
+    construction, with the quantities the filter derives from them."""
+
+    range_sigma: float
+    odometry_sigma: np.ndarray
+    gate_probability: float
+    init_ranges: int
+    init_spread: float
+    range_calibration: str | None
+    per_beacon: bool
+    calibration_sigma: np.ndarray
+    n_starts: int
+
+    def __post_init__(self) -> None:
+        """Validate; InvalidInputError names the first bad argument."""
+        object.__setattr__(self, "range_sigma", _positive(self.range_sigma, "range_sigma"))
+        object.__setattr__(self, "init_spread", _positive(self.init_spread, "init_spread"))
+        odo = _two_positive(self.odometry_sigma, "odometry_sigma", "distance [m], heading [rad]")
+        object.__setattr__(self, "odometry_sigma", odo)
+        cal = _two_positive(self.calibration_sigma, "calibration_sigma", "s, b [m]")
+        object.__setattr__(self, "calibration_sigma", cal)
+        model = self.range_calibration
+        if not (model is None or isinstance(model, str)) or model not in RANGE_CALIBRATIONS:
+            raise InvalidInputError(
+                f"range_calibration must be one of {RANGE_CALIBRATIONS}; got {model!r}"
+            )
+        if not isinstance(self.per_beacon, bool | np.bool_):
+            raise InvalidInputError(f"per_beacon must be a bool; got {self.per_beacon!r}")
+        p = self.gate_probability
+        if not (isinstance(p, float | int) and 0 < p < 1):
+            raise InvalidInputError(f"gate_probability must be in (0, 1); got {p!r}")
+        for name, least in (("init_ranges", 3), ("n_starts", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (
+                isinstance(value, int | np.integer) and value >= least
+            ):
+                raise InvalidInputError(f"{name} must be an integer >= {least}; got {value!r}")
+
+    @property
+    def gate(self) -> float:
+        """The chi-square(1) quantile of ``gate_probability``."""
+        return float(chi2.ppf(self.gate_probability, 1))
+
+    @property
+    def has_s(self) -> bool:
+        """The range scale error s is estimated."""
+        return self.range_calibration in ("scale", "affine")
+
+    @property
+    def has_b(self) -> bool:
+        """The range offset b is estimated."""
+        return self.range_calibration in ("offset", "affine")
+
+    @property
+    def n_cal(self) -> int:
+        """Length of a calibration block (0, 1 or 2)."""
+        return int(self.has_s) + int(self.has_b)
+
+    @property
+    def prior_sd(self) -> np.ndarray:
+        """The estimated calibration parameters' prior SDs, (s, b) order."""
+        return self.calibration_sigma[[self.has_s, self.has_b]]
+
+
+class _EkfState:
+    """The filter and its bookkeeping over one run: state indices of the beacons and calibration
+    blocks, the ranges buffered for beacons not yet initialised, inliers, counts."""
+
+    def __init__(self, start: np.ndarray, n_beacons: int, n_ranges: int):
+        """A filter at ``start`` (3,) with zero covariance (the gauge), no beacon yet."""
+        self.ekf = _new_filter(start, np.zeros((3, 3)))
+        self.offset = np.full(n_beacons, -1)  # state index of each beacon, -1 until initialised
+        self.cal_at = np.full(n_beacons, -1)  # state index of each beacon's calibration block
+        self.shared_at = -1  # state index of the shared calibration block, -1 until in the state
+        self.buf_pos: list[list[np.ndarray]] = [[] for _ in range(n_beacons)]
+        self.buf_idx: list[list[int]] = [[] for _ in range(n_beacons)]
+        self.inlier = np.zeros(n_ranges, dtype=bool)
+        self.n_gated = 0
+        self.diverged_at: int | None = None
 
 
 def ekf_range_odometry(
@@ -151,8 +239,8 @@ def ekf_range_odometry(
         init_ranges: ranges a beacon needs before it is initialised.
         init_spread: RMS spread [m] of the buffered positions across their principal direction
             needed before a beacon is initialised.
-        range_calibration: the range model, as :func:`rangeslam.beacons.slam.beacon_slam`'s
-            (:data:`rangeslam.beacons.slam.RANGE_CALIBRATIONS`): measured range = (1 + s) *
+        range_calibration: the range model, as :func:`rangeslam.beacons.beacon_slam`'s
+            (:data:`rangeslam.beacons.RANGE_CALIBRATIONS`): measured range = (1 + s) *
             distance + b with s and b estimated ("affine", the default), s alone ("scale"), b
             alone ("offset") or neither (None: ranges taken as distances).
         per_beacon: one calibration per beacon instead of one shared by all.
@@ -167,7 +255,7 @@ def ekf_range_odometry(
         when b is estimated, else None (a shared value repeated; NaN for a beacon never
         initialised), ``range_inlier`` (R,) (False for ranges gated out, outside the gate of
         their beacon's initialisation fit, or to a beacon never initialised), ``seconds``.
-        ``converged`` is False when the state or covariance becomes non-finite or the
+        The status is SOLVER_FAILED when the state or covariance becomes non-finite or the
         covariance loses positive semi-definiteness; the poses after that are NaN.
 
     Raises InvalidInputError (naming the argument) for a ``data`` that is not a PlazaDataset, a
@@ -178,188 +266,184 @@ def ekf_range_odometry(
     """
     t0 = time.perf_counter()
     start = resolve_start_pose(data, start_pose)
-    range_sigma = _positive(range_sigma, "range_sigma")
-    init_spread = _positive(init_spread, "init_spread")
-    odo_sigma = _two_positive(odometry_sigma, "odometry_sigma", "distance [m], heading [rad]")
-    cal_sigma = _two_positive(calibration_sigma, "calibration_sigma", "s, b [m]")
-    if not (range_calibration is None or isinstance(range_calibration, str)) or (
-        range_calibration not in RANGE_CALIBRATIONS
-    ):
-        raise InvalidInputError(
-            f"range_calibration must be one of {RANGE_CALIBRATIONS}; got {range_calibration!r}"
-        )
-    if not isinstance(per_beacon, bool | np.bool_):
-        raise InvalidInputError(f"per_beacon must be a bool; got {per_beacon!r}")
-    if not (isinstance(gate_probability, float | int) and 0 < gate_probability < 1):
-        raise InvalidInputError(f"gate_probability must be in (0, 1); got {gate_probability!r}")
-    for name, value, least in (("init_ranges", init_ranges, 3), ("n_starts", n_starts, 1)):
-        if isinstance(value, bool) or not (isinstance(value, int | np.integer) and value >= least):
-            raise InvalidInputError(f"{name} must be an integer >= {least}; got {value!r}")
+    opts = EkfRangeOptions(
+        range_sigma=range_sigma,
+        odometry_sigma=odometry_sigma,
+        gate_probability=gate_probability,
+        init_ranges=init_ranges,
+        init_spread=init_spread,
+        range_calibration=range_calibration,
+        per_beacon=per_beacon,
+        calibration_sigma=calibration_sigma,
+        n_starts=n_starts,
+    )
     rng = np.random.default_rng(rng)
-    gate = float(chi2.ppf(gate_probability, 1))
-    var_r = range_sigma**2
-    q_odo = odo_sigma**2
-    model = range_calibration
-    has_s = model in ("scale", "affine")
-    has_b = model in ("offset", "affine")
-    n_cal = int(has_s) + int(has_b)
-    prior_sd = cal_sigma[[has_s, has_b]]  # the estimated parameters' prior SDs, (s, b) order
+    st = _EkfState(start, len(data.beacon_ids), len(data.ranges))
+    poses = _run_filter(st, data, opts, rng)
+    return _verdict(st, data, opts, poses, time.perf_counter() - t0)
 
+
+def _run_filter(st: _EkfState, data: PlazaDataset, opts: EkfRangeOptions, rng) -> np.ndarray:
+    """Predict at each pose, then process its ranges in time order; stops at divergence.
+    Returns the filtered poses (N + 1, 3) (NaN from the divergence on)."""
     n_poses = len(data.pose_time)
-    n_beacons = len(data.beacon_ids)
     odometry = np.asarray(data.odometry, dtype=float)
     ranges = np.asarray(data.ranges, dtype=float)
     beacon_row = np.asarray(data.range_beacon_index)
     range_pose = np.asarray(data.range_pose)
     order = np.argsort(range_pose, kind="stable")
     first = np.searchsorted(range_pose[order], np.arange(n_poses + 1), side="left")
-
-    ekf = _new_filter(start, np.zeros((3, 3)))
-    offset = np.full(n_beacons, -1)  # state index of each beacon, -1 until initialised
-    cal_at = np.full(n_beacons, -1)  # state index of each beacon's calibration block
-    shared_at = -1  # state index of the shared calibration block, -1 until in the state
-    buf_pos: list[list[np.ndarray]] = [[] for _ in range(n_beacons)]
-    buf_idx: list[list[int]] = [[] for _ in range(n_beacons)]
-    inlier = np.zeros(len(ranges), dtype=bool)
     poses = np.full((n_poses, 3), np.nan)
-    r_mat = np.array([[var_r]])
-    diverged_at = None
-    n_gated = 0
-
+    q_odo = opts.odometry_sigma**2
     for k in range(n_poses):
         if k > 0:
-            d, dtheta = odometry[k - 1]
-            theta = ekf.x[2]
-            c, s = math.cos(theta), math.sin(theta)
-            ekf.F[0, 2] = -d * s
-            ekf.F[1, 2] = d * c
-            q = ekf.Q
-            q[0, 0] = q_odo[0] * c * c
-            q[0, 1] = q[1, 0] = q_odo[0] * c * s
-            q[1, 1] = q_odo[0] * s * s
-            q[2, 2] = q_odo[1]
-            ekf.predict(u=(d, dtheta))
+            _predict(st.ekf, odometry[k - 1], q_odo)
         for r in order[first[k] : first[k + 1]]:
             j = beacon_row[r]
-            if offset[j] < 0:
-                buf_pos[j].append(ekf.x[:2].copy())
-                buf_idx[j].append(int(r))
-                if len(buf_idx[j]) >= init_ranges:
-                    # Joint fit of the calibration unless it is shared and already estimated.
-                    joint = n_cal > 0 and (per_beacon or shared_at < 0)
-                    fixed = _calibration(ekf.x, shared_at, has_s, has_b)
-                    fit = _initial_beacon(
-                        np.array(buf_pos[j]),
-                        ranges[buf_idx[j]],
-                        range_sigma,
-                        init_spread,
-                        gate,
-                        (has_s, has_b),
-                        prior_sd if joint else None,
-                        fixed,
-                        n_starts,
-                        rng,
-                    )
-                    if fit is not None:
-                        mean, cov, ok, g = fit
-                        inlier[buf_idx[j]] = ok
-                        offset[j] = len(ekf.x)
-                        if joint:
-                            cal_at[j] = offset[j] + 2
-                            if not per_beacon:
-                                shared_at = cal_at[j]
-                            ekf = _augment(ekf, mean, cov)
-                        else:
-                            cal_at[j] = shared_at
-                            ekf = _augment(ekf, mean, cov, g, shared_at)
-                        log.info(
-                            "beacon %d initialised at pose %d from %d ranges: %s",
-                            data.beacon_ids[j],
-                            k,
-                            len(buf_idx[j]),
-                            np.round(mean, 3),
-                        )
-                        buf_pos[j], buf_idx[j] = [], []
-                continue
-            o, oc = offset[j], cal_at[j]
-            x = ekf.x
-            dx, dy = x[0] - x[o], x[1] - x[o + 1]
-            dist = math.hypot(dx, dy)
-            if dist < 1e-9:  # on top of the beacon: no direction to linearise along
-                continue
-            sc, bc = _calibration(x, oc, has_s, has_b)
-            ux, uy = (1.0 + sc) * dx / dist, (1.0 + sc) * dy / dist
-            h = np.zeros((1, len(x)))
-            h[0, 0], h[0, 1] = ux, uy
-            h[0, o], h[0, o + 1] = -ux, -uy
-            if has_s:
-                h[0, oc] = dist
-            if has_b:
-                h[0, oc + int(has_s)] = 1.0
-            pred = (1.0 + sc) * dist + bc
-            nz = np.flatnonzero(h[0])
-            hs = h[0, nz]
-            s_var = float(hs @ ekf.P[np.ix_(nz, nz)] @ hs) + var_r
-            innov = ranges[r] - pred
-            if not (math.isfinite(innov) and math.isfinite(s_var) and s_var > 0):
-                diverged_at = k
+            if st.offset[j] < 0:
+                _buffer_range(st, data, int(j), int(r), k, opts, rng)
+            elif not _update_range(st, int(j), int(r), float(ranges[r]), opts):
+                st.diverged_at = k
                 break
-            if innov * innov > gate * s_var:
-                n_gated += 1
-                continue
-            hx = np.array([pred])
-            ekf.update(
-                np.array([ranges[r]]),
-                lambda _x, h=h: h,
-                lambda _x, hx=hx: hx,
-                R=r_mat,
-            )
-            ekf.P = 0.5 * (ekf.P + ekf.P.T)
-            inlier[r] = True
-            if not _healthy(ekf):
-                diverged_at = k
-                break
-        if diverged_at is None and not np.all(np.isfinite(ekf.x)):  # e.g. from the odometry
-            diverged_at = k
-        if diverged_at is not None:
+        if st.diverged_at is None and not np.all(np.isfinite(st.ekf.x)):  # e.g. from odometry
+            st.diverged_at = k
+        if st.diverged_at is not None:
             break
-        poses[k] = ekf.x[:3]
+        poses[k] = st.ekf.x[:3]
+    return poses
 
+
+def _predict(ekf: _Filter, step: np.ndarray, q_odo: np.ndarray) -> None:
+    """Prediction by one odometry step (d, dtheta): F's heading column, Q = G diag(q_odo) G^T
+    for the motion's Jacobian G on (d, dtheta)."""
+    d, dtheta = step
+    theta = ekf.x[2]
+    c, s = math.cos(theta), math.sin(theta)
+    ekf.F[0, 2] = -d * s
+    ekf.F[1, 2] = d * c
+    q = ekf.Q
+    q[0, 0] = q_odo[0] * c * c
+    q[0, 1] = q[1, 0] = q_odo[0] * c * s
+    q[1, 1] = q_odo[0] * s * s
+    q[2, 2] = q_odo[1]
+    ekf.predict(u=(d, dtheta))
+
+
+def _buffer_range(
+    st: _EkfState, data: PlazaDataset, j: int, r: int, k: int, opts: EkfRangeOptions, rng
+) -> None:
+    """Buffer range ``r`` to beacon ``j`` (not yet initialised) with the filter's position; once
+    ``init_ranges`` are buffered, try to initialise the beacon (module notes)."""
+    st.buf_pos[j].append(st.ekf.x[:2].copy())
+    st.buf_idx[j].append(r)
+    if len(st.buf_idx[j]) < opts.init_ranges:
+        return
+    # Joint fit of the calibration unless it is shared and already estimated.
+    joint = opts.n_cal > 0 and (opts.per_beacon or st.shared_at < 0)
+    fit = _initial_beacon(
+        np.array(st.buf_pos[j]),
+        np.asarray(data.ranges, dtype=float)[st.buf_idx[j]],
+        opts,
+        opts.prior_sd if joint else None,
+        _calibration(st.ekf.x, st.shared_at, opts.has_s, opts.has_b),
+        rng,
+    )
+    if fit is None:
+        return
+    st.inlier[st.buf_idx[j]] = fit.inlier
+    st.offset[j] = len(st.ekf.x)
+    if joint:
+        st.cal_at[j] = st.offset[j] + 2
+        if not opts.per_beacon:
+            st.shared_at = st.cal_at[j]
+        st.ekf = _augment(st.ekf, fit.mean, fit.cov)
+    else:
+        st.cal_at[j] = st.shared_at
+        st.ekf = _augment(st.ekf, fit.mean, fit.cov, fit.g, st.shared_at)
+    log.info(
+        "beacon %d initialised at pose %d from %d ranges: %s",
+        data.beacon_ids[j],
+        k,
+        len(st.buf_idx[j]),
+        np.round(fit.mean, 3),
+    )
+    st.buf_pos[j], st.buf_idx[j] = [], []
+
+
+def _update_range(st: _EkfState, j: int, r: int, measured: float, opts: EkfRangeOptions) -> bool:
+    """The scalar update by range ``r`` to initialised beacon ``j`` (h = (1 + s)|p - l| + b),
+    after the Mahalanobis gate; False when the filter diverges (non-finite or indefinite)."""
+    ekf = st.ekf
+    o, oc = st.offset[j], st.cal_at[j]
+    x = ekf.x
+    dx, dy = x[0] - x[o], x[1] - x[o + 1]
+    dist = math.hypot(dx, dy)
+    if dist < 1e-9:  # on top of the beacon: no direction to linearise along
+        return True
+    sc, bc = _calibration(x, oc, opts.has_s, opts.has_b)
+    ux, uy = (1.0 + sc) * dx / dist, (1.0 + sc) * dy / dist
+    h = np.zeros((1, len(x)))
+    h[0, 0], h[0, 1] = ux, uy
+    h[0, o], h[0, o + 1] = -ux, -uy
+    if opts.has_s:
+        h[0, oc] = dist
+    if opts.has_b:
+        h[0, oc + int(opts.has_s)] = 1.0
+    pred = (1.0 + sc) * dist + bc
+    nz = np.flatnonzero(h[0])
+    hs = h[0, nz]
+    var_r = opts.range_sigma**2
+    s_var = float(hs @ ekf.P[np.ix_(nz, nz)] @ hs) + var_r
+    innov = measured - pred
+    if not (math.isfinite(innov) and math.isfinite(s_var) and s_var > 0):
+        return False
+    if innov * innov > opts.gate * s_var:
+        st.n_gated += 1
+        return True
+    hx = np.array([pred])
+    ekf.update(np.array([measured]), lambda _x, h=h: h, lambda _x, hx=hx: hx, R=np.array([[var_r]]))
+    ekf.P = 0.5 * (ekf.P + ekf.P.T)
+    st.inlier[r] = True
+    return _healthy(ekf)
+
+
+def _verdict(
+    st: _EkfState, data: PlazaDataset, opts: EkfRangeOptions, poses: np.ndarray, seconds: float
+) -> BeaconSlamResult:
+    """The result: beacons and calibration from the final state; SOLVER_FAILED when the filter
+    diverged, else CONVERGED."""
+    n_beacons = len(data.beacon_ids)
     beacons = np.full((n_beacons, 2), np.nan)
     scale = np.full(n_beacons, np.nan)
     bias = np.full(n_beacons, np.nan)
-    for j in np.flatnonzero(offset >= 0):
-        beacons[j] = ekf.x[offset[j] : offset[j] + 2]
-        sc, bias[j] = _calibration(ekf.x, cal_at[j], has_s, has_b)
+    for j in np.flatnonzero(st.offset >= 0):
+        beacons[j] = st.ekf.x[st.offset[j] : st.offset[j] + 2]
+        sc, bias[j] = _calibration(st.ekf.x, st.cal_at[j], opts.has_s, opts.has_b)
         scale[j] = 1.0 + sc
-    if diverged_at is None and not _healthy(ekf):
-        diverged_at = n_poses - 1
-    missing = [int(data.beacon_ids[j]) for j in np.flatnonzero(offset < 0)]
-    notes = [
-        f"{int(inlier.sum())} of {len(ranges)} ranges used, {n_gated} gated out",
-    ]
+    if st.diverged_at is None and not _healthy(st.ekf):
+        st.diverged_at = len(data.pose_time) - 1
+    missing = [int(data.beacon_ids[j]) for j in np.flatnonzero(st.offset < 0)]
+    notes = [f"{int(st.inlier.sum())} of {len(data.ranges)} ranges used, {st.n_gated} gated out"]
     if missing:
         notes.append(f"beacons never initialised: {missing}")
-    if diverged_at is not None:
-        notes.insert(
-            0,
-            f"the filter diverged at pose {diverged_at}: non-finite or indefinite",
-        )
+    if st.diverged_at is not None:
+        notes.insert(0, f"the filter diverged at pose {st.diverged_at}: non-finite or indefinite")
     return BeaconSlamResult(
         method="ekf",
         pose_time=frozen(np.array(data.pose_time, dtype=float)),
         poses=frozen(poses),
         beacons=frozen(beacons),
-        range_bias=frozen(bias) if has_b else None,
-        range_inlier=frozen(inlier),
-        converged=diverged_at is None,
+        range_bias=frozen(bias) if opts.has_b else None,
+        range_inlier=frozen(st.inlier),
+        status=Status.CONVERGED if st.diverged_at is None else Status.SOLVER_FAILED,
         message="; ".join(notes),
-        range_scale=frozen(scale) if has_s else None,
-        seconds=time.perf_counter() - t0,
+        range_scale=frozen(scale) if opts.has_s else None,
+        seconds=seconds,
     )
 
 
 def _positive(value, name: str) -> float:
+    """``value`` as a finite float > 0; InvalidInputError naming ``name`` otherwise."""
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
@@ -370,6 +454,7 @@ def _positive(value, name: str) -> float:
 
 
 def _two_positive(value, name: str, what: str) -> np.ndarray:
+    """``value`` as two finite floats > 0 (``what`` they are); InvalidInputError otherwise."""
     try:
         v = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -428,70 +513,113 @@ def _healthy(ekf: _Filter) -> bool:
     return bool(eig[0] >= -1e-9 * max(eig[-1], 1.0))
 
 
-def _initial_beacon(pos, r, sigma, min_spread, gate, estimated, prior_sd, fixed, n_starts, rng):
-    """(mean, cov, inlier, g) of a beacon from positions (m, 2) and ranges (m,); None while the
-    positions span too little or the fit is singular (see the module notes).
+@dataclass(frozen=True, eq=False)
+class _BeaconFit:
+    """The robust least-squares fit of one beacon to buffered positions ``pos`` (m, 2) and
+    ranges ``r`` (m,): residuals (1 + s)|p_i - l| + b - r_i over ``sigma``, then (when
+    ``prior_sd`` (c,) is given: the calibration fitted jointly) the whitened priors. Without
+    ``prior_sd`` the calibration is held at ``fixed`` (s, b)."""
 
-    ``estimated``: (has_s, has_b), the calibration parameters of the range model. ``prior_sd``
-    None: the calibration is held at ``fixed`` (s, b), mean is (x, y) and g (2, c) the derivative
-    of the fitted (x, y) with respect to the c estimated calibration parameters; else prior_sd
-    (c,) holds the zero-mean priors of the calibration fitted jointly, mean is (x, y, *cal) and g
-    None."""
-    m = len(r)
-    centre = pos.mean(axis=0)
-    spread = np.linalg.svd(pos - centre, compute_uv=False)[-1] / math.sqrt(m)
-    if spread < min_spread:
-        return None
-    has_s, has_b = estimated
-    joint = prior_sd is not None
-    n_cal = len(prior_sd) if joint else 0
-    n_par = 2 + n_cal
-    i_b = 2 + int(has_s)  # index of b in a jointly fitted z
+    pos: np.ndarray
+    r: np.ndarray
+    sigma: float
+    has_s: bool
+    has_b: bool
+    prior_sd: np.ndarray | None
+    fixed: tuple[float, float]
 
-    def unpack(z):
-        if not joint:
-            return fixed
-        return (z[2] if has_s else 0.0), (z[i_b] if has_b else 0.0)
+    @property
+    def joint(self) -> bool:
+        """The calibration is fitted with the beacon."""
+        return self.prior_sd is not None
 
-    def residuals(z):  # ranges, then the calibration priors, whitened
-        s, b = unpack(z)
-        res = ((1.0 + s) * np.linalg.norm(pos - z[:2], axis=1) + b - r) / sigma
-        return np.concatenate([res, z[2:] / prior_sd]) if joint else res
+    @property
+    def n_cal(self) -> int:
+        """Calibration parameters fitted (0 unless joint)."""
+        return len(self.prior_sd) if self.joint else 0
 
-    def cal_jacobian(z):  # (m, 2): d residual / d (s, b)
-        dist = np.linalg.norm(pos - z[:2], axis=1)
-        return np.column_stack([dist, np.ones(m)]) / sigma
+    def unpack(self, z: np.ndarray) -> tuple[float, float]:
+        """(s, b) at parameters z = (x, y[, s][, b])."""
+        if not self.joint:
+            return self.fixed
+        i_b = 2 + int(self.has_s)
+        return (z[2] if self.has_s else 0.0), (z[i_b] if self.has_b else 0.0)
 
-    def jacobian(z):
-        s, _ = unpack(z)
-        diff = z[:2] - pos
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        """(m [+ c],) whitened residuals: ranges, then the calibration priors."""
+        s, b = self.unpack(z)
+        res = ((1.0 + s) * np.linalg.norm(self.pos - z[:2], axis=1) + b - self.r) / self.sigma
+        return np.concatenate([res, z[2:] / self.prior_sd]) if self.joint else res
+
+    def cal_jacobian(self, z: np.ndarray) -> np.ndarray:
+        """(m, 2): d residual / d (s, b)."""
+        dist = np.linalg.norm(self.pos - z[:2], axis=1)
+        return np.column_stack([dist, np.ones(len(self.r))]) / self.sigma
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """(m [+ c], 2 + c) Jacobian of :meth:`residuals`."""
+        m, n_cal = len(self.r), self.n_cal
+        s, _ = self.unpack(z)
+        diff = z[:2] - self.pos
         dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
-        jac = np.zeros((m + n_cal, n_par))
-        jac[:m, :2] = (1.0 + s) * diff / (sigma * dist[:, None])
-        if joint:
-            jac[:m, 2:] = cal_jacobian(z)[:, [has_s, has_b]]
-            jac[m:, 2:] = np.diag(1.0 / prior_sd)
+        jac = np.zeros((m + n_cal, 2 + n_cal))
+        jac[:m, :2] = (1.0 + s) * diff / (self.sigma * dist[:, None])
+        if self.joint:
+            jac[:m, 2:] = self.cal_jacobian(z)[:, [self.has_s, self.has_b]]
+            jac[m:, 2:] = np.diag(1.0 / self.prior_sd)
         return jac
 
-    s0, b0 = fixed
-    radius = max(float(np.median((r - b0) / (1.0 + s0))), 0.0)
+
+@dataclass(frozen=True, eq=False)
+class _BeaconInit:
+    """A beacon's initialisation: ``mean`` (x, y[, cal]), its covariance ``cov``, ``inlier``
+    (m,) of the buffered ranges, and ``g`` (2, c) the derivative of (x, y) with respect to the
+    calibration held fixed (None when fitted jointly)."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+    inlier: np.ndarray
+    g: np.ndarray | None
+
+
+def _best_start(fit: _BeaconFit, n_starts: int, rng):
+    """The lowest-cost soft-L1 solution from ``n_starts`` starts on a circle of the median
+    calibrated range around the positions' centroid, at a random phase (None if none finite)."""
+    s0, b0 = fit.fixed
+    centre = fit.pos.mean(axis=0)
+    radius = max(float(np.median((fit.r - b0) / (1.0 + s0))), 0.0)
     phase = rng.uniform(0.0, 2 * np.pi / n_starts)
     best = None
     for a in phase + 2 * np.pi * np.arange(n_starts) / n_starts:
-        z0 = np.zeros(n_par)
+        z0 = np.zeros(2 + fit.n_cal)
         z0[:2] = centre + radius * np.array([math.cos(a), math.sin(a)])
-        sol = least_squares(residuals, z0, jac=jacobian, loss="soft_l1")
+        sol = least_squares(fit.residuals, z0, jac=fit.jacobian, loss="soft_l1")
         if np.all(np.isfinite(sol.x)) and (best is None or sol.cost < best.cost):
             best = sol
+    return best
+
+
+def _initial_beacon(pos, r, opts: EkfRangeOptions, prior_sd, fixed, rng) -> _BeaconInit | None:
+    """A beacon from positions (m, 2) and ranges (m,); None while the positions span too little
+    or the fit is singular (see the module notes). ``prior_sd`` None: the calibration is held at
+    ``fixed`` (s, b); else prior_sd (c,) holds the zero-mean priors of the calibration fitted
+    jointly."""
+    m = len(r)
+    spread = np.linalg.svd(pos - pos.mean(axis=0), compute_uv=False)[-1] / math.sqrt(m)
+    if spread < opts.init_spread:
+        return None
+    fit = _BeaconFit(pos, r, opts.range_sigma, opts.has_s, opts.has_b, prior_sd, fixed)
+    n_par = 2 + fit.n_cal
+    best = _best_start(fit, opts.n_starts, rng)
     if best is None:
         return None
-    res = residuals(best.x)
-    ok = res[:m] ** 2 <= gate
+    res = fit.residuals(best.x)
+    ok = res[:m] ** 2 <= opts.gate
     n_ok = int(ok.sum())
     if n_ok <= n_par:
         return None
-    keep = np.append(ok, np.ones(n_cal, dtype=bool))
-    jac = jacobian(best.x)[keep]
+    keep = np.append(ok, np.ones(fit.n_cal, dtype=bool))
+    jac = fit.jacobian(best.x)[keep]
     jtj = jac.T @ jac
     if np.linalg.matrix_rank(jtj) < n_par:
         return None
@@ -499,6 +627,6 @@ def _initial_beacon(pos, r, sigma, min_spread, gate, estimated, prior_sd, fixed,
     scale = max(1.0, float(res[keep] @ res[keep]) / (n_ok - 2))
     cov = scale * inv
     g = None
-    if not joint:
-        g = -inv @ jac.T @ cal_jacobian(best.x)[ok][:, [has_s, has_b]]
-    return best.x, 0.5 * (cov + cov.T), ok, g
+    if not fit.joint:
+        g = -inv @ jac.T @ fit.cal_jacobian(best.x)[ok][:, [opts.has_s, opts.has_b]]
+    return _BeaconInit(best.x, 0.5 * (cov + cov.T), ok, g)

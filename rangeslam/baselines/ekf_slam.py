@@ -73,6 +73,7 @@ states, whose smoothed estimate is the final filtered one.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -88,12 +89,13 @@ from rangeslam.mdu.core import (
     SIGMA_FLOOR,
     canonical_frame,
     least_steps,
-    residual_verdict,
+    residual_status,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
 from rangeslam.mdu.slam import SlamResult
-from rangeslam.solvers.gtsam_graph import check_step_bounds
+from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.status import Status
 
 __all__ = ["ekf_slam"]
 
@@ -110,10 +112,153 @@ _LANDMARK_PRIOR = 3.0
 _MOTIONS = ("constant_velocity", "random_walk")
 
 
+@dataclass(frozen=True)
+class EkfOptions:
+    """Filter settings of :func:`ekf_slam` (see its docstring)."""
+
+    smooth: bool = False
+    motion: str = "constant_velocity"
+    turn_std: float = 0.5
+    init_tol: float = 1.0
+    init_steps: int | None = None
+    n_starts: int = 10
+
+
+@dataclass(frozen=True)
+class StepModel:
+    """Nominal step lengths (M - 1,) and their spread (M - 1,), metres (module notes)."""
+
+    nominal: np.ndarray
+    spread: np.ndarray
+
+
+@dataclass(frozen=True)
+class EkfAnswer:
+    """Positions (M, d), landmarks (K, d), their covariances (M, d, d), (K, d, d), whether the
+    filter diverged, and notes for the message."""
+
+    receivers: np.ndarray
+    sources: np.ndarray
+    receiver_cov: np.ndarray
+    source_cov: np.ndarray
+    diverged: bool
+    message: str
+
+
+def check_ekf_options(options: EkfOptions, m: int) -> None:
+    """Refuse an unknown motion model or bad tuning values (named in the message)."""
+    if options.motion not in _MOTIONS:
+        raise InvalidInputError(f"motion must be one of {_MOTIONS}; got {options.motion!r}")
+    for name, value in (("turn_std", options.turn_std), ("init_tol", options.init_tol)):
+        if not (np.isfinite(value) and value > 0):
+            raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+    n_starts, init_steps = options.n_starts, options.init_steps
+    if not (isinstance(n_starts, int | np.integer) and n_starts >= 1):
+        raise InvalidInputError(f"n_starts must be a positive integer; got {n_starts!r}")
+    if init_steps is not None and not (
+        isinstance(init_steps, int | np.integer) and 3 <= init_steps <= m
+    ):
+        raise InvalidInputError(f"init_steps must be an integer in [3, {m}]; got {init_steps!r}")
+
+
+def step_model(bounds: StepBounds | None, r, observed, scale: float) -> StepModel:
+    """Nominal steps (the bounds' midpoints) and the spread of a uniform law on the bounds,
+    (upper - lower) / sqrt(12), floored so exact bounds keep R > 0; bounds from the ranges
+    (:func:`_bounds_from_ranges`) when none are given."""
+    lower, upper = _bounds_from_ranges(r, observed) if bounds is None else bounds
+    nominal = 0.5 * (lower + upper)
+    spread = np.maximum((upper - lower) / np.sqrt(12.0), 1e-6 * max(scale, 1e-12))
+    return StepModel(nominal, spread)
+
+
+def filtered_answer(r, observed, dim, window: _Window, steps: StepModel, options: EkfOptions):
+    """Filter (and smooth) steps W .. M - 1 after the window; the window's clones, the
+    filtered positions and the final landmarks as an :class:`EkfAnswer`."""
+    k = r.shape[1]
+    w_len = window.positions.shape[0]
+    message = ""
+    run = _run_filter(
+        r, observed, dim, window, steps.nominal, steps.spread, window.sigma,
+        motion=options.motion, turn_std=options.turn_std,
+    )  # fmt: skip
+    diverged = run.diverged
+    if diverged:
+        message += f"the filter diverged at step {run.last_step + 1}; "
+    positions, pos_cov = run.positions, run.position_cov
+    if options.smooth and not diverged:
+        try:
+            positions, pos_cov = _rts_positions(run)
+        except np.linalg.LinAlgError:
+            message += "smoothing failed (singular predicted covariance): filtered positions; "
+    lay = run.layout
+    x_end, p_end = run.x_post[-1], run.p_post[-1]
+    clones = x_end[lay.clones].reshape(-1, dim)
+    clone_cov = _blocks(p_end, lay.clones.start, w_len - 1, dim)
+    rec = np.vstack([np.zeros((1, dim)), clones, positions])
+    rec_cov = np.concatenate([np.zeros((1, dim, dim)), clone_cov, pos_cov])
+    src = x_end[lay.landmarks].reshape(k, dim)
+    src_cov = _blocks(p_end, lay.landmarks.start, k, dim)
+    if not diverged:
+        # Positive semi-definite, not definite: with one filtered step p - v is exactly the
+        # last clone, a structural zero direction of P.
+        eig = np.linalg.eigvalsh(p_end[np.ix_(lay.free, lay.free)])
+        if not (np.all(np.isfinite(eig)) and eig[0] >= -1e-9 * max(eig[-1], 0.0)):
+            diverged = True
+            message += "the final covariance is not positive semi-definite; "
+    return EkfAnswer(rec, src, rec_cov, src_cov, diverged, message)
+
+
+def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounded: bool):
+    """The :class:`SlamResult`: residual status (:func:`residual_status`), SOLVER_FAILED when
+    the filter diverged; the answer in the canonical frame with its covariances rotated."""
+    rec, src, rec_cov, src_cov = (
+        answer.receivers,
+        answer.sources,
+        answer.receiver_cov,
+        answer.source_cov,
+    )
+    finite = bool(np.all(np.isfinite(rec)) and np.all(np.isfinite(src)))
+    diverged = answer.diverged or not finite
+    res = (
+        np.where(observed, range_matrix(rec, src) - r, np.nan)
+        if finite
+        else np.full_like(r, np.nan)
+    )
+    ssr = float(np.nansum(res**2)) if finite else float("inf")
+    rms = float(np.sqrt(ssr / int(observed.sum())))
+    status, why = residual_status(
+        ssr, observed, dim, noise_std, scale, chi_square=noise_std is not None, bounded=bounded
+    )
+    if diverged:
+        status = Status.SOLVER_FAILED
+    if finite:
+        rec, src, rot = canonical_frame(rec, src)
+        rec_cov = np.einsum("ji,njk,kl->nil", rot, rec_cov, rot)
+        src_cov = np.einsum("ji,njk,kl->nil", rot, src_cov, rot)
+    return SlamResult(
+        receivers=frozen(np.array(rec, dtype=float)),
+        sources=frozen(np.array(src, dtype=float)),
+        receiver_cov=frozen(np.array(rec_cov, dtype=float)),
+        source_cov=frozen(np.array(src_cov, dtype=float)),
+        # A filter keeps no joint covariance of the positions it has left behind (only of the
+        # window clones), so there is no honest (M d, M d) covariance of the whole trajectory.
+        trajectory_cov=None,
+        residuals=frozen(res),
+        edm_receivers=None,  # there is no EDM step
+        edm_sources=None,
+        residual_rms=rms,
+        status=status,
+        message=(answer.message + why).rstrip("; "),
+        start="filter",
+        attempts=1,
+        eigen_gap=float("nan"),
+    )
+
+
 def ekf_slam(
     ranges: ArrayLike,
     *,
-    step_bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    step_bounds: StepBounds | tuple[ArrayLike, ArrayLike] | None = None,
     mask: ArrayLike | None = None,
     dim: int = 3,
     noise_std: float | None = None,
@@ -129,9 +274,10 @@ def ekf_slam(
 
     Args:
         ranges: (M, K) range from step i to landmark k, metres.
-        step_bounds: (lower, upper), each (M - 1,), bounds on |r_(i+1) - r_i| in metres: the
-            nominal step and its spread in the process noise and the step pseudo-measurements.
-            None: lower bounds from the triangle inequality on the ranges (module notes).
+        step_bounds: a :class:`~rangeslam.solvers.step_bounds.StepBounds` or (lower, upper), each
+            (M - 1,), bounds on |r_(i+1) - r_i| in metres: the nominal step and its spread in the
+            process noise and the step pseudo-measurements. None: lower bounds from the triangle
+            inequality on the ranges (module notes).
         mask: (M, K) boolean, True where observed; unobserved entries are skipped.
         dim: 2 or 3.
         noise_std: range noise standard deviation, metres (R of the filter, and the residual
@@ -149,8 +295,8 @@ def ekf_slam(
 
     Returns:
         :class:`rangeslam.mdu.slam.SlamResult` with ``attempts=1`` and ``eigen_gap`` NaN (there is no
-        SDP); ``converged`` is the residual test of :func:`rangeslam.mdu.slam` on the final answer,
-        and False when the filter diverged.
+        SDP); ``status`` is the residual test of :func:`rangeslam.mdu.slam` on the final answer,
+        and SOLVER_FAILED when the filter diverged.
 
     Raises InvalidInputError for bad input (named in the message): ranges not (M, K), negative or
     non-finite where observed; a mask of the wrong shape, not boolean or leaving the problem
@@ -158,130 +304,27 @@ def ekf_slam(
     an unknown motion model or bad tuning values.
     """
     r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
-    m, k = r.shape
+    m = r.shape[0]
     if m < 3:
         raise InvalidInputError(f"ranges must have at least 3 rows (steps); got {m}")
-    bounds = None if step_bounds is None else check_step_bounds(step_bounds, m)
-    if motion not in _MOTIONS:
-        raise InvalidInputError(f"motion must be one of {_MOTIONS}; got {motion!r}")
-    for name, value in (("turn_std", turn_std), ("init_tol", init_tol)):
-        if not (np.isfinite(value) and value > 0):
-            raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    if not (isinstance(n_starts, int | np.integer) and n_starts >= 1):
-        raise InvalidInputError(f"n_starts must be a positive integer; got {n_starts!r}")
-    if init_steps is not None and not (
-        isinstance(init_steps, int | np.integer) and 3 <= init_steps <= m
-    ):
-        raise InvalidInputError(f"init_steps must be an integer in [3, {m}]; got {init_steps!r}")
+    bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
+    options = EkfOptions(smooth, motion, turn_std, init_tol, init_steps, n_starts)
+    check_ekf_options(options, m)
     rng = np.random.default_rng(rng)
-
-    if bounds is None:
-        lower, upper = _bounds_from_ranges(r, observed)
-    else:
-        lower, upper = bounds
-    nominal = 0.5 * (lower + upper)
-    # spread of a uniform law on [lower, upper], floored so exact bounds keep R > 0
-    spread = np.maximum((upper - lower) / np.sqrt(12.0), 1e-6 * max(scale, 1e-12))
-    max_range = float(np.max(r[observed]))
+    steps = step_model(bounds, r, observed, scale)
     sigma = max(noise_std, SIGMA_FLOOR * scale) if noise_std is not None else None
-
     window = _initial_window(
-        r,
-        observed,
-        dim,
-        nominal,
-        spread,
-        sigma,
-        max_range,
-        init_tol=init_tol,
-        init_steps=init_steps,
-        n_starts=n_starts,
-        rng=rng,
-    )
-    w_len = window.positions.shape[0]
-    sigma = window.sigma
-    message = ""
-    diverged = False
-
-    if w_len == m:
-        rec, src = window.positions, window.landmarks
-        rec_cov, src_cov = window.position_cov, window.landmark_cov
-        message += f"the initialisation window covered all {m} steps: no step was filtered; "
+        r, observed, dim, steps.nominal, steps.spread, sigma, float(np.max(r[observed])),
+        init_tol=init_tol, init_steps=init_steps, n_starts=n_starts, rng=rng,
+    )  # fmt: skip
+    if window.positions.shape[0] == m:
+        answer = EkfAnswer(
+            window.positions, window.landmarks, window.position_cov, window.landmark_cov, False,
+            f"the initialisation window covered all {m} steps: no step was filtered; ",
+        )  # fmt: skip
     else:
-        run = _run_filter(
-            r, observed, dim, window, nominal, spread, sigma, motion=motion, turn_std=turn_std
-        )
-        diverged = run.diverged
-        if diverged:
-            message += f"the filter diverged at step {run.last_step + 1}; "
-        positions, pos_cov = run.positions, run.position_cov
-        if smooth and not diverged:
-            try:
-                positions, pos_cov = _rts_positions(run)
-            except np.linalg.LinAlgError:
-                message += "smoothing failed (singular predicted covariance): filtered positions; "
-        lay = run.layout
-        x_end, p_end = run.x_post[-1], run.p_post[-1]
-        clones = x_end[lay.clones].reshape(-1, dim)
-        clone_cov = _blocks(p_end, lay.clones.start, w_len - 1, dim)
-        rec = np.vstack([np.zeros((1, dim)), clones, positions])
-        rec_cov = np.concatenate([np.zeros((1, dim, dim)), clone_cov, pos_cov])
-        src = x_end[lay.landmarks].reshape(k, dim)
-        src_cov = _blocks(p_end, lay.landmarks.start, k, dim)
-        if not diverged:
-            # Positive semi-definite, not definite: with one filtered step p - v is exactly the
-            # last clone, a structural zero direction of P.
-            eig = np.linalg.eigvalsh(p_end[np.ix_(lay.free, lay.free)])
-            if not (np.all(np.isfinite(eig)) and eig[0] >= -1e-9 * max(eig[-1], 0.0)):
-                diverged = True
-                message += "the final covariance is not positive semi-definite; "
-
-    finite = bool(np.all(np.isfinite(rec)) and np.all(np.isfinite(src)))
-    if not finite:
-        diverged = True
-    res = (
-        np.where(observed, range_matrix(rec, src) - r, np.nan)
-        if finite
-        else np.full_like(r, np.nan)
-    )
-    n_obs = int(observed.sum())
-    ssr = float(np.nansum(res**2)) if finite else float("inf")
-    rms = float(np.sqrt(ssr / n_obs))
-    converged, why = residual_verdict(
-        ssr,
-        observed,
-        dim,
-        noise_std,
-        scale,
-        chi_square=noise_std is not None,
-        bounded=bounds is not None,
-    )
-    message += why
-    converged = converged and not diverged
-
-    if finite:
-        rec, src, rot = canonical_frame(rec, src)
-        rec_cov = np.einsum("ji,njk,kl->nil", rot, rec_cov, rot)
-        src_cov = np.einsum("ji,njk,kl->nil", rot, src_cov, rot)
-    rec, src = np.array(rec, dtype=float), np.array(src, dtype=float)
-    return SlamResult(
-        receivers=frozen(rec),
-        sources=frozen(src),
-        receiver_cov=frozen(np.array(rec_cov, dtype=float)),
-        source_cov=frozen(np.array(src_cov, dtype=float)),
-        # A filter keeps no joint covariance of the positions it has left behind (only of the
-        # window clones), so there is no honest (M d, M d) covariance of the whole trajectory.
-        trajectory_cov=None,
-        residuals=frozen(res),
-        edm_receivers=None,  # there is no EDM step
-        edm_sources=None,
-        residual_rms=rms,
-        converged=bool(converged),
-        message=message.rstrip("; "),
-        start="filter",
-        attempts=1,
-        eigen_gap=float("nan"),
-    )
+        answer = filtered_answer(r, observed, dim, window, steps, options)
+    return ekf_result(answer, r, observed, dim, noise_std, scale, bounds is not None)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -390,50 +433,71 @@ def _landmarks_from(p, r, obs, rng):
     return lm
 
 
+@dataclass(frozen=True)
+class WindowStartFit:
+    """The Levenberg-Marquardt fit of the window from one start: its cost, the full coordinates
+    ((W + K) d, gauge ones included), the free ones and the start's gauge-fixed base."""
+
+    cost: float
+    full: np.ndarray
+    z: np.ndarray
+    base: np.ndarray
+
+
+class WindowObjective:
+    """Residuals and Jacobian of :func:`_window_residuals` for least_squares, computed once per
+    point z (the last one is cached, as scipy asks for both at the same z)."""
+
+    def __init__(self, free, base, r, obs, nominal, spread, sigma, prior_std, w, k, d) -> None:
+        self.args = (free, base, r, obs, nominal, spread, sigma, prior_std, w, k, d)
+        self.cache: dict = {}
+
+    def both(self, z):
+        """(residuals, Jacobian, number of range rows) at z."""
+        key = z.tobytes()
+        if key not in self.cache:
+            self.cache.clear()
+            self.cache[key] = _window_residuals(z, *self.args)
+        return self.cache[key]
+
+    def residuals(self, z):
+        """Whitened residuals at z."""
+        return self.both(z)[0]
+
+    def jacobian(self, z):
+        """Their Jacobian at z (free coordinates only)."""
+        return self.both(z)[1]
+
+
 def _fit_window(starts, r, obs, nominal, spread, sigma, prior_std, d):
-    """Best Levenberg-Marquardt fit of the window from the given starts."""
+    """Best Levenberg-Marquardt fit of the window from the given starts: positions (W, d),
+    landmarks (K, d), covariance of all coordinates (zero on the gauge) and the range ssr."""
     w, k = obs.shape
     free = _free_coordinates(w, k, d)
     best = None
     for p0, l0 in starts:
         base = np.vstack([_to_gauge(p0), l0]).ravel()
         z0 = base[free]
-
-        cache: dict = {}
-
-        def both(z, base=base, cache=cache):
-            key = z.tobytes()
-            if key not in cache:
-                cache.clear()
-                cache[key] = _window_residuals(
-                    z, free, base, r, obs, nominal, spread, sigma, prior_std, w, k, d
-                )
-            return cache[key]
-
+        objective = WindowObjective(free, base, r, obs, nominal, spread, sigma, prior_std, w, k, d)
         sol = least_squares(
-            lambda z, both=both: both(z)[0],
-            z0,
-            jac=lambda z, both=both: both(z)[1],
-            method="lm",
-            max_nfev=50 * len(z0),
+            objective.residuals, z0, jac=objective.jacobian, method="lm", max_nfev=50 * len(z0)
         )
         if not np.all(np.isfinite(sol.x)):
             continue
-        if best is None or sol.cost < best[0]:
+        if best is None or sol.cost < best.cost:
             full = base.copy()
             full[free] = sol.x
-            best = (sol.cost, full, sol.x, base)
+            best = WindowStartFit(sol.cost, full, sol.x, base)
     if best is None:
         raise SolverError("EKF initialisation: every window fit failed")
-    _, full, z, base = best
     res, jac_m, n_r = _window_residuals(
-        z, free, base, r, obs, nominal, spread, sigma, prior_std, w, k, d
+        best.z, free, best.base, r, obs, nominal, spread, sigma, prior_std, w, k, d
     )
     info = jac_m.T @ jac_m
     cov_free = cho_solve(cho_factor(info), np.eye(info.shape[0]))
-    cov = np.zeros((full.size, full.size))
+    cov = np.zeros((best.full.size, best.full.size))
     cov[np.ix_(free, free)] = 0.5 * (cov_free + cov_free.T)
-    pts = full.reshape(w + k, d)
+    pts = best.full.reshape(w + k, d)
     ssr_ranges = float(np.sum((res[:n_r] * sigma) ** 2))
     return pts[:w], pts[w:], cov, ssr_ranges
 
@@ -561,14 +625,12 @@ def _step_jacobian(x, sl_v, n):
     return h
 
 
-def _run_filter(r, observed, d, window, nominal, spread, sigma, *, motion, turn_std) -> _Run:
-    m, k = r.shape
+def initial_state(window: _Window, lay: _Layout, d: int, k: int):
+    """State x (n,) and covariance P (n, n) at step W - 1 from the window fit, through the
+    linear map A of the fit's coordinates: p = p_W, v = p_W - p_(W-1), landmarks, clones."""
     w = window.positions.shape[0]
-    lay = _Layout(d, k, w)
-    n = lay.n
-    # initial state at step W - 1 from the window fit: a linear map A of the fit's coordinates
     n_fit = (w + k) * d
-    a_map = np.zeros((n, n_fit))
+    a_map = np.zeros((lay.n, n_fit))
     eye = np.eye(d)
     a_map[lay.p, (w - 1) * d : w * d] = eye
     a_map[lay.v, (w - 1) * d : w * d] = eye
@@ -576,56 +638,82 @@ def _run_filter(r, observed, d, window, nominal, spread, sigma, *, motion, turn_
     a_map[lay.landmarks, w * d :] = np.eye(k * d)
     a_map[lay.clones, d : w * d] = np.eye((w - 1) * d)
     fit_mean = np.vstack([window.positions, window.landmarks]).ravel()
-
-    ekf = ExtendedKalmanFilter(dim_x=n, dim_z=1)
-    ekf.x = a_map @ fit_mean
     p0 = a_map @ window.cov @ a_map.T
-    ekf.P = 0.5 * (p0 + p0.T)
-    r_noise = np.array([[sigma**2]])
+    return a_map @ fit_mean, 0.5 * (p0 + p0.T)
+
+
+def transition(lay: _Layout, d: int, motion: str):
+    """F (n, n) of p_(i+1) = p_i + a v_i, v_(i+1) = a v_i (a = 1 constant velocity, 0 random
+    walk), and G (n, d): the step noise w_i enters p and v alike."""
+    eye = np.eye(d)
     a = 1.0 if motion == "constant_velocity" else 0.0
-    f = np.eye(n)
+    f = np.eye(lay.n)
     f[lay.p, lay.v] = a * eye
     f[lay.v, lay.v] = a * eye
-    g = np.zeros((n, d))  # the step noise w_i enters p and v alike
+    g = np.zeros((lay.n, d))
     g[lay.p] = eye
     g[lay.v] = eye
-    ekf.F = f
+    return f, g
 
+
+def process_variance(nominal: float, spread: float, d: int, motion: str, turn_std: float):
+    """Per-coordinate variance of w_i (module notes): ((turn_std s)^2 + sd^2) for constant
+    velocity, (s^2 + sd^2) / d for a random walk, m^2."""
+    if motion == "constant_velocity":
+        return (turn_std * nominal) ** 2 + spread**2
+    return (nominal**2 + spread**2) / d
+
+
+def update_step(ekf, r_i, obs_i, lay: _Layout, d: int, r_noise, nominal: float, spread: float):
+    """The scalar range updates of one step (observed landmarks only), then the step-length
+    pseudo-measurement |v| = nominal (variance spread^2); P symmetrised after each."""
+    n = lay.n
+    for kk in np.flatnonzero(obs_i):
+        sl_l = slice(lay.landmarks.start + kk * d, lay.landmarks.start + (kk + 1) * d)
+        ekf.update(
+            np.array([r_i[kk]]),
+            _range_jacobian,
+            _range_h,
+            R=r_noise,
+            args=(lay.p, sl_l, n),
+            hx_args=(lay.p, sl_l),
+        )
+        ekf.P = 0.5 * (ekf.P + ekf.P.T)
+    if np.linalg.norm(ekf.x[lay.v]) > 1e-9 * max(nominal, 1e-12):
+        ekf.update(
+            np.array([nominal]),
+            _step_jacobian,
+            _step_h,
+            R=np.array([[spread**2]]),
+            args=(lay.v, n),
+            hx_args=(lay.v,),
+        )
+        ekf.P = 0.5 * (ekf.P + ekf.P.T)
+
+
+def _run_filter(r, observed, d, window, nominal, spread, sigma, *, motion, turn_std) -> _Run:
+    """Predict and update steps W .. M - 1 from the window's state; stops where it diverges
+    (non-finite state or a negative variance), the remaining steps NaN."""
+    m, k = r.shape
+    w = window.positions.shape[0]
+    lay = _Layout(d, k, w)
+    n = lay.n
+    ekf = ExtendedKalmanFilter(dim_x=n, dim_z=1)
+    ekf.x, ekf.P = initial_state(window, lay, d, k)
+    r_noise = np.array([[sigma**2]])
+    f, g = transition(lay, d, motion)
+    ekf.F = f
     x_post, p_post = [ekf.x.copy()], [ekf.P.copy()]
     x_prior, p_prior = [ekf.x.copy()], [ekf.P.copy()]
     positions, cov = [], []
     diverged, last = False, w - 1
     for i in range(w, m):
         j = i - 1  # the step from i - 1 to i
-        if motion == "constant_velocity":
-            q = (turn_std * nominal[j]) ** 2 + spread[j] ** 2
-        else:
-            q = (nominal[j] ** 2 + spread[j] ** 2) / d
-        ekf.Q = q * (g @ g.T)
+        ekf.Q = process_variance(nominal[j], spread[j], d, motion, turn_std) * (g @ g.T)
         ekf.predict()
         x_prior.append(ekf.x.copy())
         p_prior.append(ekf.P.copy())
-        for kk in np.flatnonzero(observed[i]):
-            sl_l = slice(lay.landmarks.start + kk * d, lay.landmarks.start + (kk + 1) * d)
-            ekf.update(
-                np.array([r[i, kk]]),
-                _range_jacobian,
-                _range_h,
-                R=r_noise,
-                args=(lay.p, sl_l, n),
-                hx_args=(lay.p, sl_l),
-            )
-            ekf.P = 0.5 * (ekf.P + ekf.P.T)
-        if np.linalg.norm(ekf.x[lay.v]) > 1e-9 * max(nominal[j], 1e-12):
-            ekf.update(
-                np.array([nominal[j]]),
-                _step_jacobian,
-                _step_h,
-                R=np.array([[spread[j] ** 2]]),
-                args=(lay.v, n),
-                hx_args=(lay.v,),
-            )
-            ekf.P = 0.5 * (ekf.P + ekf.P.T)
+        update_step(ekf, r[i], observed[i], lay, d, r_noise, nominal[j], spread[j])
         if not (np.all(np.isfinite(ekf.x)) and np.all(np.isfinite(ekf.P))) or np.any(
             np.diag(ekf.P) < 0
         ):
@@ -642,17 +730,9 @@ def _run_filter(r, observed, d, window, nominal, spread, sigma, *, motion, turn_
         x_post.append(np.full(n, np.nan))
         p_post.append(np.full((n, n), np.nan))
     return _Run(
-        lay,
-        x_post,
-        p_post,
-        x_prior,
-        p_prior,
-        f,
-        np.array(positions).reshape(m - w, d),
-        np.array(cov).reshape(m - w, d, d),
-        diverged,
-        last,
-    )
+        lay, x_post, p_post, x_prior, p_prior, f,
+        np.array(positions).reshape(m - w, d), np.array(cov).reshape(m - w, d, d), diverged, last,
+    )  # fmt: skip
 
 
 def _rts_positions(run: _Run) -> tuple[np.ndarray, np.ndarray]:

@@ -11,9 +11,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_point, frozen
-from rangeslam.beacons.slam import BeaconSlamResult
+from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
+from rangeslam.status import Status
 
 __all__ = ["odometry_only"]
 
@@ -29,7 +30,7 @@ def odometry_only(data: PlazaDataset, *, start_pose: ArrayLike | None = None) ->
     Returns:
         :class:`BeaconSlamResult` with method "odometry": poses (N + 1, 3) from
         ``data.dead_reckoning``, beacons (B, 2) NaN (odometry places none), no range bias, no
-        range inliers (the ranges are not used), converged True.
+        range inliers (the ranges are not used), status CONVERGED.
 
     Raises InvalidInputError when ``data`` is not a PlazaDataset or ``start_pose`` is not a
     finite (3,) pose.
@@ -43,7 +44,7 @@ def odometry_only(data: PlazaDataset, *, start_pose: ArrayLike | None = None) ->
         beacons=frozen(np.full((len(data.beacon_ids), 2), np.nan)),
         range_bias=None,
         range_inlier=None,
-        converged=True,
+        status=Status.CONVERGED,
         message="dead reckoning: the ranges are not used",
     )
 

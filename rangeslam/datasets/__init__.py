@@ -2,5 +2,16 @@
 
 from rangeslam.datasets.cmu_plaza import PLAZA_CITATION, PLAZA_NAMES, PlazaDataset, plaza
 from rangeslam.datasets.dechorate import DEchorate, load_dechorate
+from rangeslam.datasets.rir_files import LoadedRirs, SilentRirWarning, load_rirs
 
-__all__ = ["PLAZA_CITATION", "PLAZA_NAMES", "DEchorate", "PlazaDataset", "load_dechorate", "plaza"]
+__all__ = [
+    "PLAZA_CITATION",
+    "PLAZA_NAMES",
+    "DEchorate",
+    "LoadedRirs",
+    "PlazaDataset",
+    "SilentRirWarning",
+    "load_dechorate",
+    "load_rirs",
+    "plaza",
+]

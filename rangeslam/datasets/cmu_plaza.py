@@ -191,12 +191,9 @@ class PlazaDataset:
         50 m, 2.13 m at worst up to 1,000 m and 4.39 m at the end, after 1,861 m of odometry).
         Headings are not wrapped.
         """
-        start = as_point(start_pose, "start_pose", dim=3)
-        d, dtheta = self.odometry[:, 0], self.odometry[:, 1]
-        theta = start[2] + np.concatenate([[0.0], np.cumsum(dtheta)])
-        x = start[0] + np.concatenate([[0.0], np.cumsum(d * np.cos(theta[:-1]))])
-        y = start[1] + np.concatenate([[0.0], np.cumsum(d * np.sin(theta[:-1]))])
-        return np.column_stack([x, y, theta])
+        from rangeslam.beacons.data import dead_reckoning
+
+        return dead_reckoning(self.odometry, as_point(start_pose, "start_pose", dim=3))
 
 
 def plaza(name: str = "Plaza1", *, data_dir: str | Path | None = None) -> PlazaDataset:

@@ -1,7 +1,36 @@
-"""Yardsticks: Cramer-Rao bounds of the estimators' problems."""
+"""Yardsticks: Cramer-Rao bounds of the estimators' problems, and errors against ground truth."""
 
 from __future__ import annotations
 
 from rangeslam.evaluation.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
+from rangeslam.evaluation.metrics import (
+    SHOEBOX_WALLS,
+    ApeStatistics,
+    PositionErrors,
+    ape,
+    ape_statistics,
+    mean_nees,
+    planar_source_error,
+    shoebox_wall_errors,
+    trajectory_nees,
+    trajectory_rmse,
+    wall_errors,
+)
 
-__all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "wall_crlb"]
+__all__ = [
+    "SHOEBOX_WALLS",
+    "ApeStatistics",
+    "MDUBound",
+    "PositionErrors",
+    "ape",
+    "ape_statistics",
+    "mdu_crlb",
+    "mean_nees",
+    "multilateration_crlb",
+    "planar_source_error",
+    "shoebox_wall_errors",
+    "trajectory_nees",
+    "trajectory_rmse",
+    "wall_crlb",
+    "wall_errors",
+]

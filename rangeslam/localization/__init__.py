@@ -3,7 +3,10 @@
 - :mod:`.multilateration`: one point from ranges to known anchors (eq. 3, SR-LS), robust variant.
 - :mod:`.room_reconstruction`: the source, its image sources and the walls (eq. 2 with known
   sorting), several loudspeakers, wrong picks rejected.
-- :mod:`.emission`: the same with an unknown emission time (one range offset per event).
+- :mod:`.robust_start`: the LMedS/MSAC start over minimal anchor subsets and the
+  threshold-and-refit loop, shared by both multilaterations.
+- :mod:`.pseudorange`: one point and one unknown range offset (pseudoranges).
+- :mod:`.emission`: the room with an unknown emission time (one range offset per event).
 """
 
 from __future__ import annotations

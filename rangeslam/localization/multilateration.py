@@ -20,7 +20,6 @@ estimate (reweighted least squares, Rousseeuw and Leroy 1987) and SR-LS is re-so
 
 from __future__ import annotations
 
-import itertools
 import logging
 import math
 from dataclasses import dataclass
@@ -33,8 +32,20 @@ from scipy.optimize import brentq
 
 from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
+from rangeslam.localization.robust_start import (
+    INLIER_K,
+    TRUNCATED_STD,
+    Refit,
+    check_robust_options,
+    minimal_subset_points,
+    refine_inliers,
+    robust_start,
+)
+from rangeslam.status import HasStatus, Status
 
 __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
+
+# minimal_subset_points lives in robust_start beside the LMedS start; it is re-exported here.
 
 log = logging.getLogger(__name__)
 
@@ -42,14 +53,10 @@ WeightSpec = ArrayLike | Literal["uniform", "inverse_range"] | None
 
 # Relative singular-value threshold below which anchors are taken to be affinely dependent.
 _AFFINE_RTOL = 1e-8
-# Inlier threshold in robust scale units (Rousseeuw and Leroy's 2.5), and the standard deviation
-# of a unit normal truncated to +-2.5 (residuals kept by that threshold are that much too tight).
-_INLIER_K = 2.5
-_TRUNCATED_STD = 0.9546
 
 
 @dataclass(frozen=True)
-class MultilaterationResult:
+class MultilaterationResult(HasStatus):
     """Result of :func:`multilaterate`.
 
     Attributes:
@@ -58,7 +65,9 @@ class MultilaterationResult:
         inliers: (M,) True for the ranges used in the final fit (observed and, if robust, accepted).
         cost: weighted squared-range cost of eq. (3) over the inliers, at ``position`` (m^4 times
             the unit of the weights: m^4 for uniform weights, m^2 for the default 1/r^2).
-        converged: False when the robust search found too few consistent ranges to trust.
+        status: :class:`rangeslam.status.Status`: OUTLIERS when the robust search found too few
+            consistent ranges, SOLVER_FAILED when its inlier set kept changing,
+            NOT_IDENTIFIABLE in the GTRS hard case (``converged`` is ``status is CONVERGED``).
         message: what happened, in words.
         lagrange_multiplier: the GTRS multiplier lam at the solution (dimensionless, scaled problem).
     """
@@ -67,7 +76,7 @@ class MultilaterationResult:
     residuals: np.ndarray
     inliers: np.ndarray
     cost: float
-    converged: bool
+    status: Status
     message: str
     lagrange_multiplier: float
 
@@ -178,61 +187,173 @@ def _range_residuals(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> 
     return np.linalg.norm(anchors - x, axis=-1) - ranges
 
 
-def minimal_subset_points(
-    anchors: np.ndarray,
-    ranges: np.ndarray,
-    candidates: np.ndarray,
-    max_subsets: int,
-    rng: np.random.Generator,
-) -> np.ndarray:
-    """Points (H, d) from subsets of d+1 of the ``candidates`` (indices into anchors (M, d)).
+@dataclass(frozen=True)
+class ScaledProblem:
+    """The inputs of :func:`multilaterate`, parsed once and scaled to unit size.
 
-    Each subset gives the exact solution of the linear system [-2 a^T, 1] [x; t] = r^2 - ||a||^2
-    (d+1 equations, d+1 unknowns); all subsets when there are at most ``max_subsets`` of them,
-    otherwise that many random ones. Affinely dependent subsets are skipped.
+    Attributes:
+        anchors, ranges, observed: (M, d), (M,), (M,) as given (validated).
+        centre, scale: the observed anchors' centroid (d,) and RMS radius, metres.
+        anchors_s, ranges_s: (M, d), (M,) centred and divided by ``scale``.
+        weights: (M,) weights of eq. (3) on the scaled ranges, 0 where unobserved.
     """
-    d = anchors.shape[1]
-    p = d + 1
-    if math.comb(len(candidates), p) <= max_subsets:
-        subsets = np.array(list(itertools.combinations(candidates, p)), dtype=int).reshape(-1, p)
-    else:
-        subsets = candidates[np.argsort(rng.random((max_subsets, len(candidates))), axis=1)[:, :p]]
-    a_sub = np.concatenate([-2.0 * anchors[subsets], np.ones((len(subsets), p, 1))], axis=2)
-    b_sub = ranges[subsets] ** 2 - np.einsum("hpd,hpd->hp", anchors[subsets], anchors[subsets])
-    sv = np.linalg.svd(a_sub, compute_uv=False)
-    ok = sv[:, -1] > 1e-8 * sv[:, 0]
-    return np.linalg.solve(a_sub[ok], b_sub[ok][..., None])[..., 0][:, :d]
+
+    anchors: np.ndarray
+    ranges: np.ndarray
+    observed: np.ndarray
+    centre: np.ndarray
+    scale: float
+    anchors_s: np.ndarray
+    ranges_s: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.anchors.shape[1]
+
+    @property
+    def n_observed(self) -> int:
+        return int(self.observed.sum())
 
 
-def _lmeds_start(
-    anchors: np.ndarray,
-    ranges: np.ndarray,
-    max_hypotheses: int,
-    rng: np.random.Generator,
-    threshold: float | None = None,
-) -> tuple[np.ndarray, float]:
-    """Least-median-of-squares hypothesis over subsets of d+1 anchors (scaled coordinates).
+@dataclass(frozen=True)
+class SrlsFit:
+    """One SR-LS solve in scaled units: the point (d,), the GTRS multiplier and uniqueness."""
 
-    Each subset gives the exact linear solution of A y = b (d+1 equations, d+1 unknowns y = [x, t]);
-    all subsets are scored at once by the h-th smallest squared range residual over all anchors.
-    Returns the best x and the robust scale (standard deviation) of its residuals.
-    """
-    n, d = anchors.shape
-    p = d + 1
-    x = minimal_subset_points(anchors, ranges, np.arange(n), max_hypotheses, rng)
-    if len(x) == 0:
+    x: np.ndarray
+    lam: float
+    unique: bool
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """How a run ended: the estimate (scaled units), the inliers, status and message."""
+
+    fit: SrlsFit
+    inliers: np.ndarray
+    status: Status
+    message: str
+
+
+def check_spanning(points: np.ndarray, d: int, name: str, what: str) -> None:
+    """Raise DegenerateGeometryError unless ``points`` (N, d) affinely span R^d."""
+    rank = affine_rank(points)
+    if rank < d:
+        kind = {0: "coincident", 1: "collinear", 2: "coplanar"}[rank]
+        raise DegenerateGeometryError(
+            f"{name} are {kind}: in {d}-D they must not all lie in one "
+            f"{'plane' if d == 3 else 'line'}, or {what}"
+        )
+
+
+def _parse_problem(anchors, ranges, weights, mask, robust_options) -> ScaledProblem:
+    """Validate anchors (M, d), ranges (M,), mask, the robust options (inlier threshold, number of
+    hypotheses) and weights once; centre and scale to unit RMS radius."""
+    a = as_points(anchors, "anchors")
+    m, d = a.shape
+    observed = as_mask(mask, "mask", shape=(m,))
+    r = as_ranges(ranges, "ranges", shape=(m,), observed=observed)
+    check_robust_options(*robust_options)
+    n_obs = int(observed.sum())
+    if n_obs < d + 1:
+        raise InvalidInputError(
+            f"multilateration in {d}-D needs at least {d + 1} observed ranges; got {n_obs} (anchors {shape_str(a.shape)})"
+        )
+    if affine_rank(a[observed]) < d:
+        kind = {1: "collinear", 2: "coplanar"}.get(affine_rank(a[observed]), "coincident")
+        raise DegenerateGeometryError(
+            f"anchors with observed ranges are {kind}: in {d}-D they must not lie in a common "
+            f"{'plane' if d == 3 else 'line'}, or the point is ambiguous (mirror images or a circle)"
+        )
+    # Scale to unit size before the solver sees the problem (the cost is equivariant).
+    centre = a[observed].mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((a[observed] - centre) ** 2, axis=1))))
+    r_s = r / scale
+    w_all = np.where(observed, _resolve_weights(weights, r_s, 1.0), 0.0)
+    if affine_rank(a[observed & (w_all > 0)]) < d:
+        raise DegenerateGeometryError("anchors with positive weight must affinely span R^d")
+    return ScaledProblem(a, r, observed, centre, scale, (a - centre) / scale, r_s, w_all)
+
+
+def _srls_on(prob: ScaledProblem, inliers: np.ndarray) -> SrlsFit:
+    """SR-LS (eq. 3) on the inlier ranges, scaled units."""
+    x, lam, unique = _srls(prob.anchors_s[inliers], prob.ranges_s[inliers], prob.weights[inliers])
+    return SrlsFit(x, lam, unique)
+
+
+def _srls_refit(prob: ScaledProblem, inliers: np.ndarray, fixed: bool) -> Refit:
+    """SR-LS on the inliers and, without a fixed threshold, 2.5 times their residual scale."""
+    d = prob.dim
+    fit = _srls_on(prob, inliers)
+    if fixed:
+        return Refit(fit.x, fit, None)
+    res = _range_residuals(fit.x, prob.anchors_s[inliers], prob.ranges_s[inliers])
+    sigma = math.sqrt(float(res @ res) / max(int(inliers.sum()) - d, 1)) / TRUNCATED_STD
+    return Refit(fit.x, fit, max(INLIER_K * sigma, 1e-9))
+
+
+def _robust_fit(
+    prob: ScaledProblem, inlier_threshold: float | None, max_hypotheses: int, rng
+) -> Verdict:
+    """LMedS (or MSAC) start, then threshold-and-refit with SR-LS until the inliers settle."""
+    d, n_obs, scale = prob.dim, prob.n_observed, prob.scale
+    idx = np.flatnonzero(prob.observed)
+    fixed = inlier_threshold is not None
+    thr_s = inlier_threshold / scale if fixed else None
+    start = robust_start(
+        prob.anchors_s[idx],
+        prob.ranges_s[idx],
+        max_hypotheses=max_hypotheses,
+        rng=rng,
+        threshold=thr_s,
+    )
+    if start is None:
         raise DegenerateGeometryError("every subset of d+1 anchors is affinely dependent")
-    res2 = _range_residuals(x[:, None, :], anchors[None, :, :], ranges[None, :]) ** 2
-    h = (n + p + 1) // 2  # Rousseeuw's order statistic for the highest breakdown point
-    lmeds = np.partition(res2, h - 1, axis=1)[:, h - 1]
-    # With a known threshold, MSAC (Torr and Zisserman 2000): truncated squared residuals, which
-    # tolerates more than half wrong ranges when the wrong ones do not agree with each other.
-    score = lmeds if threshold is None else np.minimum(res2, threshold**2).sum(axis=1)
-    best = int(np.argmin(score))
-    # Finite-sample consistency correction of Rousseeuw and Leroy (1987), for the d unknowns of x
-    # (the subsets have d + 1 members because the linear system also carries t = ||x||^2).
-    sigma = 1.4826 * (1.0 + 5.0 / max(n - d, 1)) * math.sqrt(lmeds[best])
-    return x[best], sigma
+    # Floor on the threshold (scaled units): exact data has residuals at round-off level.
+    thr = thr_s if fixed else max(INLIER_K * start.sigma, 1e-9)
+    search = refine_inliers(
+        lambda x: _range_residuals(x, prob.anchors_s, prob.ranges_s),
+        lambda inl: _srls_refit(prob, inl, fixed),
+        start.z,
+        prob.observed,
+        thr,
+        lambda inl: inl.sum() >= d + 1 and affine_rank(prob.anchors_s[inl]) >= d,
+    )
+    last = search.fit if search.fit is not None else SrlsFit(search.z, float("nan"), True)
+    if search.settled:
+        how = "LMedS" if inlier_threshold is None else "MSAC"
+        kept = int(search.inliers.sum())
+        message = f"SR-LS after {how} outlier rejection: {kept} of {n_obs} ranges kept"
+        return Verdict(last, search.inliers, Status.CONVERGED, message)
+    failed = SrlsFit(last.x, float("nan"), last.unique)
+    if search.rejected is None:
+        message = "robust multilateration: the inlier set was still changing after 20 re-fits"
+        return Verdict(failed, search.inliers, Status.SOLVER_FAILED, message)
+    message = (
+        f"robust multilateration failed: only {int(search.rejected.sum())} of {n_obs} ranges agree within "
+        f"{search.threshold * scale:.3g} m of the best hypothesis, or they do not span {d}-D"
+    )
+    return Verdict(failed, search.rejected, Status.OUTLIERS, message)
+
+
+def _result(prob: ScaledProblem, verdict: Verdict, weights: WeightSpec) -> MultilaterationResult:
+    """Back to the caller's units: position, residuals and the eq. (3) cost over the inliers."""
+    a, r, observed, scale = prob.anchors, prob.ranges, prob.observed, prob.scale
+    pos = prob.centre + scale * verdict.fit.x
+    residuals = np.where(observed, _range_residuals(pos, a, r), np.nan)
+    # Weights back in original units: 1/r^2 was computed on scaled ranges.
+    inverse_range = isinstance(weights, str) and weights == "inverse_range"
+    w_orig = prob.weights / scale**2 if inverse_range else prob.weights
+    sq = np.linalg.norm(a - pos, axis=1) ** 2 - r**2
+    return MultilaterationResult(
+        position=frozen(pos),
+        residuals=frozen(residuals),
+        inliers=frozen(verdict.inliers & observed),
+        cost=float(np.sum((w_orig * sq**2)[verdict.inliers])),
+        status=verdict.status,
+        message=verdict.message,
+        lagrange_multiplier=float(verdict.fit.lam),
+    )
 
 
 def multilaterate(
@@ -274,112 +395,22 @@ def multilaterate(
         :class:`MultilaterationResult`.
     """
     rng = np.random.default_rng(rng)
-    a = as_points(anchors, "anchors")
-    m, d = a.shape
-    observed = as_mask(mask, "mask", shape=(m,))
-    r = as_ranges(ranges, "ranges", shape=(m,), observed=observed)
-    if inlier_threshold is not None and not (
-        np.isfinite(inlier_threshold) and inlier_threshold > 0
-    ):
-        raise InvalidInputError(
-            f"inlier_threshold must be a positive number of metres; got {inlier_threshold}"
-        )
-    if not isinstance(max_hypotheses, int | np.integer) or max_hypotheses < 1:
-        raise InvalidInputError(
-            f"max_hypotheses must be a positive integer; got {max_hypotheses!r}"
-        )
-
-    n_obs = int(observed.sum())
-    if n_obs < d + 1:
-        raise InvalidInputError(
-            f"multilateration in {d}-D needs at least {d + 1} observed ranges; got {n_obs} (anchors {shape_str(a.shape)})"
-        )
-    if affine_rank(a[observed]) < d:
-        kind = {1: "collinear", 2: "coplanar"}.get(affine_rank(a[observed]), "coincident")
-        raise DegenerateGeometryError(
-            f"anchors with observed ranges are {kind}: in {d}-D they must not lie in a common "
-            f"{'plane' if d == 3 else 'line'}, or the point is ambiguous (mirror images or a circle)"
-        )
-
-    # Scale to unit size before the solver sees the problem (the cost is equivariant).
-    centre = a[observed].mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((a[observed] - centre) ** 2, axis=1))))
-    a_s = (a - centre) / scale
-    r_s = r / scale
-    w_all = _resolve_weights(weights, r_s, 1.0)
-    w_all = np.where(observed, w_all, 0.0)
-    if affine_rank(a[observed & (w_all > 0)]) < d:
-        raise DegenerateGeometryError("anchors with positive weight must affinely span R^d")
-
-    inliers = observed.copy()
-    converged, unique = True, True
-    message = "SR-LS exact solution"
-    if robust and n_obs <= d + 1:
-        message = (
-            f"SR-LS; no outlier rejection possible with {n_obs} ranges in {d}-D (needs {d + 2})"
-        )
-    elif robust:
-        idx = np.flatnonzero(observed)
-        thr_s = None if inlier_threshold is None else inlier_threshold / scale
-        x, sigma = _lmeds_start(a_s[idx], r_s[idx], int(max_hypotheses), rng, thr_s)
-        fixed = inlier_threshold is not None
-        # Floor on the threshold (scaled units): exact data has residuals at round-off level.
-        thr = inlier_threshold / scale if fixed else max(_INLIER_K * sigma, 1e-9)
-        inliers = np.zeros(m, dtype=bool)
-        seen: list[np.ndarray] = []
-        for _ in range(20):
-            new = observed & (np.abs(_range_residuals(x, a_s, r_s)) <= thr)
-            if new.sum() < d + 1 or affine_rank(a_s[new]) < d:
-                converged = False
-                message = (
-                    f"robust multilateration failed: only {int(new.sum())} of {n_obs} ranges agree within "
-                    f"{thr * scale:.3g} m of the best hypothesis, or they do not span {d}-D"
-                )
-                inliers = new
-                break
-            # Stop when the set repeats: unchanged, or cycling through borderline ranges.
-            if np.array_equal(new, inliers) or any(np.array_equal(new, old) for old in seen):
-                break
-            seen.append(inliers)
-            inliers = new
-            x, lam, unique = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
-            if not fixed:
-                fit = _range_residuals(x, a_s[inliers], r_s[inliers])
-                sigma = (
-                    math.sqrt(float(fit @ fit) / max(int(inliers.sum()) - d, 1)) / _TRUNCATED_STD
-                )
-                thr = max(_INLIER_K * sigma, 1e-9)
-        else:
-            converged = False
-            message = "robust multilateration: the inlier set was still changing after 20 re-fits"
-        if converged:
-            how = "LMedS" if inlier_threshold is None else "MSAC"
+    prob = _parse_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
+    d, n_obs = prob.dim, prob.n_observed
+    if robust and n_obs > d + 1:
+        verdict = _robust_fit(prob, inlier_threshold, int(max_hypotheses), rng)
+    else:
+        message = "SR-LS exact solution"
+        if robust:
             message = (
-                f"SR-LS after {how} outlier rejection: {int(inliers.sum())} of {n_obs} ranges kept"
+                f"SR-LS; no outlier rejection possible with {n_obs} ranges in {d}-D (needs {d + 2})"
             )
-        else:
-            lam = float("nan")
-    if not robust or n_obs <= d + 1:
-        x, lam, unique = _srls(a_s[inliers], r_s[inliers], w_all[inliers])
-    if not unique:
-        converged = False
+        inliers = prob.observed.copy()
+        verdict = Verdict(_srls_on(prob, inliers), inliers, Status.CONVERGED, message)
+    if not verdict.fit.unique:
         message = (
             "the minimiser of eq. (3) is not unique (hard case of the GTRS: symmetric anchors with "
             "inconsistent ranges leave a set of equally good points); one of them is returned"
         )
-
-    pos = centre + scale * x
-    residuals = np.where(observed, _range_residuals(pos, a, r), np.nan)
-    # Weights back in original units: 1/r^2 was computed on scaled ranges.
-    w_orig = w_all / scale**2 if isinstance(weights, str) and weights == "inverse_range" else w_all
-    sq = np.linalg.norm(a - pos, axis=1) ** 2 - r**2
-    cost = float(np.sum((w_orig * sq**2)[inliers]))
-    return MultilaterationResult(
-        position=frozen(pos),
-        residuals=frozen(residuals),
-        inliers=frozen(inliers & observed),
-        cost=cost,
-        converged=converged,
-        message=message,
-        lagrange_multiplier=float(lam),
-    )
+        verdict = Verdict(verdict.fit, verdict.inliers, Status.NOT_IDENTIFIABLE, message)
+    return _result(prob, verdict, weights)

@@ -40,11 +40,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
-from rangeslam._robust import mad_sigma, studentized
+from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
 from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_str
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.room import Room
-from rangeslam.localization.multilateration import affine_rank, minimal_subset_points, multilaterate
+from rangeslam.localization.multilateration import affine_rank, check_spanning, multilaterate
+from rangeslam.localization.robust_start import minimal_subset_points
+from rangeslam.status import HasStatus, Status
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
 
@@ -61,7 +63,7 @@ _MAX_RELATIVE_RMS = 0.02
 
 
 @dataclass(frozen=True)
-class RoomReconstruction:
+class RoomReconstruction(HasStatus):
     """Result of :func:`reconstruct_room`. J loudspeakers, K walls, M microphones, d = 2 or 3.
 
     Attributes:
@@ -75,8 +77,12 @@ class RoomReconstruction:
         residual_rms: RMS range residual over the inliers, metres.
         noise_scale: the range noise standard deviation the inlier test used (robust estimate from
             the final fit), metres; compare with the accuracy expected of the picks.
-        converged: whether the fit converged to a consistent room (sources on the inner side of
-            every wall, enough inliers); False comes with a reason in ``message``.
+        status: :class:`rangeslam.status.Status` (``converged`` is ``status is CONVERGED``):
+            NOT_IDENTIFIABLE (too few inliers for the unknowns, rank-deficient fit), SOLVER_FAILED
+            (least squares failed, inlier set still changing), OUTLIERS (a wall or loudspeaker
+            that most of its ranges disagree with), INCONSISTENT (residuals far above the noise),
+            OUT_OF_RANGE (walls on the wrong side of the sources, a source outside the room); the
+            first reason in ``message`` decides.
         message: what happened.
         iterations: function evaluations of the joint refinement.
     """
@@ -90,7 +96,7 @@ class RoomReconstruction:
     inliers: np.ndarray
     residual_rms: float
     noise_scale: float
-    converged: bool
+    status: Status
     message: str
     iterations: int
 
@@ -291,8 +297,7 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
     """Joint least squares on the ranges in ``use``, re-classifying and re-fitting until stable.
 
     Without a fixed threshold a range is kept when its studentized residual is within 3 sigma,
-    sigma being 1.4826 MAD of all studentized residuals. Returns (theta, use, sigma, nfev, message);
-    message is empty on success.
+    sigma being MAD_TO_STD times the MAD of all studentized residuals. Returns a :class:`JointFit`.
     """
     observed = model.use
     n_params = theta.size
@@ -301,13 +306,8 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
     seen: list[np.ndarray] = []
     for _ in range(20):
         if use.sum() < n_params:
-            return (
-                theta,
-                use,
-                sigma,
-                nfev,
-                f"only {int(use.sum())} inlier ranges for {n_params} unknowns; ",
-            )
+            text = f"only {int(use.sum())} inlier ranges for {n_params} unknowns; "
+            return JointFit(theta, use, sigma, nfev, (Status.NOT_IDENTIFIABLE, text))
         inlier_model = JointWallModel(model.mics, model.ranges, use)
         fit = least_squares(
             inlier_model.residuals,
@@ -321,13 +321,14 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
         )
         theta, nfev = fit.x, nfev + fit.nfev
         if fit.status <= 0:  # scipy: -1 improper input, 0 evaluation limit
-            return theta, use, sigma, nfev, f"least squares failed: {fit.message}; "
+            text = f"least squares failed: {fit.message}; "
+            return JointFit(theta, use, sigma, nfev, (Status.SOLVER_FAILED, text))
         res_all = np.abs(model.all_residuals(theta))
         # Jacobian rows follow the C order of observed; use[observed] marks those in the fit.
         stud = studentized(res_all[observed], model.jacobian(theta), use[observed])
         sigma = mad_sigma(stud)
         if not robust:
-            return theta, use, sigma, nfev, ""
+            return JointFit(theta, use, sigma, nfev, None)
         new = observed.copy()
         if fixed_thr is None:
             new[observed] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay
@@ -336,10 +337,318 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
         # Stop when the set repeats: unchanged, or a cycle through ranges sitting on the threshold
         # (the fits in such a cycle differ by those borderline ranges only).
         if any(np.array_equal(new, old) for old in seen):
-            return theta, use, sigma, nfev, ""
+            return JointFit(theta, use, sigma, nfev, None)
         seen.append(use)
         use = new
-    return theta, use, sigma, nfev, "inlier set still changing after 20 re-fits; "
+    text = "inlier set still changing after 20 re-fits; "
+    return JointFit(theta, use, sigma, nfev, (Status.SOLVER_FAILED, text))
+
+
+@dataclass(frozen=True)
+class RoomProblem:
+    """The inputs of :func:`reconstruct_room`, parsed once; J loudspeakers, M mics, K walls.
+
+    Attributes:
+        mics: (M, d) microphones, metres; ranges: (J, M, 1+K) metres; observed: (J, M, 1+K).
+        centre, scale: the microphones' centroid (d,) and the median observed range, metres.
+        mics_s, ranges_s: centred and divided by ``scale`` (results do not depend on units).
+    """
+
+    mics: np.ndarray
+    ranges: np.ndarray
+    observed: np.ndarray
+    centre: np.ndarray
+    scale: float
+    mics_s: np.ndarray
+    ranges_s: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.mics.shape[1]
+
+
+@dataclass(frozen=True)
+class ColumnStart:
+    """Step 1: each loudspeaker (J, d), the robust per-column points (J, 1+K, d) (NaN where not
+    located with redundancy) and the noise scale sigma0 (scaled units), all scaled coordinates."""
+
+    sources: np.ndarray
+    points: np.ndarray
+    sigma0: float
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """Steps 2-3: the joint estimate theta = (sources, walls as w = o n), the ranges it kept
+    (J, M, 1+K), the final noise scale, function evaluations and the failure (None if none)."""
+
+    theta: np.ndarray
+    use: np.ndarray
+    sigma: float
+    nfev: int
+    failure: tuple[Status, str] | None
+
+
+def _parse_room_problem(mics, ranges, mask) -> RoomProblem:
+    """Validate mics (M, d), ranges (M, 1+K) or a list of J of them and their masks; scale."""
+    m_pts = as_points(mics, "mics")
+    m_n, d = m_pts.shape
+    if m_n < d + 1:
+        raise InvalidInputError(
+            f"mics must hold at least d + 1 = {d + 1} microphones in {d}-D; got {shape_str(m_pts.shape)}"
+        )
+    check_spanning(m_pts, d, "mics", "the image sources are ambiguous (mirror images across it)")
+    range_list, _ = _as_list(ranges, "ranges")
+    if mask is None:
+        mask_list = [None] * len(range_list)
+    else:
+        mask_list, _ = _as_list(mask, "mask")
+        if len(mask_list) != len(range_list):
+            raise InvalidInputError(
+                f"mask must give one mask per range matrix; got {len(mask_list)} for {len(range_list)}"
+            )
+    first = np.asarray(range_list[0])
+    if first.ndim != 2 or first.shape[1] < 2:
+        raise InvalidInputError(
+            f"ranges must have shape (M, 1+K) with K >= 1 echo columns; got {shape_str(first.shape)}"
+        )
+    c_n = first.shape[1]
+    j_n = len(range_list)
+    observed = np.empty((j_n, m_n, c_n), dtype=bool)
+    r_all = np.empty((j_n, m_n, c_n))
+    for j, (r, mk) in enumerate(zip(range_list, mask_list, strict=True)):
+        name = "ranges" if j_n == 1 else f"ranges[{j}]"
+        observed[j] = as_mask(mk, "mask" if j_n == 1 else f"mask[{j}]", shape=(m_n, c_n))
+        r_all[j] = as_ranges(r, name, shape=(m_n, c_n), observed=observed[j])
+    # Work centred on the microphones and scaled to unit size (results do not depend on units).
+    centre = m_pts.mean(axis=0)
+    scale = float(np.median(r_all[observed])) if observed.any() else 1.0
+    scale = scale if scale > 0 else 1.0
+    return RoomProblem(
+        m_pts, r_all, observed, centre, scale, (m_pts - centre) / scale, r_all / scale
+    )
+
+
+def _locate_columns(prob: RoomProblem, robust: bool, rng) -> ColumnStart:
+    """Step 1: each source and image source on its own (eq. 3), robustly if asked.
+
+    The noise scale sigma0 is the median over all columns (every loudspeaker's direct path and
+    echoes) of each column's MAD_TO_STD * MAD of studentized residuals about its own fit: one
+    column that is mostly mis-picked (even a direct path) inflates its own scale, not the median.
+    """
+    mics_s, r_s, observed, d = prob.mics_s, prob.ranges_s, prob.observed, prob.dim
+    j_n, _, c_n = r_s.shape
+    sources0 = np.empty((j_n, d))
+    points0 = np.full((j_n, c_n, d), np.nan)  # robust per-column positions (source, images)
+    column_sigmas: list[float] = []
+    for j in range(j_n):
+        obs = observed[j, :, 0]
+        if obs.sum() < d + 1 or affine_rank(mics_s[obs]) < d:
+            raise InvalidInputError(
+                f"loudspeaker {j}: the direct path (column 0) needs at least {d + 1} observed "
+                f"ranges from microphones spanning {d}-D; got {int(obs.sum())}"
+            )
+        for c in range(c_n):
+            obs = observed[j, :, c]
+            redundant = obs.sum() >= d + 2 and affine_rank(mics_s[obs]) == d
+            if c > 0 and not redundant:
+                continue  # an image without redundancy says nothing about the noise
+            res = multilaterate(mics_s, r_s[j, :, c], mask=obs, robust=robust, rng=rng)
+            if c == 0:
+                sources0[j] = res.position
+            if res.converged and redundant:
+                points0[j, c] = res.position
+                u = mics_s[obs] - res.position  # Jacobian rows: unit vectors from the point
+                u /= np.linalg.norm(u, axis=1, keepdims=True)
+                stud = studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
+                column_sigmas.append(mad_sigma(stud))
+    sigma0 = float(np.median(column_sigmas)) if column_sigmas else 1e-9
+    return ColumnStart(sources0, points0, sigma0)
+
+
+def _consensus_sources(prob: RoomProblem, start: ColumnStart, max_hypotheses: int, rng):
+    """Step 1, robust: each loudspeaker (J, d) by MSAC at 3 sigma0, then through the walls of the
+    loudspeaker whose direct path is most consistent (scaled coordinates)."""
+    mics_s, r_s, observed = prob.mics_s, prob.ranges_s, prob.observed
+    j_n = r_s.shape[0]
+    sources0 = start.sources.copy()
+    # LMedS breaks down when half of a direct path's picks are wrong; knowing sigma, locate
+    # each source again by consensus at 3 sigma (MSAC), which copes if the wrong picks disagree.
+    support = np.zeros(j_n)
+    for j in range(j_n):
+        res = multilaterate(
+            mics_s,
+            r_s[j, :, 0],
+            mask=observed[j, :, 0],
+            robust=True,
+            inlier_threshold=_INLIER_K * start.sigma0,
+            rng=rng,
+        )
+        if res.converged:
+            sources0[j] = res.position
+            support[j] = res.inliers.sum() / max(observed[j, :, 0].sum(), 1)
+    # Even so a direct path with few good picks is ambiguous. The loudspeaker whose direct
+    # path is most consistent gives walls (bisectors of its source and its own images), and
+    # every loudspeaker is located again from all its ranges through those walls.
+    best = int(np.argmax(support))
+    imgs = start.points[best, 1:]
+    known = np.all(np.isfinite(imgs), axis=1)
+    walls_best, ok = _bisector_walls(sources0[best], np.where(known[:, None], imgs, 0.0))
+    known &= ok
+    if j_n > 1 and known.sum() >= 1:
+        cols = np.r_[0, 1 + np.flatnonzero(known)]
+        sources0 = _relocate_sources(
+            mics_s,
+            r_s[:, :, cols],
+            observed[:, :, cols],
+            sources0,
+            walls_best[known],
+            _INLIER_K * start.sigma0,
+            max_hypotheses,
+            rng,
+        )
+    return sources0
+
+
+def _joint_passes(
+    prob: RoomProblem, sources0, sigma0: float, robust: bool, fixed_thr, max_hypotheses, rng
+) -> JointFit:
+    """Steps 2-3: select the walls at the current noise scale, then refine jointly.
+
+    Without a fixed threshold, a second pass selects the walls again at the scale of the first
+    joint fit, which is estimated from every range rather than from the few direct paths (too
+    tight a scale makes the selection favour minimal subsets that fit d+1 ranges exactly).
+    Between the passes each loudspeaker is located again from all its echoes through the walls
+    of the first pass (see _relocate_sources), so a mostly mis-picked direct path is outvoted.
+    """
+    mics_s, r_s, observed = prob.mics_s, prob.ranges_s, prob.observed
+    model = JointWallModel(mics_s, r_s, observed)
+    n_hyp = max_hypotheses if robust else 0
+    sources, sigma, nfev = sources0, sigma0, 0
+    fitted_walls = None
+    for _ in range(2 if robust else 1):
+        thr = fixed_thr if fixed_thr is not None else _INLIER_K * sigma
+        if fitted_walls is not None:
+            sources = _relocate_sources(
+                mics_s, r_s, observed, sources, fitted_walls, thr, n_hyp, rng
+            )
+        walls0 = _select_walls(mics_s, r_s, observed, sources, thr, n_hyp, rng)
+        theta = np.concatenate([sources.ravel(), walls0.ravel()])
+        res0 = np.abs(model.all_residuals(theta))
+        if fixed_thr is None:
+            # The MAD of all ranges about the selected model is a steadier scale than the few
+            # direct paths (it may only be larger: the walls were chosen to fit at sigma).
+            thr = _INLIER_K * max(sigma, MAD_TO_STD * float(np.median(res0[observed])))
+        use = observed & (res0 <= thr) if robust else observed.copy()
+        fit = _reweighted_fit(model, theta, use, robust=robust, fixed_thr=fixed_thr)
+        theta, use, sigma, nfev = fit.theta, fit.use, fit.sigma, nfev + fit.nfev
+        sources, fitted_walls = model.unpack(theta)
+        if fit.failure is not None:  # this pass failed: a second one would start from its failure
+            break
+    return JointFit(theta, use, sigma, nfev, fit.failure)
+
+
+def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_scale: bool):
+    """The reasons (status, text) to distrust a joint fit, in the message's order: its own
+    failure, walls or loudspeakers that most of their ranges disagree with, a rank-deficient fit,
+    residuals far above the noise; and the RMS residual of the fit (scaled units)."""
+    observed, use, d = prob.observed, fit.use, prob.dim
+    j_n, _, c_n = observed.shape
+    problems: list[tuple[Status | None, str]] = [] if fit.failure is None else [fit.failure]
+    # Every wall needs the support of at least half its observed echoes (over all loudspeakers)
+    # and, when more than d + 1 were observed, of more than d + 1 (d + 1 fit a plane exactly, so
+    # they would confirm nothing). A wall heard exactly d + 1 times is determined, unverified.
+    for k in range(c_n - 1):
+        n_in, n_obs = int(use[:, :, 1 + k].sum()), int(observed[:, :, 1 + k].sum())
+        if n_in < min(d + 2, n_obs) or 2 * n_in < n_obs:
+            text = f"wall {k}: only {n_in} of {n_obs} echo ranges agree with the fit; "
+            problems.append((Status.OUTLIERS, text))
+    # The kept ranges must determine every unknown (full-rank Jacobian): otherwise, e.g. a source
+    # whose direct path kept fewer than d + 1 ranges, the answer is one of a family of fits.
+    final = JointWallModel(prob.mics_s, prob.ranges_s, use)
+    res_final = final.residuals(fit.theta)  # scaled units
+    sv = np.linalg.svd(final.jacobian(fit.theta), compute_uv=False)
+    if sv.size < fit.theta.size or sv[-1] <= 1e-9 * sv[0]:
+        text = "the ranges kept do not determine every source and wall (rank-deficient fit); "
+        problems.append((Status.NOT_IDENTIFIABLE, text))
+    # The fit must explain its inliers at the noise level of the individual columns: a scale far
+    # above it means the inlier test grew to accept a wrong model.
+    rms_s = float(np.sqrt(np.mean(res_final**2))) if res_final.size else float("nan")
+    if rms_s > _MAX_RELATIVE_RMS:  # ranges are scaled by their median
+        text = f"RMS residual {rms_s:.1%} of the median range: no consistent room fits the data; "
+        problems.append((Status.INCONSISTENT, text))
+    if check_scale and fit.sigma > _MAX_SCALE_GROWTH * sigma0:
+        scale = prob.scale
+        text = (
+            f"the fit's noise scale {fit.sigma * scale:.3g} m is over {_MAX_SCALE_GROWTH:g} times that of "
+            f"the individual echoes ({sigma0 * scale:.3g} m): an inconsistent model; "
+        )
+        problems.append((Status.INCONSISTENT, text))
+    # A loudspeaker whose ranges mostly disagree with the fit was not located (beyond the 50%
+    # breakdown point of the robust estimators): say so rather than return it as converged.
+    # (Its direct path alone may be mostly wrong: the echoes through the walls locate it.)
+    for j in range(j_n):
+        n_obs, n_in = int(observed[j].sum()), int(use[j].sum())
+        if 2 * n_in < n_obs:
+            text = (
+                f"loudspeaker {j}: only {n_in} of its {n_obs} ranges agree with the fit "
+                "(more than half mis-picked?); "
+            )
+            problems.append((Status.OUTLIERS, text))
+    return problems, rms_s
+
+
+def _room_result(prob: RoomProblem, fit: JointFit, problems, rms_s: float, hint: bool):
+    """Walls oriented outward, checked to bound a room around the sources; the result in the
+    caller's units (``hint``: suggest inlier_threshold when the run did not converge)."""
+    final = JointWallModel(prob.mics_s, prob.ranges_s, fit.use)
+    s_s, w_s = final.unpack(fit.theta)
+    offsets_s = np.linalg.norm(w_s, axis=1)
+    normals = w_s / offsets_s[:, None]
+    images_s = _images(s_s, w_s)
+    # Orientation: outward normals point from the sources to their images.
+    side = np.einsum("jkd,kd->jk", images_s - s_s[:, None, :], normals)
+    if np.any(side <= 0):
+        bad = sorted({int(k) for k in np.argwhere(side <= 0)[:, 1]})
+        text = f"walls {bad} do not separate the microphones' centroid from the sources; "
+        problems.append((Status.OUT_OF_RANGE, text))
+    centre, scale = prob.centre, prob.scale
+    sources = centre + scale * s_s
+    wall_offsets = scale * offsets_s + normals @ centre
+    room = None
+    try:
+        room = Room(normals, wall_offsets)
+    except (DegenerateGeometryError, InvalidInputError) as exc:
+        # Only a note: the walls' consistency was judged above, the status stays as it is.
+        problems.append((None, f"the walls do not bound a room ({exc}); "))
+    if room is not None and not np.all(room.contains(sources, margin=-1e-6 * room.size)):
+        problems.append((Status.OUT_OF_RANGE, "a source lies outside the reconstructed room; "))
+    status = next((st for st, _ in problems if st is not None), Status.CONVERGED)
+    message = "".join(text for _, text in problems)
+    if status is not Status.CONVERGED and hint:
+        message += (
+            "for measured echoes, which are less accurate than the direct sound, pass "
+            "inlier_threshold (a few samples of c/fs); "
+        )
+    if status is Status.CONVERGED:
+        message += (
+            f"converged: {int(fit.use.sum())} of {int(prob.observed.sum())} ranges used, "
+            f"RMS residual {rms_s * scale:.3g} m"
+        )
+    return RoomReconstruction(
+        sources=frozen(sources),
+        image_sources=frozen(centre + scale * images_s),
+        wall_normals=frozen(normals),
+        wall_offsets=frozen(wall_offsets),
+        room=room,
+        observed=frozen(prob.observed),
+        inliers=frozen(fit.use),
+        residual_rms=rms_s * scale,
+        noise_scale=float(fit.sigma * scale),
+        status=status,
+        message=message.strip().rstrip(";"),
+        iterations=int(fit.nfev),
+    )
 
 
 def reconstruct_room(
@@ -375,235 +684,11 @@ def reconstruct_room(
         :class:`RoomReconstruction`; ``sources`` is (J, d) even for one loudspeaker.
     """
     rng = np.random.default_rng(rng)
-    m_pts = as_points(mics, "mics")
-    m_n, d = m_pts.shape
-    if m_n < d + 1:
-        raise InvalidInputError(
-            f"mics must hold at least d + 1 = {d + 1} microphones in {d}-D; got {shape_str(m_pts.shape)}"
-        )
-    if affine_rank(m_pts) < d:
-        kind = {0: "coincident", 1: "collinear", 2: "coplanar"}[affine_rank(m_pts)]
-        raise DegenerateGeometryError(
-            f"mics are {kind}: in {d}-D they must not all lie in one {'plane' if d == 3 else 'line'}, "
-            "or the image sources are ambiguous (mirror images across it)"
-        )
-    range_list, _ = _as_list(ranges, "ranges")
-    if mask is None:
-        mask_list = [None] * len(range_list)
-    else:
-        mask_list, _ = _as_list(mask, "mask")
-        if len(mask_list) != len(range_list):
-            raise InvalidInputError(
-                f"mask must give one mask per range matrix; got {len(mask_list)} for {len(range_list)}"
-            )
-    first = np.asarray(range_list[0])
-    if first.ndim != 2 or first.shape[1] < 2:
-        raise InvalidInputError(
-            f"ranges must have shape (M, 1+K) with K >= 1 echo columns; got {shape_str(first.shape)}"
-        )
-    c_n = first.shape[1]
-    k_n = c_n - 1
-    j_n = len(range_list)
-    observed = np.empty((j_n, m_n, c_n), dtype=bool)
-    r_all = np.empty((j_n, m_n, c_n))
-    for j, (r, mk) in enumerate(zip(range_list, mask_list, strict=True)):
-        name = "ranges" if j_n == 1 else f"ranges[{j}]"
-        observed[j] = as_mask(mk, "mask" if j_n == 1 else f"mask[{j}]", shape=(m_n, c_n))
-        r_all[j] = as_ranges(r, name, shape=(m_n, c_n), observed=observed[j])
-
-    # Work centred on the microphones and scaled to unit size (results do not depend on units).
-    centre = m_pts.mean(axis=0)
-    scale = float(np.median(r_all[observed])) if observed.any() else 1.0
-    scale = scale if scale > 0 else 1.0
-    mics_s = (m_pts - centre) / scale
-    r_s = r_all / scale
-
-    # 1. Each source and image source on its own (eq. 3), robustly if asked. The noise scale sigma
-    # is the median over all columns (every loudspeaker's direct path and echoes) of each column's
-    # 1.4826 MAD of studentized residuals about its own fit: one column that is mostly mis-picked
-    # (even a direct path) inflates its own scale, not the median.
-    sources0 = np.empty((j_n, d))
-    points0 = np.full((j_n, c_n, d), np.nan)  # robust per-column positions (source, images)
-    column_sigmas: list[float] = []
-    for j in range(j_n):
-        obs = observed[j, :, 0]
-        if obs.sum() < d + 1 or affine_rank(mics_s[obs]) < d:
-            raise InvalidInputError(
-                f"loudspeaker {j}: the direct path (column 0) needs at least {d + 1} observed "
-                f"ranges from microphones spanning {d}-D; got {int(obs.sum())}"
-            )
-        for c in range(c_n):
-            obs = observed[j, :, c]
-            redundant = obs.sum() >= d + 2 and affine_rank(mics_s[obs]) == d
-            if c > 0 and not redundant:
-                continue  # an image without redundancy says nothing about the noise
-            res = multilaterate(mics_s, r_s[j, :, c], mask=obs, robust=robust, rng=rng)
-            if c == 0:
-                sources0[j] = res.position
-            if res.converged and redundant:
-                points0[j, c] = res.position
-                u = mics_s[obs] - res.position  # Jacobian rows: unit vectors from the point
-                u /= np.linalg.norm(u, axis=1, keepdims=True)
-                stud = studentized(np.abs(res.residuals[obs]), u, res.inliers[obs])
-                column_sigmas.append(mad_sigma(stud))
-    sigma0 = float(np.median(column_sigmas)) if column_sigmas else 1e-9
-    if robust:
-        # LMedS breaks down when half of a direct path's picks are wrong; knowing sigma, locate
-        # each source again by consensus at 3 sigma (MSAC), which copes if the wrong picks disagree.
-        support = np.zeros(j_n)
-        for j in range(j_n):
-            res = multilaterate(
-                mics_s,
-                r_s[j, :, 0],
-                mask=observed[j, :, 0],
-                robust=True,
-                inlier_threshold=_INLIER_K * sigma0,
-                rng=rng,
-            )
-            if res.converged:
-                sources0[j] = res.position
-                support[j] = res.inliers.sum() / max(observed[j, :, 0].sum(), 1)
-        # Even so a direct path with few good picks is ambiguous. The loudspeaker whose direct
-        # path is most consistent gives walls (bisectors of its source and its own images), and
-        # every loudspeaker is located again from all its ranges through those walls.
-        best = int(np.argmax(support))
-        imgs = points0[best, 1:]
-        known = np.all(np.isfinite(imgs), axis=1)
-        walls_best, ok = _bisector_walls(sources0[best], np.where(known[:, None], imgs, 0.0))
-        known &= ok
-        if j_n > 1 and known.sum() >= 1:
-            cols = np.r_[0, 1 + np.flatnonzero(known)]
-            sources0 = _relocate_sources(
-                mics_s,
-                r_s[:, :, cols],
-                observed[:, :, cols],
-                sources0,
-                walls_best[known],
-                _INLIER_K * sigma0,
-                max_hypotheses,
-                rng,
-            )
-    fixed_thr = None if inlier_threshold is None else float(inlier_threshold) / scale
-    model = JointWallModel(mics_s, r_s, observed)
-    n_hyp = max_hypotheses if robust else 0
-
-    # 2-3. Select the walls at the current noise scale, then refine jointly. Without a fixed
-    # threshold, a second pass selects the walls again at the scale of the first joint fit, which
-    # is estimated from every range rather than from the few direct paths (too tight a scale
-    # makes the selection favour minimal subsets that fit d+1 ranges exactly).
-    # Between the passes each loudspeaker is located again from all its echoes through the walls
-    # of the first pass (see _relocate_sources), so a mostly mis-picked direct path is outvoted.
-    passes = 2 if robust else 1
-    sources, sigma, nfev = sources0, sigma0, 0
-    fitted_walls = None
-    for _ in range(passes):
-        thr = fixed_thr if fixed_thr is not None else _INLIER_K * sigma
-        if fitted_walls is not None:
-            sources = _relocate_sources(
-                mics_s, r_s, observed, sources, fitted_walls, thr, n_hyp, rng
-            )
-        walls0 = _select_walls(mics_s, r_s, observed, sources, thr, n_hyp, rng)
-        theta = np.concatenate([sources.ravel(), walls0.ravel()])
-        res0 = np.abs(model.all_residuals(theta))
-        if fixed_thr is None:
-            # The MAD of all ranges about the selected model is a steadier scale than the few
-            # direct paths (it may only be larger: the walls were chosen to fit at sigma).
-            thr = _INLIER_K * max(sigma, 1.4826 * float(np.median(res0[observed])))
-        use = observed & (res0 <= thr) if robust else observed.copy()
-        theta, use, sigma, n_eval, message = _reweighted_fit(
-            model, theta, use, robust=robust, fixed_thr=fixed_thr
-        )
-        nfev += n_eval
-        sources, fitted_walls = model.unpack(theta)
-        if message:  # this pass failed: a second one would start from its failure
-            break
-    converged = not message
-    # Every wall needs the support of at least half its observed echoes (over all loudspeakers)
-    # and, when more than d + 1 were observed, of more than d + 1 (d + 1 fit a plane exactly, so
-    # they would confirm nothing). A wall heard exactly d + 1 times is determined, unverified.
-    for k in range(k_n):
-        n_in, n_obs = int(use[:, :, 1 + k].sum()), int(observed[:, :, 1 + k].sum())
-        if n_in < min(d + 2, n_obs) or 2 * n_in < n_obs:
-            converged = False
-            message += f"wall {k}: only {n_in} of {n_obs} echo ranges agree with the fit; "
-    # The kept ranges must determine every unknown (full-rank Jacobian): otherwise, e.g. a source
-    # whose direct path kept fewer than d + 1 ranges, the answer is one of a family of fits.
-    final = JointWallModel(mics_s, r_s, use)
-    res_final = final.residuals(theta)  # scaled units
-    sv = np.linalg.svd(final.jacobian(theta), compute_uv=False)
-    if sv.size < theta.size or sv[-1] <= 1e-9 * sv[0]:
-        converged = False
-        message += "the ranges kept do not determine every source and wall (rank-deficient fit); "
-    # The fit must explain its inliers at the noise level of the individual columns: a scale far
-    # above it means the inlier test grew to accept a wrong model.
-    rms_s = float(np.sqrt(np.mean(res_final**2))) if res_final.size else float("nan")
-    if rms_s > _MAX_RELATIVE_RMS:  # ranges are scaled by their median
-        converged = False
-        message += (
-            f"RMS residual {rms_s:.1%} of the median range: no consistent room fits the data; "
-        )
-    if robust and fixed_thr is None and sigma > _MAX_SCALE_GROWTH * sigma0:
-        converged = False
-        message += (
-            f"the fit's noise scale {sigma * scale:.3g} m is over {_MAX_SCALE_GROWTH:g} times that of "
-            f"the individual echoes ({sigma0 * scale:.3g} m): an inconsistent model; "
-        )
-
-    # A loudspeaker whose ranges mostly disagree with the fit was not located (beyond the 50%
-    # breakdown point of the robust estimators): say so rather than return it as converged.
-    # (Its direct path alone may be mostly wrong: the echoes through the walls locate it.)
-    for j in range(j_n):
-        n_obs, n_in = int(observed[j].sum()), int(use[j].sum())
-        if 2 * n_in < n_obs:
-            converged = False
-            message += (
-                f"loudspeaker {j}: only {n_in} of its {n_obs} ranges agree with the fit "
-                "(more than half mis-picked?); "
-            )
-
-    s_s, w_s = final.unpack(theta)
-    offsets_s = np.linalg.norm(w_s, axis=1)
-    normals = w_s / offsets_s[:, None]
-    images_s = _images(s_s, w_s)
-    # Orientation: outward normals point from the sources to their images.
-    side = np.einsum("jkd,kd->jk", images_s - s_s[:, None, :], normals)
-    if np.any(side <= 0):
-        bad = sorted({int(k) for k in np.argwhere(side <= 0)[:, 1]})
-        converged = False
-        message += f"walls {bad} do not separate the microphones' centroid from the sources; "
-    sources = centre + scale * s_s
-    image_sources = centre + scale * images_s
-    wall_offsets = scale * offsets_s + normals @ centre
-    rms = rms_s * scale
-
-    room = None
-    try:
-        room = Room(normals, wall_offsets)
-    except (DegenerateGeometryError, InvalidInputError) as exc:
-        message += f"the walls do not bound a room ({exc}); "
-    if room is not None:
-        tol = 1e-6 * room.size
-        if not np.all(room.contains(sources, margin=-tol)):
-            converged = False
-            message += "a source lies outside the reconstructed room; "
-    if not converged and robust and inlier_threshold is None:
-        message += (
-            "for measured echoes, which are less accurate than the direct sound, pass "
-            "inlier_threshold (a few samples of c/fs); "
-        )
-    if converged:
-        message += f"converged: {int(use.sum())} of {int(observed.sum())} ranges used, RMS residual {rms:.3g} m"
-    return RoomReconstruction(
-        sources=frozen(sources),
-        image_sources=frozen(image_sources),
-        wall_normals=frozen(normals),
-        wall_offsets=frozen(wall_offsets),
-        room=room,
-        observed=frozen(observed),
-        inliers=frozen(use),
-        residual_rms=rms,
-        noise_scale=float(sigma * scale),
-        converged=converged,
-        message=message.strip().rstrip(";"),
-        iterations=int(nfev),
-    )
+    prob = _parse_room_problem(mics, ranges, mask)
+    start = _locate_columns(prob, robust, rng)
+    sources0 = _consensus_sources(prob, start, max_hypotheses, rng) if robust else start.sources
+    fixed_thr = None if inlier_threshold is None else float(inlier_threshold) / prob.scale
+    fit = _joint_passes(prob, sources0, start.sigma0, robust, fixed_thr, max_hypotheses, rng)
+    check_scale = robust and fixed_thr is None
+    problems, rms_s = _support_problems(prob, fit, start.sigma0, check_scale)
+    return _room_result(prob, fit, problems, rms_s, hint=robust and inlier_threshold is None)

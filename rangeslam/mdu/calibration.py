@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._robust import mad_sigma, studentized
+from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
 from rangeslam._validation import check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
@@ -30,6 +30,7 @@ from rangeslam.mdu.core import (
     EXACT_RTOL,
     MAX_RELATIVE_RMS,
     SAME_RTOL,
+    ConvexIterationOptions,
     canonical_frame,
     check_determined,
     convex_iteration_runs,
@@ -45,6 +46,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_jacobian,
     unfolding_residuals,
 )
+from rangeslam.status import HasStatus, Status
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -59,7 +61,7 @@ _INLIER_K = 3.0
 
 
 @dataclass(frozen=True)
-class Calibration:
+class Calibration(HasStatus):
     """Result of :func:`calibrate`. M receivers, K sources, d = 2 or 3.
 
     Attributes:
@@ -73,9 +75,10 @@ class Calibration:
             data have no redundancy.
         redundancy: inlier ranges minus unknowns up to a rigid motion (the chi-square degrees of
             freedom of the residual test).
-        converged: the answer passed the residual test against ``noise_std``, or without it won
-            the vote of two starts (see :func:`calibrate`).
-        message: why not, when ``converged`` is False; empty otherwise.
+        status: CONVERGED when the answer passed the residual test against ``noise_std``, or
+            without it won the vote of two starts (see :func:`calibrate`); else why not
+            (``converged`` is derived from it).
+        message: why not, when not converged; empty otherwise.
         attempts: convex-iteration runs made (see ``max_attempts`` of :func:`calibrate`).
         iterations: SDP solves over all attempts.
         random_starts: least-squares runs from random points made after the attempts failed.
@@ -94,7 +97,7 @@ class Calibration:
     residual_rms: float
     noise_estimate: float
     redundancy: int
-    converged: bool
+    status: Status
     message: str
     attempts: int
     iterations: int
@@ -110,8 +113,11 @@ class Calibration:
         return int(np.sum(self.observed & ~self.inliers))
 
 
-@dataclass
-class _Candidate:
+@dataclass(frozen=True)
+class Candidate:
+    """One refined start: its fit, the ranges it used (M, K), the SDP answer it came from (None
+    for a random start), its sum of squared inlier residuals (m^2), its ranking key and notes."""
+
     fit: UnfoldingFit
     inliers: np.ndarray
     completion: EDMCompletion | None
@@ -120,6 +126,7 @@ class _Candidate:
     message: str
 
     def edm(self) -> np.ndarray:
+        """(M + K, M + K) squared distances of the fitted points."""
         return edm(np.vstack([self.fit.receivers, self.fit.sources]))
 
 
@@ -168,6 +175,11 @@ def _reject_outliers(fit, ranges, mask, dim, noise_std):
     return fit, use, "inlier set still changing after 20 re-fits; "
 
 
+def _agreeing(p, anchors, r, obs, threshold: float) -> int:
+    """How many observed ranges ``r`` from ``anchors`` a point p (d,) meets within threshold."""
+    return int(np.sum(np.abs(np.linalg.norm(anchors[obs] - p, axis=1) - r[obs]) <= threshold))
+
+
 def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: float, rng):
     """Resection: move each point to where a robust multilateration from the others puts it, when
     more of its ranges then agree (within ``threshold``). Returns (fit, number of points moved).
@@ -186,11 +198,6 @@ def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: flo
         if obs.sum() < dim + 2:
             continue
 
-        def agreeing(p, anchors=anchors, r=r, obs=obs):
-            return int(
-                np.sum(np.abs(np.linalg.norm(anchors[obs] - p, axis=1) - r[obs]) <= threshold)
-            )
-
         try:
             cand = multilaterate(
                 anchors,
@@ -203,7 +210,9 @@ def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: flo
             )
         except (DegenerateGeometryError, InvalidInputError):
             continue
-        if agreeing(cand.position) > agreeing(points[i]):
+        if _agreeing(cand.position, anchors, r, obs, threshold) > _agreeing(
+            points[i], anchors, r, obs, threshold
+        ):
             points[i] = cand.position
             moved += 1
     if moved:
@@ -227,6 +236,253 @@ def _robust_refit(fit: UnfoldingFit, ranges, observed, dim: int, scale: float, r
         fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
     )
     return fit, note
+
+
+@dataclass(frozen=True)
+class CalibrationProblem:
+    """The validated inputs of :func:`calibrate` (built once by :func:`parse_calibration`)."""
+
+    ranges: np.ndarray  # (M, K) metres, 0 where not observed
+    observed: np.ndarray  # (M, K) bool
+    scale: float  # median observed range, metres
+    dim: int
+    noise_std: float | None
+    refine: bool
+    robust: bool
+    random_starts: int
+    options: ConvexIterationOptions
+
+    @property
+    def n_points(self) -> int:
+        """M + K."""
+        return sum(self.ranges.shape)
+
+    @property
+    def exact_rms(self) -> float:
+        """RMS residual of exact data (round-off only), metres."""
+        return _EXACT_RTOL[bool(self.refine)] * self.scale
+
+
+@dataclass(frozen=True)
+class Start:
+    """A starting point (M + K, d): a convex-iteration run's (``completion`` set) or random."""
+
+    points: np.ndarray
+    completion: EDMCompletion | None
+
+
+@dataclass(frozen=True)
+class SearchOutcome:
+    """The best candidate of the starts tried, whether another start confirmed it, and counts."""
+
+    best: Candidate | None
+    confirmed: bool
+    attempts: int
+    iterations: int
+    random_starts: int
+    solver_failures: tuple[str, ...]
+
+
+def parse_calibration(
+    ranges, mask, dim, noise_std, refine, robust, random_starts, options: ConvexIterationOptions
+) -> CalibrationProblem:
+    """The front door of :func:`calibrate`: every input checked once."""
+    r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
+    for name, value, low in (
+        ("max_attempts", options.max_attempts, 1),
+        ("max_iterations", options.max_iterations, 1),
+        ("random_starts", random_starts, 0),
+    ):
+        check_int(value, name, low)
+    if robust and not refine:
+        raise InvalidInputError(
+            "robust=True needs refine=True (wrong picks are found by refitting)"
+        )
+    fit_weight, gap_tol = options.fit_weight, options.gap_tol
+    if not (np.isfinite(fit_weight) and fit_weight > 0):
+        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
+    if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
+        raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
+    return CalibrationProblem(
+        r, observed, scale, dim, noise_std, bool(refine), bool(robust), random_starts, options
+    )
+
+
+def starting_points(problem: CalibrationProblem, rng, failures: list[str]):
+    """Yield :class:`Start`: the convex-iteration runs (eq. 10), then, with ``refine`` and not
+    ``robust``, up to ``random_starts`` random points (not when every SDP run failed)."""
+    # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
+    from rangeslam.solvers.sdp import EDMCompletionSDP
+
+    w = mdu_mask(problem.observed)
+    sdp = EDMCompletionSDP(w, loss="l1" if problem.robust else "l2")
+    d_tilde = mdu_edm(problem.ranges)
+    for completion in convex_iteration_runs(
+        sdp, d_tilde, w, problem.dim, options=problem.options, rng=rng, failures=failures
+    ):
+        yield Start(completion.points, completion)
+    if len(failures) == problem.options.max_attempts:
+        return  # the SDP failed every time: raise below rather than guess
+    # Last resort: least squares from random points (measured to rescue most of the 2-4% of
+    # Fig. 3 configurations the convex-iteration runs miss).
+    if problem.refine and not problem.robust:
+        for _ in range(problem.random_starts):
+            yield Start(rng.standard_normal((problem.n_points, problem.dim)) * problem.scale, None)
+
+
+def robust_cauchy_scale(fit: UnfoldingFit, problem: CalibrationProblem) -> float:
+    """Cauchy scale from the first SDP's points: MAD_TO_STD times the median |residual| (at
+    least the exact-data RMS), metres."""
+    mad = float(np.median(np.abs(fit.residuals[problem.observed])))
+    return max(MAD_TO_STD * mad, problem.exact_rms)
+
+
+def fit_start(
+    start: Start, problem: CalibrationProblem, cauchy_scale: float | None, rng
+) -> Candidate | None:
+    """Refine one start: Gaussian least squares, or the robust refit and outlier rejection;
+    None when the fit diverged."""
+    r, observed, m = problem.ranges, problem.observed, problem.ranges.shape[0]
+    fit = _embedding_fit(start.points, m, r, observed)
+    inliers, note = observed, ""
+    if problem.robust:
+        fit, note = _robust_refit(fit, r, observed, problem.dim, cauchy_scale, rng)
+        fit, inliers, rejection_note = _reject_outliers(
+            fit, r, observed, problem.dim, problem.noise_std
+        )
+        note += rejection_note
+    elif problem.refine:
+        fit = refine_unfolding(start.points[:m], start.points[m:], r, observed)
+    ssr = float(np.sum(fit.residuals[inliers] ** 2))
+    if not np.isfinite(ssr):
+        return None  # a diverged fit is no candidate
+    # Robust runs are ranked by the Cauchy cost of all observed ranges (inlier sets differ).
+    key = _cauchy_cost(fit, r, observed, cauchy_scale) if problem.robust else ssr
+    return Candidate(fit, inliers, start.completion, ssr, key, note)
+
+
+def search(problem: CalibrationProblem, rng) -> SearchOutcome:
+    """Fit the starts in turn, keeping the lowest; stop at the first accepted one (not robust),
+    or without noise_std once every convex-iteration run is made and the best was reached twice."""
+    failures: list[str] = []
+    cauchy_scale = problem.noise_std if problem.noise_std else None
+    best: Candidate | None = None
+    confirmed = False
+    iterations = attempts = starts = 0
+    for start in starting_points(problem, rng, failures):
+        if start.completion is not None:
+            attempts += 1
+            iterations += start.completion.iterations
+        else:
+            starts += 1
+        if problem.robust and cauchy_scale is None:
+            fit0 = _embedding_fit(
+                start.points, problem.ranges.shape[0], problem.ranges, problem.observed
+            )
+            cauchy_scale = robust_cauchy_scale(fit0, problem)
+        cand = fit_start(start, problem, cauchy_scale, rng)
+        if cand is None:
+            continue
+        # Votes count refined fits only: raw SDP points from different weights never coincide.
+        same = problem.refine and best is not None and _same(cand, best, problem.scale)
+        confirmed = confirmed or same
+        if best is None or cand.key < best.key:
+            confirmed = confirmed and same
+            best = cand
+        # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
+        # so robust runs are all made and ranked by their cost over all ranges.
+        if not problem.robust and _accepted(best, problem):
+            break
+        # Without a noise level a wrong minimum cannot be told from noise by its residual: every
+        # convex-iteration run is made, and the lowest configuration must have been reached twice.
+        all_runs = attempts + len(failures) == problem.options.max_attempts
+        if problem.noise_std is None and confirmed and all_runs:
+            break
+    return SearchOutcome(best, confirmed, attempts, iterations, starts, tuple(failures))
+
+
+def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> tuple[Status, str]:
+    """Status and message of the best candidate: NOT_IDENTIFIABLE without redundancy, OUTLIERS
+    when robust dropped over half the redundant ranges, INCONSISTENT / NO_AGREEMENT when no start
+    passed the residual test / the vote, SOLVER_FAILED when least squares failed."""
+    best, observed, noise_std = outcome.best, problem.observed, problem.noise_std
+    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    n_in = int(best.inliers.sum())
+    redundancy, redundancy_all = n_in - unknowns, int(observed.sum()) - unknowns
+    n_dropped = int(observed.sum()) - n_in
+    rms = float(np.sqrt(best.ssr / n_in))
+    n_starts = outcome.attempts + outcome.random_starts
+    message = best.message
+    if outcome.solver_failures:
+        failures = outcome.solver_failures
+        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
+    status = Status.CONVERGED
+    if redundancy == 0:
+        status = Status.NOT_IDENTIFIABLE
+        message += (
+            "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
+            "solutions and the data cannot tell which is right; "
+        )
+    elif problem.robust and n_dropped > redundancy_all / 2:
+        status = Status.OUTLIERS
+        message += (
+            f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
+            f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
+            "fit by dropping enough ranges); "
+        )
+    elif (
+        rms <= problem.exact_rms
+        or _accepted(best, problem)
+        or (noise_std is None and outcome.confirmed and rms <= MAX_RELATIVE_RMS * problem.scale)
+    ):
+        pass
+    elif noise_std is not None:
+        status = Status.INCONSISTENT
+        message += (
+            f"no start in {n_starts} passed the residual test: best RMS residual "
+            f"{rms:.3g} m for noise_std {noise_std:.3g} m (a local minimum, or wrong ranges); "
+        )
+    else:
+        status = Status.NO_AGREEMENT
+        message += (
+            f"no configuration was reached twice from {n_starts} starts (best RMS residual "
+            f"{rms:.3g} m); pass noise_std to test the residual instead; "
+        )
+    if (problem.refine or problem.robust) and not best.fit.converged:
+        status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
+        message += f"least squares failed: {best.fit.message}; "
+    return status, message.rstrip("; ")
+
+
+def calibration_result(
+    outcome: SearchOutcome, problem: CalibrationProblem, status: Status, message: str
+) -> Calibration:
+    """The :class:`Calibration` of the best candidate, in the canonical frame."""
+    best, observed = outcome.best, problem.observed
+    fit = best.fit
+    n_in = int(best.inliers.sum())
+    redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
+    comp = best.completion
+    return Calibration(
+        receivers=frozen(receivers),
+        sources=frozen(sources),
+        residuals=frozen(np.where(observed, fit.residuals, np.nan)),
+        observed=frozen(observed),
+        inliers=frozen(best.inliers.copy()),
+        residual_rms=float(np.sqrt(best.ssr / n_in)),
+        noise_estimate=float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan"),
+        redundancy=int(redundancy),
+        status=status,
+        message=message,
+        attempts=outcome.attempts,
+        iterations=outcome.iterations,
+        random_starts=outcome.random_starts,
+        origin="random_start" if comp is None else "convex_iteration",
+        eigen_gap=np.nan if comp is None else comp.eigen_gap,
+        sdp_status="" if comp is None else comp.status,
+        solver="" if comp is None else comp.solver,
+    )
 
 
 def calibrate(
@@ -268,186 +524,37 @@ def calibrate(
         max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
-            random starting points (a last resort, measured to rescue most of the 2-4% of Fig. 3
-            configurations the runs miss; only with ``refine``).
+            random starting points (a last resort; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per convex-iteration run.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.
 
-    Returns a :class:`Calibration`; ``converged`` is False (with a message) when no attempt passed
-    the check. Raises InvalidInputError for bad input or an under-determined mask. An SDP run that
-    fails with both Clarabel and the SCS fallback is noted in the message and the others go on;
+    Returns a :class:`Calibration`; its ``status`` says why when no attempt passed the check.
+    Raises InvalidInputError for bad input or an under-determined mask. An SDP run that fails
+    with both Clarabel and the SCS fallback is noted in the message and the others go on;
     SolverError (with the statuses) when no run gives a usable answer.
     """
-    r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
-    m, k = r.shape
-    for name, value, low in (
-        ("max_attempts", max_attempts, 1),
-        ("max_iterations", max_iterations, 1),
-        ("random_starts", random_starts, 0),
-    ):
-        check_int(value, name, low)
-    # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
-    from rangeslam.solvers.sdp import EDMCompletionSDP
-
-    if robust and not refine:
-        raise InvalidInputError(
-            "robust=True needs refine=True (wrong picks are found by refitting)"
-        )
-    if not (np.isfinite(fit_weight) and fit_weight > 0):
-        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
-    if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
-        raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
-    rng = np.random.default_rng(rng)
-    n = m + k
-    w = mdu_mask(observed)
-    d_tilde = mdu_edm(r)
-    problem = EDMCompletionSDP(w, loss="l1" if robust else "l2")
-    exact_rms = _EXACT_RTOL[bool(refine)] * scale
-
-    solver_failures: list[str] = []
-
-    def starting_points():
-        """Yield (points (N, d), completion or None): convex-iteration runs, then random starts."""
-        for completion in convex_iteration_runs(
-            problem,
-            d_tilde,
-            w,
-            dim,
-            max_attempts=max_attempts,
-            fit_weight=fit_weight,
-            max_iterations=max_iterations,
-            gap_tol=gap_tol,
-            rng=rng,
-            failures=solver_failures,
-        ):
-            yield completion.points, completion
-        if len(solver_failures) == max_attempts:
-            return  # the SDP failed every time: raise below rather than guess
-        if refine and not robust:  # last resort: least squares from random points
-            for _ in range(random_starts):
-                yield rng.standard_normal((n, dim)) * scale, None
-
-    cauchy_scale = noise_std if noise_std else None
-    best: _Candidate | None = None
-    confirmed = False
-    iterations = attempts = starts = 0
-    for pts, completion in starting_points():
-        if completion is not None:
-            attempts += 1
-            iterations += completion.iterations
-        else:
-            starts += 1
-        fit = _embedding_fit(pts, m, r, observed)
-        inliers, note = observed, ""
-        if robust:
-            if cauchy_scale is None:  # from the first SDP's points: 1.4826 MAD of the residuals
-                cauchy_scale = max(
-                    1.4826 * float(np.median(np.abs(fit.residuals[observed]))), exact_rms
-                )
-            fit, note = _robust_refit(fit, r, observed, dim, cauchy_scale, rng)
-            fit, inliers, rejection_note = _reject_outliers(fit, r, observed, dim, noise_std)
-            note += rejection_note
-        elif refine:
-            fit = refine_unfolding(pts[:m], pts[m:], r, observed)
-        ssr = float(np.sum(fit.residuals[inliers] ** 2))
-        if not np.isfinite(ssr):
-            continue  # a diverged fit is no candidate
-        # Robust runs are ranked by the Cauchy cost of all observed ranges (inlier sets differ).
-        key = _cauchy_cost(fit, r, observed, cauchy_scale) if robust else ssr
-        cand = _Candidate(fit, inliers, completion, ssr, key, note)
-        # Votes count refined fits only: raw SDP points from different weights never coincide.
-        same = refine and best is not None and _same(cand, best, scale)
-        confirmed = confirmed or same
-        if best is None or key < best.key:
-            confirmed = confirmed and same
-            best = cand
-        # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
-        # so robust runs are all made and ranked by their cost over all ranges.
-        if not robust and _accepted(best, noise_std, exact_rms, n, dim):
-            break
-        # Without a noise level a wrong minimum cannot be told from noise by its residual: every
-        # convex-iteration run is made, and the lowest configuration must have been reached twice.
-        if noise_std is None and confirmed and attempts + len(solver_failures) == max_attempts:
-            break
-
-    if best is None:
+    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
+    problem = parse_calibration(
+        ranges, mask, dim, noise_std, refine, robust, random_starts, options
+    )
+    outcome = search(problem, np.random.default_rng(rng))
+    if outcome.best is None:
+        failures = outcome.solver_failures
         raise SolverError(
             "calibration found no usable solution: every SDP run failed"
-            if len(solver_failures) == max_attempts
+            if len(failures) == max_attempts
             else "calibration found no usable solution: every fit diverged",
-            status="; ".join(dict.fromkeys(solver_failures)) or None,
+            status="; ".join(dict.fromkeys(failures)) or None,
         )
-    fit = best.fit
-    n_in = int(best.inliers.sum())
-    redundancy = n_in - unknowns_up_to_rigid_motion(n, dim)
-    redundancy_all = int(observed.sum()) - unknowns_up_to_rigid_motion(n, dim)
-    n_dropped = int(observed.sum()) - n_in
-    rms = float(np.sqrt(best.ssr / n_in))
-    message = best.message
-    if solver_failures:
-        message += f"{len(solver_failures)} SDP runs failed ({solver_failures[0]}); "
-    exact = rms <= exact_rms
-    if redundancy == 0:
-        converged = False
-        message += (
-            "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
-            "solutions and the data cannot tell which is right; "
-        )
-    elif robust and n_dropped > redundancy_all / 2:
-        converged = False
-        message += (
-            f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
-            f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
-            "fit by dropping enough ranges); "
-        )
-    elif (
-        exact
-        or _accepted(best, noise_std, exact_rms, n, dim)
-        or (noise_std is None and confirmed and rms <= MAX_RELATIVE_RMS * scale)
-    ):
-        converged = True
-    else:
-        converged = False
-        if noise_std is not None:
-            message += (
-                f"no start in {attempts + starts} passed the residual test: best RMS residual "
-                f"{rms:.3g} m for noise_std {noise_std:.3g} m (a local minimum, or wrong ranges); "
-            )
-        else:
-            message += (
-                f"no configuration was reached twice from {attempts + starts} starts (best RMS residual "
-                f"{rms:.3g} m); pass noise_std to test the residual instead; "
-            )
-    if (refine or robust) and not fit.converged:
-        converged = False
-        message += f"least squares failed: {fit.message}; "
-    receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
-    residuals = np.where(observed, fit.residuals, np.nan)
-    return Calibration(
-        receivers=frozen(receivers),
-        sources=frozen(sources),
-        residuals=frozen(residuals),
-        observed=frozen(observed),
-        inliers=frozen(best.inliers.copy()),
-        residual_rms=rms,
-        noise_estimate=float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan"),
-        redundancy=int(redundancy),
-        converged=bool(converged),
-        message=message.rstrip("; "),
-        attempts=attempts,
-        iterations=iterations,
-        random_starts=starts,
-        origin="random_start" if best.completion is None else "convex_iteration",
-        eigen_gap=np.nan if best.completion is None else best.completion.eigen_gap,
-        sdp_status="" if best.completion is None else best.completion.status,
-        solver="" if best.completion is None else best.completion.solver,
-    )
+    status, message = calibration_verdict(outcome, problem)
+    return calibration_result(outcome, problem, status, message)
 
 
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
+    """Cauchy cost sum log(1 + (res / scale)^2) over the observed ranges."""
     m = len(fit.receivers)
     pts = np.vstack([fit.receivers, fit.sources])
     pairs = np.argwhere(observed)
@@ -455,9 +562,14 @@ def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
     return float(np.sum(np.log1p((res / scale) ** 2)))
 
 
-def _same(a: _Candidate, b: _Candidate, scale: float) -> bool:
+def _same(a: Candidate, b: Candidate, scale: float) -> bool:
+    """Whether two candidates are one configuration (squared distances within SAME_RTOL)."""
     return bool(np.max(np.abs(a.edm() - b.edm())) <= SAME_RTOL * scale**2)
 
 
-def _accepted(c: _Candidate, noise_std: float | None, exact_rms: float, n: int, dim: int) -> bool:
-    return passes_residual_test(c.ssr, int(c.inliers.sum()), n, dim, noise_std, exact_rms)
+def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:
+    """Whether a candidate passes the residual test (:func:`passes_residual_test`)."""
+    return passes_residual_test(
+        c.ssr, int(c.inliers.sum()), problem.n_points, problem.dim, problem.noise_std,
+        problem.exact_rms,
+    )  # fmt: skip

@@ -10,6 +10,7 @@ applies them the same way.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,6 +18,7 @@ from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_float_array, as_mask, as_ranges, shape_str
 from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.status import Status
 
 __all__ = [
     "CHI2_LEVEL",
@@ -25,6 +27,7 @@ __all__ = [
     "SAME_RTOL",
     "SIGMA_FLOOR",
     "WEIGHT_FACTORS",
+    "ConvexIterationOptions",
     "canonical_frame",
     "check_determined",
     "convex_iteration_runs",
@@ -32,6 +35,7 @@ __all__ = [
     "mdu_edm",
     "mdu_mask",
     "passes_residual_test",
+    "residual_status",
     "residual_verdict",
     "rotated_covariances",
     "unknowns_up_to_rigid_motion",
@@ -139,21 +143,36 @@ def validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_
     return r, observed, scale
 
 
+@dataclass(frozen=True)
+class ConvexIterationOptions:
+    """Settings of the convex iteration (eq. 10) shared by the MDU estimators.
+
+    Attributes:
+        max_attempts: runs at most (the restart schedule of :func:`convex_iteration_runs`).
+        fit_weight: lambda of eq. (10), on data scaled to unit median range.
+        max_iterations: SDP solves per run.
+        gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
+            fraction of its trace.
+    """
+
+    max_attempts: int = 8
+    fit_weight: float = 10.0
+    max_iterations: int = 50
+    gap_tol: float = 1e-6
+
+
 def convex_iteration_runs(
     problem,
     d_tilde: np.ndarray,
     w: np.ndarray,
     dim: int,
     *,
-    max_attempts: int,
-    fit_weight: float,
-    max_iterations: int,
-    gap_tol: float,
+    options: ConvexIterationOptions,
     rng: np.random.Generator,
     failures: list[str],
     bounds=None,
 ):
-    """Yield the EDMCompletion of up to ``max_attempts`` convex-iteration runs (eq. 10).
+    """Yield the EDMCompletion of up to ``options.max_attempts`` convex-iteration runs (eq. 10).
 
     "Several weights": the first runs start from Z = I (trace minimisation) with the fit weight
     scaled by each of WEIGHT_FACTORS in turn; later runs start from random Z, cycling them. A
@@ -162,7 +181,7 @@ def convex_iteration_runs(
     from rangeslam.solvers.sdp import complete_edm, random_direction
 
     n = w.shape[0]
-    for attempt in range(max_attempts):
+    for attempt in range(options.max_attempts):
         factor = WEIGHT_FACTORS[attempt % len(WEIGHT_FACTORS)]
         z0 = None if attempt < len(WEIGHT_FACTORS) else random_direction(n, dim, rng)
         try:
@@ -170,9 +189,9 @@ def convex_iteration_runs(
                 d_tilde,
                 w,
                 dim,
-                fit_weight=fit_weight * factor,
-                max_iterations=max_iterations,
-                tol=gap_tol,
+                fit_weight=options.fit_weight * factor,
+                max_iterations=options.max_iterations,
+                tol=options.gap_tol,
                 z0=z0,
                 bounds=bounds,
                 problem=problem,
@@ -182,13 +201,24 @@ def convex_iteration_runs(
 
 
 def passes_residual_test(
-    ssr: float, n_ranges: int, n_points: int, dim: int, noise_std: float | None, exact_rms: float
+    ssr: float,
+    n_ranges: int,
+    n_points: int,
+    dim: int,
+    noise_std: float | None,
+    exact_rms: float,
+    *,
+    n_offsets: int = 0,
 ) -> bool:
     """Exact data (RMS residual <= exact_rms), or a sum of squared range residuals below the
-    0.999 chi-square quantile for the redundancy, in units of noise_std^2."""
+    0.999 chi-square quantile for the redundancy, in units of noise_std^2.
+
+    ``ssr``, ``noise_std`` and ``exact_rms`` are in one unit (metres, or the scaled units of
+    :func:`rangeslam.mdu.emission.calibrate_unknown_emission`); the redundancy is the ranges
+    minus the points' coordinates up to a rigid motion minus ``n_offsets`` range offsets."""
     if ssr <= exact_rms**2 * n_ranges:
         return True
-    redundancy = n_ranges - unknowns_up_to_rigid_motion(n_points, dim)
+    redundancy = n_ranges - (unknowns_up_to_rigid_motion(n_points, dim) + n_offsets)
     if noise_std is None or redundancy <= 0 or noise_std == 0:
         return False
     from scipy.stats import chi2
@@ -219,6 +249,41 @@ def rotated_covariances(fit: GraphFit, rot: np.ndarray):
     return cov_r, cov_s, rot_all.T @ fit.joint_cov[: m * dim, : m * dim] @ rot_all
 
 
+def residual_status(
+    ssr: float,
+    observed: np.ndarray,
+    dim: int,
+    noise_std: float | None,
+    scale: float,
+    *,
+    chi_square: bool,
+    bounded: bool,
+) -> tuple[Status, str]:
+    """The status of a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
+    (M, K) ranges), and if not CONVERGED why: INCONSISTENT when the chi-square test against
+    ``noise_std`` fails (``chi_square``), or else RMS > 2% of the median range ``scale``;
+    NOT_IDENTIFIABLE without redundant ranges unless step bounds are ``bounded``."""
+    n_obs = int(observed.sum())
+    n = sum(observed.shape)
+    rms = float(np.sqrt(ssr / n_obs))
+    message = ""
+    status = Status.CONVERGED
+    if chi_square:
+        if not passes_residual_test(ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale):
+            status = Status.INCONSISTENT
+            message += (
+                f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
+                f"{noise_std:.3g} m; "
+            )
+    elif not rms <= MAX_RELATIVE_RMS * scale:
+        status = Status.INCONSISTENT
+        message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
+    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
+        status = Status.NOT_IDENTIFIABLE
+        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
+    return status, message
+
+
 def residual_verdict(
     ssr: float,
     observed: np.ndarray,
@@ -229,26 +294,9 @@ def residual_verdict(
     chi_square: bool,
     bounded: bool,
 ) -> tuple[bool, str]:
-    """Whether a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
-    (M, K) ranges) is acceptable, and if not why: the chi-square test against ``noise_std`` when
-    ``chi_square``, else RMS <= 2% of the median range ``scale``; never without redundant ranges
-    unless step bounds are ``bounded``."""
-    n_obs = int(observed.sum())
-    n = sum(observed.shape)
-    rms = float(np.sqrt(ssr / n_obs))
-    message = ""
-    if chi_square:
-        ok = passes_residual_test(ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale)
-        if not ok:
-            message += (
-                f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
-                f"{noise_std:.3g} m; "
-            )
-    else:
-        ok = rms <= MAX_RELATIVE_RMS * scale
-        if not ok:
-            message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
-    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
-        ok = False
-        message += "no redundant ranges and no step bounds: the trajectory is not unique; "
-    return ok, message
+    """Whether a trajectory's range residual is acceptable, and if not why (the message; see
+    :func:`residual_status`, which also says why as a :class:`~rangeslam.status.Status`)."""
+    status, message = residual_status(
+        ssr, observed, dim, noise_std, scale, chi_square=chi_square, bounded=bounded
+    )
+    return status is Status.CONVERGED, message

@@ -10,6 +10,7 @@ in :mod:`rangeslam.localization.emission`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -31,14 +32,17 @@ from rangeslam.mdu.core import (
     EXACT_RTOL,
     MAX_RELATIVE_RMS,
     SAME_RTOL,
+    ConvexIterationOptions,
     canonical_frame,
     check_determined,
     convex_iteration_runs,
     mdu_edm,
     mdu_mask,
+    passes_residual_test,
     unknowns_up_to_rigid_motion,
 )
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
+from rangeslam.status import HasStatus, Status
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
 
@@ -55,6 +59,39 @@ def _rank_tail(r: np.ndarray, offsets_per_col: np.ndarray, dim: int) -> float:
     sv = np.linalg.svd(b, compute_uv=False)
     total = float(sv @ sv)
     return float(sv[dim:] @ sv[dim:]) / total if total > 0 else 0.0
+
+
+def _tail_at(x: float, rr: np.ndarray, gg: np.ndarray, b: np.ndarray, j: int, dim: int) -> float:
+    """:func:`_rank_tail` with offset j set to x."""
+    bb = b.copy()
+    bb[j] = x
+    return _rank_tail(rr, bb[gg], dim)
+
+
+def _search_offset(rr, gg, b: np.ndarray, j: int, dim: int, span: float) -> float:
+    """Offset j (metres) minimising the rank tail with the others fixed: a grid over b_j <= min r
+    of its columns, then Brent's method in the best grid cell."""
+    rmin = float(rr[:, gg == j].min())
+    # b_g <= min r; b -> -inf is the far field. A grid uniform in the angle of the distance
+    # to the closest source covers [0, inf) with most points at the scale of the spread.
+    cand = rmin - span * np.tan(np.linspace(0.0, 0.49 * np.pi, _GRID))
+    f = functools.partial(_tail_at, rr=rr, gg=gg, b=b, j=j, dim=dim)
+    vals = np.array([f(x) for x in cand])
+    i = int(np.argmin(vals))
+    lo, hi = cand[min(i + 1, _GRID - 1)], cand[max(i - 1, 0)]
+    res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-12 * span})
+    return float(res.x) if res.fun <= vals[i] else float(cand[i])
+
+
+def _joint_offsets(r: np.ndarray, g: np.ndarray, b: np.ndarray, dim: int, span: float):
+    """All offsets (G,) together by Nelder-Mead from ``b``; ``b`` when that is no better."""
+    res = minimize(
+        lambda x: _rank_tail(r, x[g], dim),
+        b,
+        method="Nelder-Mead",
+        options={"xatol": 1e-12 * span, "fatol": 1e-16, "maxiter": 400 * len(b)},
+    )
+    return res.x if res.fun <= _rank_tail(r, b[g], dim) else b
 
 
 def offsets_from_rank(
@@ -77,7 +114,7 @@ def offsets_from_rank(
 
     Every group needs d + 2 columns (and M >= d + 2 receivers): with one column per event (TDOA
     self-calibration) or two, the search drifts towards the far field (all b -> -inf), where the
-    energy beyond rank d is small too (measured: 0 of 15 draws in 2-D and 3-D recovered).
+    energy beyond rank d is small too.
 
     Args:
         ranges: (M, K) fully observed ranges (metres), r_mk = ||x_m - s_k|| + b_{groups[k]}.
@@ -101,6 +138,7 @@ def offsets_from_rank(
             f"{dim}-D: needs (M - 1 - d)(K - 1 - d) >= G with M, K >= d + 2"
         )
     sizes = np.bincount(g, minlength=n_groups)
+    # With fewer than d + 2 columns per group, 0 of 15 draws in 2-D and 3-D were recovered.
     if np.any((m - 1 - dim) * (sizes - 1 - dim) < 1):
         j = int(np.argmin(sizes))
         raise InvalidInputError(
@@ -109,42 +147,15 @@ def offsets_from_rank(
             "the far field a near-optimum it drifts to); pass starting offsets instead"
         )
     span = float(np.ptp(r)) or 1.0
-
-    def search(rr: np.ndarray, gg: np.ndarray, b: np.ndarray, j: int) -> float:
-        cols = gg == j
-        rmin = float(rr[:, cols].min())
-        # b_g <= min r; b -> -inf is the far field. A grid uniform in the angle of the distance
-        # to the closest source covers [0, inf) with most points at the scale of the spread.
-        cand = rmin - span * np.tan(np.linspace(0.0, 0.49 * np.pi, _GRID))
-
-        def f(x: float) -> float:
-            bb = b.copy()
-            bb[j] = x
-            return _rank_tail(rr, bb[gg], dim)
-
-        vals = np.array([f(x) for x in cand])
-        i = int(np.argmin(vals))
-        lo, hi = cand[min(i + 1, _GRID - 1)], cand[max(i - 1, 0)]
-        res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-12 * span})
-        return float(res.x) if res.fun <= vals[i] else float(cand[i])
-
     b = np.empty(n_groups)
     for j in range(n_groups):
-        cols = g == j
-        b[j] = search(r[:, cols], np.zeros(int(cols.sum()), dtype=int), np.zeros(1), 0)
+        cols = g == j  # each group first on its own columns
+        own = np.zeros(int(cols.sum()), dtype=int)
+        b[j] = _search_offset(r[:, cols], own, np.zeros(1), 0, dim, span)
     for _ in range(sweeps):
         for j in range(n_groups):
-            b[j] = search(r, g, b, j)
-    if n_groups > 1:
-        res = minimize(
-            lambda x: _rank_tail(r, x[g], dim),
-            b,
-            method="Nelder-Mead",
-            options={"xatol": 1e-12 * span, "fatol": 1e-16, "maxiter": 400 * n_groups},
-        )
-        if res.fun <= _rank_tail(r, b[g], dim):
-            b = res.x
-    return b
+            b[j] = _search_offset(r, g, b, j, dim, span)
+    return _joint_offsets(r, g, b, dim, span) if n_groups > 1 else b
 
 
 def _complete_block(observed: np.ndarray, groups: np.ndarray, dim: int):
@@ -191,7 +202,7 @@ def _as_groups(groups: ArrayLike | None, k: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class UnknownEmissionCalibration:
+class UnknownEmissionCalibration(HasStatus):
     """Result of :func:`calibrate_unknown_emission`. M receivers, K sources, G events.
 
     Attributes:
@@ -206,9 +217,10 @@ class UnknownEmissionCalibration:
         noise_estimate: sqrt(sum of squared residuals / redundancy), metres (NaN without
             redundancy).
         redundancy: observed ranges minus unknowns (points up to a rigid motion, and offsets).
-        converged: the answer passed the residual test (as :func:`rangeslam.calibrate`) and its
-            Jacobian has full rank up to the rigid motions (the offsets are determined).
-        message: why not, when ``converged`` is False.
+        status: CONVERGED when the answer passed the residual test (as
+            :func:`rangeslam.calibrate`) and its Jacobian has full rank up to the rigid motions
+            (the offsets are determined); else why not (``converged`` is derived from it).
+        message: why not, when not converged.
         attempts: convex-iteration runs made; random_starts: least-squares runs from random points.
     """
 
@@ -221,7 +233,7 @@ class UnknownEmissionCalibration:
     residual_rms: float
     noise_estimate: float
     redundancy: int
-    converged: bool
+    status: Status
     message: str
     attempts: int
     random_starts: int
@@ -266,6 +278,279 @@ class _OffsetUnfolding:
         return fit
 
 
+@dataclass(frozen=True)
+class EmissionProblem:
+    """The validated inputs of :func:`calibrate_unknown_emission` (see :func:`parse_emission`)."""
+
+    ranges: np.ndarray  # (M, K) metres (pseudoranges: distance + offset)
+    observed: np.ndarray  # (M, K) bool
+    groups: np.ndarray  # (K,) event of each column, 0..G-1
+    dim: int
+    noise_std: float | None
+    c: float | None
+    random_starts: int
+    options: ConvexIterationOptions
+
+    @property
+    def n_groups(self) -> int:
+        """G."""
+        return int(self.groups.max()) + 1
+
+    @property
+    def need(self) -> int:
+        """Unknowns: the points up to a rigid motion, and the G offsets."""
+        return unknowns_up_to_rigid_motion(sum(self.ranges.shape), self.dim) + self.n_groups
+
+
+@dataclass(frozen=True)
+class ScaledUnfolding:
+    """The problem in units of the median corrected range ``scale`` (metres): corrected ranges
+    (M, K) (metres, 0 where unobserved), starting offsets (G,) and the residual model."""
+
+    scale: float
+    corrected: np.ndarray
+    offsets0: np.ndarray
+    model: _OffsetUnfolding
+
+
+@dataclass(frozen=True)
+class EmissionCandidate:
+    """A least-squares fit (scipy result, scaled units) and its sum of squared residuals."""
+
+    ssr: float
+    fit: object
+
+
+@dataclass(frozen=True)
+class EmissionSearch:
+    """The best fit, whether another start reached it, starts made and SDP failures."""
+
+    best: EmissionCandidate | None
+    confirmed: bool
+    attempts: int
+    random_starts: int
+    failures: tuple[str, ...]
+
+
+def parse_emission(
+    ranges, groups, dim, mask, noise_std, c, random_starts, options: ConvexIterationOptions
+) -> EmissionProblem:
+    """The front door of :func:`calibrate_unknown_emission`: every input checked once."""
+    if dim not in (2, 3):
+        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    shape = np.shape(ranges)
+    if len(shape) != 2:
+        raise InvalidInputError(f"ranges must be an (M, K) array; got {shape_str(shape)}")
+    observed = as_mask(mask, "mask", shape=shape)
+    r = pseudoranges(ranges, "ranges", shape, observed)
+    m, k = shape
+    g = _as_groups(groups, k)
+    n_groups = int(g.max()) + 1
+    check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    need = unknowns_up_to_rigid_motion(m + k, dim) + n_groups
+    if observed.sum() < need:
+        raise InvalidInputError(
+            f"{int(observed.sum())} observed ranges for {need} unknowns ({m} receivers and {k} "
+            f"sources in {dim}-D up to a rigid motion, and {n_groups} offsets)"
+        )
+    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
+        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
+    if c is not None and not (np.isfinite(c) and c > 0):
+        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
+    for name, value, low in (
+        ("max_attempts", options.max_attempts, 1),
+        ("max_iterations", options.max_iterations, 1),
+        ("random_starts", random_starts, 0),
+    ):
+        check_int(value, name, low)
+    return EmissionProblem(r, observed, g, dim, noise_std, c, random_starts, options)
+
+
+def starting_offsets(problem: EmissionProblem, offsets0) -> np.ndarray:
+    """Step 1: the offsets (G,) metres, ``offsets0`` checked or the rank start
+    (:func:`offsets_from_rank`) on a fully observed block (:func:`_complete_block`)."""
+    n_groups, g, dim = problem.n_groups, problem.groups, problem.dim
+    if offsets0 is not None:
+        b0 = as_float_array(offsets0, "offsets0")
+        if b0.shape != (n_groups,) or not np.all(np.isfinite(b0)):
+            raise InvalidInputError(
+                f"offsets0 must be finite with shape ({n_groups},); got {shape_str(b0.shape)}"
+            )
+        return b0
+    rows, cols = _complete_block(problem.observed, g, dim)
+    try:
+        return offsets_from_rank(problem.ranges[np.ix_(rows, cols)], g[cols], dim=dim)
+    except InvalidInputError as exc:
+        raise InvalidInputError(
+            f"no starting offsets: {exc} (the rank start uses a fully observed block of "
+            f"{int(rows.sum())} receivers and {int(cols.sum())} columns); pass offsets0"
+        ) from exc
+
+
+def scaled_unfolding(problem: EmissionProblem, b0: np.ndarray) -> ScaledUnfolding:
+    """The ranges corrected by ``b0`` and the residual model in units of their median."""
+    r, observed, g = problem.ranges, problem.observed, problem.groups
+    corrected = np.where(observed, r - b0[g][None, :], 0.0)
+    scale = float(np.median(np.abs(corrected[observed]))) or 1.0
+    model = _OffsetUnfolding(r / scale, observed, g, problem.dim)
+    return ScaledUnfolding(scale, corrected, b0 / scale, model)
+
+
+def emission_passes(problem: EmissionProblem, scale: float, ssr: float) -> bool:
+    """The residual test of :func:`passes_residual_test` on a scaled sum of squares (noise_std
+    in the same units), with the G offsets among the unknowns."""
+    n_obs = int(problem.observed.sum())
+    noise = None if problem.noise_std is None else problem.noise_std / scale
+    return passes_residual_test(
+        ssr, n_obs, sum(problem.ranges.shape), problem.dim, noise, EXACT_RTOL,
+        n_offsets=problem.n_groups,
+    )  # fmt: skip
+
+
+def emission_starts(problem: EmissionProblem, scaled: ScaledUnfolding, rng, failures: list):
+    """Step 2: yield (points (M + K, d) scaled, from_sdp): the SDP on the corrected ranges
+    (distances must be >= 0 there), then random points."""
+    from rangeslam.solvers.sdp import EDMCompletionSDP
+
+    w = mdu_mask(problem.observed)
+    d_tilde = mdu_edm(np.maximum(scaled.corrected, 0.0) / scaled.scale)
+    sdp = EDMCompletionSDP(w)
+    for comp in convex_iteration_runs(
+        sdp, d_tilde, w, problem.dim, options=problem.options, rng=rng, failures=failures
+    ):
+        yield comp.points, True
+    for _ in range(problem.random_starts):
+        yield rng.standard_normal((sum(problem.ranges.shape), problem.dim)), False
+
+
+def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> EmissionSearch:
+    """Step 3: Levenberg-Marquardt over points and offsets from each start, keeping the lowest,
+    until an answer is exact, or passes the residual test and is confirmed by a second start
+    (or is the best of all convex-iteration runs)."""
+    model, failures = scaled.model, []
+    exact_ssr = (EXACT_RTOL**2) * int(problem.observed.sum())
+    best, confirmed, attempts, n_random = None, False, 0, 0
+    for pts, from_sdp in emission_starts(problem, scaled, rng, failures):
+        attempts += from_sdp
+        n_random += not from_sdp
+        fit = model.refine(pts, scaled.offsets0)
+        ssr = float(fit.fun @ fit.fun)
+        if not np.all(np.isfinite(fit.x)):
+            continue
+        # The vote of calibrate: the lowest fit counts as confirmed when another start reached
+        # the same configuration (squared distances agreeing to SAME_RTOL, scaled units).
+        same = best is not None and _same_points(model, fit, best.fit)
+        confirmed = confirmed or same
+        if best is None or ssr < best.ssr:
+            confirmed = confirmed and same
+            best = EmissionCandidate(ssr, fit)
+        # A wrong local minimum can pass the chi-square test at 1 cm noise (measured: 1 of 40
+        # 3-D draws), so a noisy answer must also be reached from a second start, or be the
+        # best of all convex-iteration runs.
+        done_sdp = attempts + len(failures) >= problem.options.max_attempts
+        ok = emission_passes(problem, scaled.scale, best.ssr)
+        if best.ssr <= exact_ssr or (ok and (confirmed or done_sdp)):
+            break
+        if problem.noise_std is None and confirmed and done_sdp:
+            break
+    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures))
+
+
+def _same_points(model: _OffsetUnfolding, fit, other) -> bool:
+    """Whether two fits are one configuration (squared distances within SAME_RTOL, scaled)."""
+    diff = _sq_dists(model.split(fit.x)[0]) - _sq_dists(model.split(other.x)[0])
+    return bool(np.max(np.abs(diff)) <= SAME_RTOL)
+
+
+def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
+    """Step 4: (status, message). INCONSISTENT (NO_AGREEMENT without noise_std) when no start
+    passed the residual test or the vote; NOT_IDENTIFIABLE without redundancy, with a
+    rank-deficient Jacobian, or with a point its mirror image fits as well."""
+    ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
+    n_obs, need, noise_std = int(problem.observed.sum()), problem.need, problem.noise_std
+    redundancy = n_obs - need
+    rms = math.sqrt(ssr / n_obs) * scale
+    status, message = Status.CONVERGED, ""
+    vote = noise_std is None and found.confirmed and rms <= MAX_RELATIVE_RMS * scale
+    if not (emission_passes(problem, scale, ssr) or vote):
+        status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
+        message += f"no start passed the residual test: best RMS residual {rms:.3g} m" + (
+            f" for noise_std {noise_std:.3g} m; " if noise_std is not None else "; "
+        )
+    if redundancy == 0:
+        status = Status.NOT_IDENTIFIABLE
+        message += (
+            "no redundant ranges: finitely many exact solutions, the data cannot tell which; "
+        )
+    sv = np.linalg.svd(scaled.model.jacobian(fit.x), compute_uv=False)
+    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
+    if rank < need:
+        status = Status.NOT_IDENTIFIABLE
+        message += (
+            f"the Jacobian has rank {rank} < {need}: the offsets (or points) are not determined "
+            "by these ranges (e.g. far-field sources); "
+        )
+    mirrored = mirrored_points(problem, scaled, ssr, fit)
+    if mirrored:
+        status = Status.NOT_IDENTIFIABLE
+        message += (
+            f"{', '.join(mirrored)}: mirrored in the plane of the points it is ranged to, it fits "
+            "the ranges as well (they are (nearly) coplanar, or too few): its position is ambiguous; "
+        )
+    if found.failures:
+        message += f"{len(found.failures)} SDP runs failed ({found.failures[0]}); "
+    return status, message.strip().rstrip(";")
+
+
+def mirrored_points(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: float, fit):
+    """Names of the points the data cannot tell from their mirror image (:func:`_mirror_ambiguities`).
+
+    A point whose partners (the sources a receiver hears, or the receivers that hear a source)
+    are (nearly) coplanar can be mirrored in their plane at little cost: the source and the
+    images of a shoebox lie on three lines through the source, so a receiver that misses two
+    echoes may hear only coplanar points. The data cannot tell the two positions apart."""
+    from scipy.stats import chi2
+
+    n_obs, scale, noise_std = int(problem.observed.sum()), scaled.scale, problem.noise_std
+    redundancy = n_obs - problem.need
+    exact_ssr = (EXACT_RTOL**2) * n_obs
+    sigma_s = noise_std if noise_std else (math.sqrt(ssr / redundancy) if redundancy > 0 else 0.0)
+    tol = max(chi2.ppf(CHI2_LEVEL, 1) * (sigma_s / scale) ** 2, exact_ssr)
+    pts_s, b_s = scaled.model.split(fit.x)
+    dist = problem.ranges / scale - b_s[problem.groups][None, :]
+    return _mirror_ambiguities(pts_s, problem.ranges.shape[0], dist, problem.observed, tol)
+
+
+def emission_result(problem, scaled, found: EmissionSearch, status, message):
+    """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame."""
+    ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
+    m, n_groups = problem.ranges.shape[0], problem.n_groups
+    n_obs = int(problem.observed.sum())
+    redundancy = n_obs - problem.need
+    pts_s, b_s = scaled.model.split(fit.x)
+    pts = pts_s * scale
+    receivers, sources, _ = canonical_frame(pts[:m], pts[m:])
+    offsets = b_s * scale
+    residuals = np.full(problem.ranges.shape, np.nan)
+    residuals[problem.observed] = fit.fun * scale
+    c = problem.c
+    return UnknownEmissionCalibration(
+        receivers=frozen(receivers),
+        sources=frozen(sources),
+        offsets=frozen(offsets),
+        offset_times=frozen(offsets / c if c is not None else np.full(n_groups, np.nan)),
+        residuals=frozen(residuals),
+        observed=frozen(problem.observed),
+        residual_rms=math.sqrt(ssr / n_obs) * scale,
+        noise_estimate=math.sqrt(ssr / redundancy) * scale if redundancy > 0 else float("nan"),
+        redundancy=int(redundancy),
+        status=status,
+        message=message,
+        attempts=int(found.attempts),
+        random_starts=int(found.random_starts),
+    )
+
+
 def calibrate_unknown_emission(
     ranges: ArrayLike,
     groups: ArrayLike | None = None,
@@ -294,7 +579,7 @@ def calibrate_unknown_emission(
     the residual test and vote of :func:`rangeslam.calibrate`, and a rank test of the Jacobian.
     The SDP's own offset model (:class:`rangeslam.solvers.sdp.EDMCompletionSDP` with
     ``range_model="offset"``) is not used: with every pair an offset range, its relaxation
-    D = (r - c)^2 + (e - c^2) lets the offsets absorb most of the ranges (measured errors of metres).
+    D = (r - c)^2 + (e - c^2) lets the offsets absorb most of the ranges (errors of metres).
 
     Args:
         ranges: (M, K) ranges, metres (any sign: an offset may make them negative).
@@ -316,187 +601,14 @@ def calibrate_unknown_emission(
     even for one offset shared by all ranges; the far field does not).
     """
     rng = np.random.default_rng(rng)
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    shape = np.shape(ranges)
-    if len(shape) != 2:
-        raise InvalidInputError(f"ranges must be an (M, K) array; got {shape_str(shape)}")
-    observed = as_mask(mask, "mask", shape=shape)
-    r = pseudoranges(ranges, "ranges", shape, observed)
-    m, k = shape
-    g = _as_groups(groups, k)
-    n_groups = int(g.max()) + 1
-    check_determined(observed, dim, "mask" if mask is not None else "ranges")
-    need = unknowns_up_to_rigid_motion(m + k, dim) + n_groups
-    if observed.sum() < need:
-        raise InvalidInputError(
-            f"{int(observed.sum())} observed ranges for {need} unknowns ({m} receivers and {k} "
-            f"sources in {dim}-D up to a rigid motion, and {n_groups} offsets)"
-        )
-    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
-    if c is not None and not (np.isfinite(c) and c > 0):
-        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
-    for name, value, low in (
-        ("max_attempts", max_attempts, 1),
-        ("max_iterations", max_iterations, 1),
-        ("random_starts", random_starts, 0),
-    ):
-        check_int(value, name, low)
-
-    # 1. Offsets.
-    if offsets0 is not None:
-        b0 = as_float_array(offsets0, "offsets0")
-        if b0.shape != (n_groups,) or not np.all(np.isfinite(b0)):
-            raise InvalidInputError(
-                f"offsets0 must be finite with shape ({n_groups},); got {shape_str(b0.shape)}"
-            )
-    else:
-        rows, cols = _complete_block(observed, g, dim)
-        try:
-            b0 = offsets_from_rank(r[np.ix_(rows, cols)], g[cols], dim=dim)
-        except InvalidInputError as exc:
-            raise InvalidInputError(
-                f"no starting offsets: {exc} (the rank start uses a fully observed block of "
-                f"{int(rows.sum())} receivers and {int(cols.sum())} columns); pass offsets0"
-            ) from exc
-    corrected = np.where(observed, r - b0[g][None, :], 0.0)
-    scale = float(np.median(np.abs(corrected[observed]))) or 1.0
-    r_s, b0_s = r / scale, b0 / scale
-    model = _OffsetUnfolding(r_s, observed, g, dim)
-    n_obs = int(observed.sum())
-    redundancy = n_obs - need
-    exact_ssr = (EXACT_RTOL**2) * n_obs
-
-    def passes(ssr: float) -> bool:
-        if ssr <= exact_ssr:
-            return True
-        if noise_std is None or noise_std == 0 or redundancy <= 0:
-            return False
-        from scipy.stats import chi2
-
-        return bool(ssr <= chi2.ppf(CHI2_LEVEL, redundancy) * (noise_std / scale) ** 2)
-
-    # 2. Starting points: the SDP on the corrected ranges (distances must be >= 0 there), then
-    # random points.
-    from rangeslam.solvers.sdp import EDMCompletionSDP
-
-    w = mdu_mask(observed)
-    d_tilde = mdu_edm(np.maximum(corrected, 0.0) / scale)
-    problem = EDMCompletionSDP(w)
-    failures: list[str] = []
-
-    def starts():
-        yield from (
-            (comp.points, True)
-            for comp in convex_iteration_runs(
-                problem,
-                d_tilde,
-                w,
-                dim,
-                max_attempts=max_attempts,
-                fit_weight=fit_weight,
-                max_iterations=max_iterations,
-                gap_tol=gap_tol,
-                rng=rng,
-                failures=failures,
-            )
-        )
-        for _ in range(random_starts):
-            yield rng.standard_normal((m + k, dim)), False
-
-    best = None
-    confirmed = False
-    attempts = n_random = 0
-    for pts, from_sdp in starts():
-        attempts += from_sdp
-        n_random += not from_sdp
-        fit = model.refine(pts, b0_s)
-        ssr = float(fit.fun @ fit.fun)
-        if not np.all(np.isfinite(fit.x)):
-            continue
-        cand = (ssr, fit)
-        # The vote of calibrate: the lowest fit counts as confirmed when another start reached
-        # the same configuration (squared distances agreeing to SAME_RTOL, scaled units).
-        same = best is not None and bool(
-            np.max(np.abs(_sq_dists(model.split(fit.x)[0]) - _sq_dists(model.split(best[1].x)[0])))
-            <= SAME_RTOL
-        )
-        confirmed = confirmed or same
-        if best is None or ssr < best[0]:
-            confirmed = confirmed and same
-            best = cand
-        # A wrong local minimum can pass the chi-square test at 1 cm noise (measured: 1 of 40
-        # 3-D draws), so a noisy answer must also be reached from a second start, or be the
-        # best of all convex-iteration runs.
-        done_sdp = attempts + len(failures) >= max_attempts
-        if best[0] <= exact_ssr or (passes(best[0]) and (confirmed or done_sdp)):
-            break
-        if noise_std is None and confirmed and done_sdp:
-            break
-    if best is None:
+    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
+    problem = parse_emission(ranges, groups, dim, mask, noise_std, c, random_starts, options)
+    scaled = scaled_unfolding(problem, starting_offsets(problem, offsets0))
+    found = search_emission(problem, scaled, rng)
+    if found.best is None:
         raise InvalidInputError("every fit diverged: no unfolding with offsets found")
-    ssr, fit = best
-    pts_s, b_s = model.split(fit.x)
-    message = ""
-    rms = math.sqrt(ssr / n_obs) * scale
-    if passes(ssr) or (noise_std is None and confirmed and rms <= MAX_RELATIVE_RMS * scale):
-        converged = True
-    else:
-        converged = False
-        message += f"no start passed the residual test: best RMS residual {rms:.3g} m" + (
-            f" for noise_std {noise_std:.3g} m; " if noise_std is not None else "; "
-        )
-    if redundancy == 0:
-        converged = False
-        message += (
-            "no redundant ranges: finitely many exact solutions, the data cannot tell which; "
-        )
-    sv = np.linalg.svd(model.jacobian(fit.x), compute_uv=False)
-    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
-    if rank < need:
-        converged = False
-        message += (
-            f"the Jacobian has rank {rank} < {need}: the offsets (or points) are not determined "
-            "by these ranges (e.g. far-field sources); "
-        )
-    # A point whose partners (the sources a receiver hears, or the receivers that hear a source)
-    # are (nearly) coplanar can be mirrored in their plane at little cost: the source and the
-    # images of a shoebox lie on three lines through the source, so a receiver that misses two
-    # echoes may hear only coplanar points. The data cannot tell the two positions apart.
-    sigma_s = noise_std if noise_std else (math.sqrt(ssr / redundancy) if redundancy > 0 else 0.0)
-    from scipy.stats import chi2
-
-    tol = max(chi2.ppf(CHI2_LEVEL, 1) * (sigma_s / scale) ** 2, exact_ssr)
-    mirrored = _mirror_ambiguities(pts_s, m, r_s - b_s[g][None, :], observed, tol)
-    if mirrored:
-        converged = False
-        message += (
-            f"{', '.join(mirrored)}: mirrored in the plane of the points it is ranged to, it fits "
-            "the ranges as well (they are (nearly) coplanar, or too few): its position is ambiguous; "
-        )
-    if failures:
-        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
-    pts = pts_s * scale
-    receivers, sources, _ = canonical_frame(pts[:m], pts[m:])
-    offsets = b_s * scale
-    residuals = np.full(shape, np.nan)
-    residuals[observed] = fit.fun * scale
-    return UnknownEmissionCalibration(
-        receivers=frozen(receivers),
-        sources=frozen(sources),
-        offsets=frozen(offsets),
-        offset_times=frozen(offsets / c if c is not None else np.full(n_groups, np.nan)),
-        residuals=frozen(residuals),
-        observed=frozen(observed),
-        residual_rms=rms,
-        noise_estimate=math.sqrt(ssr / redundancy) * scale if redundancy > 0 else float("nan"),
-        redundancy=int(redundancy),
-        converged=bool(converged),
-        message=message.strip().rstrip(";"),
-        attempts=int(attempts),
-        random_starts=int(n_random),
-    )
+    status, message = emission_verdict(problem, scaled, found)
+    return emission_result(problem, scaled, found, status, message)
 
 
 def _mirror_ambiguities(

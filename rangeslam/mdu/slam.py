@@ -11,28 +11,36 @@ covariances.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import (
     EXACT_RTOL,
     SIGMA_FLOOR,
+    ConvexIterationOptions,
     canonical_frame,
     convex_iteration_runs,
     least_steps,
     mdu_edm,
     mdu_mask,
     passes_residual_test,
-    residual_verdict,
+    residual_status,
     rotated_covariances,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
-from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, check_step_bounds, refine_graph
+from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
+from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.status import HasStatus, Status
+
+if TYPE_CHECKING:
+    from rangeslam.solvers.sdp import EDMCompletion
 
 __all__ = ["SlamResult", "slam"]
 
@@ -40,10 +48,16 @@ __all__ = ["SlamResult", "slam"]
 _EXACT_POLISH = 1e-3
 # Unknown noise: at most this many re-estimates of sigma from the refined fit.
 _NOISE_ROUNDS = 3
+# Why "uniform" is the default step prior: in the Fig. 5 setting at 1 cm, the dead zone's MAP
+# runs to the bounds and has 2.1-3.0x the mean error at M = 5 to 10; with the true steps anywhere
+# in the bounds, not at their centres, "uniform" is still 1.7-2.1x below the dead zone's error
+# with centred bounds. Why extra_starts defaults to 0: on Fig. 5 the minima reached are of equal
+# cost, and picking the lowest picks the one that fits the noise best (measured: no smaller
+# error, NEES 1.1-1.2).
 
 
 @dataclass(frozen=True)
-class SlamResult:
+class SlamResult(HasStatus):
     """Result of :func:`slam`. M steps, K landmarks, d = 2 or 3.
 
     Attributes:
@@ -60,8 +74,9 @@ class SlamResult:
             for methods without an EDM step, such as the EKF baseline).
         edm_sources: (K, d) likewise.
         residual_rms: RMS range residual, metres.
-        converged: the answer passed the residual test (chi-square against ``noise_std``).
-        message: why not, when ``converged`` is False.
+        status: CONVERGED when the answer passed the residual test (chi-square against
+            ``noise_std``), else why not (``converged`` is derived from it).
+        message: why not, when not converged.
         attempts: convex-iteration runs made.
         start: where the answer's GTSAM run started: "edm" or "random start j" ("filter" for
             the EKF baseline).
@@ -77,7 +92,7 @@ class SlamResult:
     edm_receivers: np.ndarray | None
     edm_sources: np.ndarray | None
     residual_rms: float
-    converged: bool
+    status: Status
     message: str
     attempts: int
     start: str
@@ -109,7 +124,8 @@ def nominal_steps(bounds, r: np.ndarray, observed: np.ndarray) -> np.ndarray:
     each step must be by the triangle inequality, max_k |r_(i+1)k - r_ik| (its median where no
     landmark is heard at both steps)."""
     if bounds is not None:
-        return 0.5 * (bounds[0] + bounds[1])
+        lower, upper = bounds
+        return 0.5 * (lower + upper)
     least = least_steps(r, observed)
     heard = (observed[:-1] & observed[1:]).any(axis=1)
     fill = float(np.median(least[heard])) if heard.any() else 1.0
@@ -127,10 +143,312 @@ def random_start(
     return walk, rng.uniform(-size, size, size=(k, dim))
 
 
+@dataclass(frozen=True)
+class SlamProblem:
+    """The validated inputs of :func:`slam` (built once by :func:`parse_slam`)."""
+
+    ranges: np.ndarray  # (M, K) metres, 0 where not observed
+    observed: np.ndarray  # (M, K) bool
+    scale: float  # median observed range, metres
+    dim: int
+    bounds: StepBounds | None
+    noise_std: float | None
+    robust: str | None
+    step_sigma: float | None
+    step_prior: str
+    refine: bool
+    extra_starts: int
+    options: ConvexIterationOptions
+
+    @property
+    def n_obs(self) -> int:
+        """Observed ranges."""
+        return int(self.observed.sum())
+
+    @property
+    def redundancy(self) -> int:
+        """Observed ranges minus unknowns up to a rigid motion."""
+        return self.n_obs - unknowns_up_to_rigid_motion(sum(self.ranges.shape), self.dim)
+
+    @property
+    def floor(self) -> float:
+        """The least range sigma of the graph, metres (SIGMA_FLOOR of the median range)."""
+        return SIGMA_FLOOR * self.scale
+
+
+@dataclass(frozen=True)
+class SlamRun:
+    """One answer: squared range residual sum (m^2), trajectory (M, d) and landmarks (K, d), the
+    GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), and the
+    key runs are ranked by (the graph's cost, or ``ssr`` without refinement)."""
+
+    ssr: float
+    receivers: np.ndarray
+    sources: np.ndarray
+    fit: GraphFit | None
+    completion: EDMCompletion
+    residuals: np.ndarray
+    key: float
+
+
+@dataclass(frozen=True)
+class EdmSearch:
+    """The best convex-iteration run, runs made, SDP failures and the sigma runs are ranked on."""
+
+    best: SlamRun | None
+    attempts: int
+    failures: tuple[str, ...]
+    sigma_ref: float | None
+
+
+def parse_slam(
+    ranges, step_bounds, mask, dim, refine, noise_std, robust, step_sigma, step_prior,
+    extra_starts, options: ConvexIterationOptions,
+) -> SlamProblem:  # fmt: skip
+    """The front door of :func:`slam`: every input checked once (step bounds into a
+    :class:`StepBounds`, refused where the ranges contradict them)."""
+    r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
+    m = r.shape[0]
+    bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
+    if bounds is not None:
+        _check_bounds_against_ranges(bounds, r, observed, noise_std)
+    if step_prior not in STEP_PRIORS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
+    if not (isinstance(extra_starts, int | np.integer) and extra_starts >= 0):
+        raise InvalidInputError(f"extra_starts must be an integer >= 0; got {extra_starts!r}")
+    max_attempts = options.max_attempts
+    if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
+        raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
+    return SlamProblem(
+        r, observed, scale, dim, bounds, noise_std, robust, step_sigma, step_prior, refine,
+        extra_starts, options,
+    )  # fmt: skip
+
+
+def graph_fit(
+    problem: SlamProblem,
+    pts: np.ndarray,
+    sigma: float,
+    *,
+    covariances: bool = False,
+    max_iterations: int = 5000,
+) -> GraphFit:
+    """GTSAM on the problem's ranges and step priors from ``pts`` (M + K, d), range sigma
+    ``sigma`` metres."""
+    m = problem.ranges.shape[0]
+    return refine_graph(
+        pts[:m],
+        pts[m:],
+        problem.ranges,
+        noise_std=sigma,
+        mask=problem.observed,
+        step_bounds=problem.bounds,
+        step_sigma=problem.step_sigma,
+        step_prior=problem.step_prior,
+        robust=problem.robust,
+        covariances=covariances,
+        # a planar trajectory leaves landmarks near its plane in a flat valley (their mirror
+        # images meet there), and few steps leave the shape itself in one: at M = 5 and
+        # 1 mm, 1000 LM iterations are typical
+        max_iterations=max_iterations,
+    )
+
+
+def noise_from(problem: SlamProblem, pts: np.ndarray, dof: int) -> float:
+    """Range sigma (metres) from the residuals of ``pts`` (M + K, d) over ``dof`` degrees of
+    freedom; with a robust kernel MAD_TO_STD times their median |residual| (wrong echoes must not
+    set the scale)."""
+    m = problem.ranges.shape[0]
+    res = (range_matrix(pts[:m], pts[m:]) - problem.ranges)[problem.observed]
+    if problem.robust is not None:
+        return float(MAD_TO_STD * np.median(np.abs(res)) * np.sqrt(problem.n_obs / dof))
+    return float(np.sqrt(np.sum(res**2) / dof))
+
+
+def _stacked(fit: GraphFit) -> np.ndarray:
+    """(M + K, d) the fit's receivers above its sources."""
+    return np.vstack([fit.receivers, fit.sources])
+
+
+def settle_noise(problem: SlamProblem, pts: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unknown noise: the range sigma from the EDM answer's RMS residual (biased by the SDP's
+    penalty), then from the refined fit's (sum of squares over the redundancy) until it settles.
+    Returns (refined points (M + K, d), sigma; 0 for exact data)."""
+    floor = problem.floor
+    sigma = max(noise_from(problem, pts, problem.n_obs), floor)
+    fit = graph_fit(problem, pts, sigma)
+    for _ in range(_NOISE_ROUNDS if problem.redundancy > 0 else 0):
+        new = max(noise_from(problem, _stacked(fit), problem.redundancy), floor)
+        if abs(new - sigma) <= 0.1 * sigma:
+            break
+        sigma = new
+        fit = graph_fit(problem, _stacked(fit), sigma)
+    if sigma <= floor:  # no noise to be seen: exact data
+        sigma = 0.0
+    return _stacked(fit), sigma
+
+
+def refine_run(
+    problem: SlamProblem, pts: np.ndarray, sigma: float | None = None
+) -> tuple[GraphFit, float]:
+    """GTSAM from ``pts`` with covariances; the range sigma of its final graph. ``sigma``: that
+    of the graph (default: ``noise_std``, or found from the residuals when unknown)."""
+    if sigma is None and problem.noise_std is None:
+        # The weight of the step prior against the ranges depends on the sigma.
+        pts, sigma = settle_noise(problem, pts)
+    elif sigma is None:
+        sigma = problem.noise_std
+    floor = problem.floor
+    if sigma >= floor:
+        return graph_fit(problem, pts, sigma, covariances=True), sigma
+    # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
+    # step at all): first at the floor, then at sigma itself, or for exact data (where the
+    # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
+    target = sigma if sigma > 0 else _EXACT_POLISH * floor
+    fit = graph_fit(problem, pts, floor)
+    return graph_fit(problem, _stacked(fit), target, covariances=True), target
+
+
+def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | None):
+    """One convex-iteration answer, refined by GTSAM when ``refine``. Returns (SlamRun, the
+    sigma of its graph or None). Refined runs are ranked by the graph's cost (ranges and step
+    priors: a low range residual bought by breaking the step bounds is no better answer), all
+    on one graph, that of ``sigma_ref`` (the first run's; None: this run's)."""
+    m = problem.ranges.shape[0]
+    pts = completion.points
+    fit, sigma, key = None, None, None
+    if problem.refine:
+        fit, sigma = refine_run(problem, pts)
+        rec, src = fit.receivers, fit.sources
+        key = fit.error
+        if sigma_ref is not None and sigma != sigma_ref:
+            key = graph_fit(problem, _stacked(fit), sigma_ref, max_iterations=0).error
+    else:
+        rec, src = pts[:m], pts[m:]
+    res = range_matrix(rec, src) - problem.ranges
+    ssr = float(np.sum(res[problem.observed] ** 2))
+    key = ssr if key is None else key
+    return SlamRun(ssr, rec, src, fit, completion, res, key), sigma
+
+
+def passes(problem: SlamProblem, ssr: float) -> bool:
+    """The residual test (:func:`passes_residual_test`) on a sum of squared ranges, m^2."""
+    n = sum(problem.ranges.shape)
+    exact_rms = EXACT_RTOL * problem.scale
+    return passes_residual_test(ssr, problem.n_obs, n, problem.dim, problem.noise_std, exact_rms)
+
+
+def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
+    """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one passes the residual
+    test; the best by its key otherwise."""
+    from rangeslam.solvers.sdp import EDMCompletionSDP
+
+    m = problem.ranges.shape[0]
+    w = mdu_mask(problem.observed)
+    bounded = problem.bounds is not None
+    pairs = np.column_stack([np.arange(m - 1), np.arange(1, m)]) if bounded else None
+    sdp = EDMCompletionSDP(w, bounded_pairs=pairs)
+    bounds = None if problem.bounds is None else (problem.bounds.lower, problem.bounds.upper)
+    failures: list[str] = []
+    best, attempts, sigma_ref = None, 0, None
+    for completion in convex_iteration_runs(
+        sdp, mdu_edm(problem.ranges), w, problem.dim, options=problem.options, rng=rng,
+        failures=failures, bounds=bounds,
+    ):  # fmt: skip
+        attempts += 1
+        run, sigma = edm_run(problem, completion, sigma_ref)
+        if sigma_ref is None:
+            sigma_ref = sigma
+        ok = passes(problem, run.ssr)
+        if best is None or run.key < best.key or ok:  # a run that passes is taken as it is
+            best = run
+        if ok:
+            break
+    return EdmSearch(best, attempts, tuple(failures), sigma_ref)
+
+
+def try_random_starts(problem: SlamProblem, best: SlamRun, sigma_ref, rng):
+    """GTSAM also from ``extra_starts`` GTSAM-style starts (a random walk of the nominal step,
+    landmarks uniform in a box of the largest range); the graph's cost decides. Where the ranges
+    leave the shape nearly free (few steps, no bounds, a planar path) LM from the EDM answer can
+    stop in a valley another start avoids. Returns (best run, its start's name, failures)."""
+    r, observed = problem.ranges, problem.observed
+    start, start_failures = "edm", []
+    nominal = nominal_steps(problem.bounds, r, observed)
+    for j in range(problem.extra_starts):
+        x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
+        try:
+            fit_j, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref)
+        except SolverError as exc:  # LM diverged, or the covariances are undefined there
+            start_failures.append(f"random start {j}: {exc}")
+            continue
+        if fit_j.error < best.key:
+            res_j = range_matrix(fit_j.receivers, fit_j.sources) - r
+            ssr_j = float(np.sum(res_j[observed] ** 2))
+            best = SlamRun(
+                ssr_j, fit_j.receivers, fit_j.sources, fit_j, best.completion, res_j, fit_j.error
+            )
+            start = f"random start {j}"
+    return best, start, start_failures
+
+
+def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
+    """(status, message): the residual verdict (:func:`residual_status`), SOLVER_FAILED when
+    GTSAM did not converge."""
+    message = ""
+    if failures:
+        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
+    if start_failures:
+        message += f"GTSAM failed from {'; '.join(start_failures)}; "
+    status, why = residual_status(
+        best.ssr,
+        problem.observed,
+        problem.dim,
+        problem.noise_std,
+        problem.scale,
+        chi_square=problem.noise_std is not None and problem.redundancy > 0,
+        bounded=problem.bounds is not None,
+    )
+    message += why
+    if best.fit is not None and not best.fit.converged:
+        status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
+        message += f"GTSAM: {best.fit.message}; "
+    return status, message.rstrip("; ")
+
+
+def slam_result(
+    problem: SlamProblem, best: SlamRun, attempts: int, start: str, status, message
+) -> SlamResult:
+    """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated)."""
+    m = problem.ranges.shape[0]
+    rec_f, src_f, rot = canonical_frame(best.receivers, best.sources)
+    cov_r = cov_s = cov_traj = None
+    if best.fit is not None:
+        cov_r, cov_s, cov_traj = rotated_covariances(best.fit, rot)
+    pts = best.completion.points
+    edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
+    return SlamResult(
+        receivers=frozen(rec_f),
+        sources=frozen(src_f),
+        receiver_cov=None if cov_r is None else frozen(cov_r),
+        source_cov=None if cov_s is None else frozen(cov_s),
+        trajectory_cov=None if cov_traj is None else frozen(cov_traj),
+        residuals=frozen(np.where(problem.observed, best.residuals, np.nan)),
+        edm_receivers=frozen(edm_rec),
+        edm_sources=frozen(edm_src),
+        residual_rms=float(np.sqrt(best.ssr / problem.n_obs)),
+        status=status,
+        message=message,
+        attempts=attempts,
+        start=start,
+        eigen_gap=best.completion.eigen_gap,
+    )
+
+
 def slam(
     ranges: ArrayLike,
     *,
-    step_bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    step_bounds: StepBounds | tuple[ArrayLike, ArrayLike] | None = None,
     mask: ArrayLike | None = None,
     dim: int = 3,
     refine: bool = True,
@@ -148,8 +466,9 @@ def slam(
 
     Args:
         ranges: (M, K) range from step m to landmark k, metres.
-        step_bounds: (lower, upper), each (M - 1,), bounds on |r_{i+1} - r_i| in metres: eq. (11)
-            constraints in the SDP and step priors (``step_prior``) in the GTSAM refinement.
+        step_bounds: a :class:`StepBounds` or (lower, upper), each (M - 1,), bounds on
+            |r_{i+1} - r_i| in metres: eq. (11) constraints in the SDP and step priors
+            (``step_prior``) in the GTSAM refinement.
         mask: (M, K) boolean, True where observed.
         dim: 2 or 3.
         refine: refine the EDM answer with GTSAM (and compute covariances).
@@ -160,15 +479,12 @@ def slam(
         step_prior: how GTSAM reads the bounds: "uniform" (default: the step length uniform on
             [lower, upper], as a dead zone plus its moment-matched Gaussian) or "dead_zone" (no
             cost inside the bounds; its MAP runs to the bounds where the ranges leave the shape
-            free: in the Fig. 5 setting at 1 cm, 2.1-3.0x the mean error at M = 5 to 10; with
-            the true steps anywhere in the bounds, not at their centres, "uniform" is still
-            1.7-2.1x below the dead zone's error with centred bounds).
+            free).
         max_attempts: convex-iteration runs at most (fit weights x1, x10, x0.1, x100 from Z = I,
             then random Z), until one passes the residual test.
         extra_starts: GTSAM runs from GTSAM-style random starts besides the EDM answer's; the
             lowest graph cost wins (``SlamResult.start`` says which). Default 0, the EDM answer
-            only: on Fig. 5 the minima reached are of equal cost, and picking the lowest picks
-            the one that fits the noise best (measured: no smaller error, NEES 1.1-1.2).
+            only.
         fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
         rng: Generator or seed for the random restarts.
 
@@ -176,196 +492,21 @@ def slam(
     negative bounds, bounds the ranges contradict (triangle inequality, named by step), an
     under-determined mask. SolverError when the SDP fails in every run.
     """
-    from rangeslam.solvers.sdp import EDMCompletionSDP
-
-    r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
-    m, k = r.shape
-    bounds = None if step_bounds is None else check_step_bounds(step_bounds, m)
-    if bounds is not None:
-        _check_bounds_against_ranges(bounds, r, observed, noise_std)
-    if step_prior not in STEP_PRIORS:
-        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
-    if not (isinstance(extra_starts, int | np.integer) and extra_starts >= 0):
-        raise InvalidInputError(f"extra_starts must be an integer >= 0; got {extra_starts!r}")
-    if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
-        raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
+    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, 1e-6)
+    problem = parse_slam(
+        ranges, step_bounds, mask, dim, refine, noise_std, robust, step_sigma, step_prior,
+        extra_starts, options,
+    )  # fmt: skip
     rng = np.random.default_rng(rng)
-    n = m + k
-    n_obs = int(observed.sum())
-    exact_rms = EXACT_RTOL * scale
-    w = mdu_mask(observed)
-    d_tilde = mdu_edm(r)
-    pairs = np.column_stack([np.arange(m - 1), np.arange(1, m)]) if bounds else None
-    problem = EDMCompletionSDP(w, bounded_pairs=pairs)
-    redundancy = n_obs - unknowns_up_to_rigid_motion(n, dim)
-
-    floor = SIGMA_FLOOR * scale
-
-    def graph(
-        pts: np.ndarray, sigma: float, *, covariances: bool = False, max_iterations: int = 5000
-    ) -> GraphFit:
-        return refine_graph(
-            pts[:m],
-            pts[m:],
-            r,
-            noise_std=sigma,
-            mask=observed,
-            step_bounds=bounds,
-            step_sigma=step_sigma,
-            step_prior=step_prior,
-            robust=robust,
-            covariances=covariances,
-            # a planar trajectory leaves landmarks near its plane in a flat valley (their mirror
-            # images meet there), and few steps leave the shape itself in one: at M = 5 and
-            # 1 mm, 1000 LM iterations are typical
-            max_iterations=max_iterations,
-        )
-
-    def noise_from(pts: np.ndarray, dof: int) -> float:
-        res = (range_matrix(pts[:m], pts[m:]) - r)[observed]
-        if robust is not None:  # wrong echoes must not set the scale: MAD
-            return float(1.4826 * np.median(np.abs(res)) * np.sqrt(n_obs / dof))
-        return float(np.sqrt(np.sum(res**2) / dof))
-
-    def stacked(fit: GraphFit) -> np.ndarray:
-        return np.vstack([fit.receivers, fit.sources])
-
-    def refine_run(pts: np.ndarray, sigma: float | None = None) -> tuple[GraphFit, float]:
-        """GTSAM from ``pts`` with covariances; the range sigma of its final graph. ``sigma``:
-        that of the graph (default: ``noise_std``, or found from the residuals when unknown)."""
-        if sigma is None and noise_std is None:
-            # Unknown noise: first the EDM answer's RMS residual (biased by the SDP's penalty),
-            # then the refined fit's (sum of squares over the redundancy) until it settles. The
-            # weight of the step prior against the ranges depends on it.
-            sigma = max(noise_from(pts, n_obs), floor)
-            fit = graph(pts, sigma)
-            for _ in range(_NOISE_ROUNDS if redundancy > 0 else 0):
-                new = max(noise_from(stacked(fit), redundancy), floor)
-                if abs(new - sigma) <= 0.1 * sigma:
-                    break
-                sigma = new
-                fit = graph(stacked(fit), sigma)
-            pts = stacked(fit)
-            if sigma <= floor:  # no noise to be seen: exact data
-                sigma = 0.0
-        elif sigma is None:
-            sigma = noise_std
-        if sigma >= floor:
-            return graph(pts, sigma, covariances=True), sigma
-        # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
-        # step at all): first at the floor, then at sigma itself, or for exact data (where the
-        # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
-        target = sigma if sigma > 0 else _EXACT_POLISH * floor
-        fit = graph(pts, floor)
-        return graph(stacked(fit), target, covariances=True), target
-
-    failures: list[str] = []
-    best = None
-    attempts = 0
-    sigma_ref = None  # runs are compared on one graph: the first run's sigma
-    for completion in convex_iteration_runs(
-        problem,
-        d_tilde,
-        w,
-        dim,
-        max_attempts=max_attempts,
-        fit_weight=fit_weight,
-        max_iterations=max_iterations,
-        gap_tol=1e-6,
-        rng=rng,
-        failures=failures,
-        bounds=bounds,
-    ):
-        attempts += 1
-        pts = completion.points
-        fit: GraphFit | None = None
-        key = None
-        if refine:
-            fit, sigma = refine_run(pts)
-            rec, src = fit.receivers, fit.sources
-            if sigma_ref is None:
-                sigma_ref = sigma
-            # Runs are ranked by the graph's cost (ranges and step priors), not by the ranges
-            # alone: a low range residual bought by breaking the step bounds is no better answer.
-            # All on one graph, the first run's.
-            key = fit.error
-            if sigma != sigma_ref:
-                key = graph(stacked(fit), sigma_ref, max_iterations=0).error
-        else:
-            rec, src = pts[:m], pts[m:]
-        res = range_matrix(rec, src) - r
-        ssr = float(np.sum(res[observed] ** 2))
-        key = ssr if key is None else key
-        passes = passes_residual_test(ssr, n_obs, n, dim, noise_std, exact_rms)
-        if best is None or key < best[-1] or passes:  # a run that passes is taken as it is
-            best = (ssr, rec, src, fit, completion, res, key)
-        if passes:
-            break
-    if best is None:
+    found = search_edm_runs(problem, rng)
+    if found.best is None:
         raise SolverError(
             "SLAM found no solution: the SDP failed in every run (with step bounds, they may "
             "not hold together with the ranges)",
-            status="; ".join(dict.fromkeys(failures)),
+            status="; ".join(dict.fromkeys(found.failures)),
         )
-    start = "edm"
-    start_failures: list[str] = []
-    if refine and extra_starts:
-        # GTSAM also from GTSAM-style starts (random walk of the nominal step, landmarks uniform
-        # in a box of the largest range); the graph's cost decides. Where the ranges leave the
-        # shape nearly free (few steps, no bounds, a planar path) LM from the EDM answer can stop
-        # in a valley another start avoids.
-        nominal = nominal_steps(bounds, r, observed)
-        for j in range(extra_starts):
-            x0, s0 = random_start(nominal, k, dim, float(np.max(r[observed])), rng)
-            try:
-                fit_j, _ = refine_run(np.vstack([x0, s0]), sigma_ref)
-            except SolverError as exc:  # LM diverged, or the covariances are undefined there
-                start_failures.append(f"random start {j}: {exc}")
-                continue
-            if fit_j.error < best[-1]:
-                res_j = range_matrix(fit_j.receivers, fit_j.sources) - r
-                ssr_j = float(np.sum(res_j[observed] ** 2))
-                best = (ssr_j, fit_j.receivers, fit_j.sources, fit_j, best[4], res_j, fit_j.error)
-                start = f"random start {j}"
-    ssr, rec, src, fit, completion, res, _ = best
-    rms = float(np.sqrt(ssr / n_obs))
-    message = ""
-    if failures:
-        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
-    if start_failures:
-        message += f"GTSAM failed from {'; '.join(start_failures)}; "
-    converged, why = residual_verdict(
-        ssr,
-        observed,
-        dim,
-        noise_std,
-        scale,
-        chi_square=noise_std is not None and redundancy > 0,
-        bounded=bounds is not None,
-    )
-    message += why
-    if fit is not None and not fit.converged:
-        converged = False
-        message += f"GTSAM: {fit.message}; "
-    rec_f, src_f, rot = canonical_frame(rec, src)
-    cov_r = cov_s = cov_traj = None
-    if fit is not None:
-        cov_r, cov_s, cov_traj = rotated_covariances(fit, rot)
-    pts = completion.points
-    edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
-    return SlamResult(
-        receivers=frozen(rec_f),
-        sources=frozen(src_f),
-        receiver_cov=None if cov_r is None else frozen(cov_r),
-        source_cov=None if cov_s is None else frozen(cov_s),
-        trajectory_cov=None if cov_traj is None else frozen(cov_traj),
-        residuals=frozen(np.where(observed, res, np.nan)),
-        edm_receivers=frozen(edm_rec),
-        edm_sources=frozen(edm_src),
-        residual_rms=rms,
-        converged=bool(converged),
-        message=message.rstrip("; "),
-        attempts=attempts,
-        start=start,
-        eigen_gap=completion.eigen_gap,
-    )
+    best, start, start_failures = found.best, "edm", []
+    if problem.refine and problem.extra_starts:
+        best, start, start_failures = try_random_starts(problem, best, found.sigma_ref, rng)
+    status, message = slam_verdict(problem, best, found.failures, start_failures)
+    return slam_result(problem, best, found.attempts, start, status, message)

@@ -28,6 +28,7 @@ aligning the receivers to the truth.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,10 +38,16 @@ from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_s
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection
+from rangeslam.solvers.robust_kernels import (
+    ROBUST_KERNEL_CONSTANTS,
+    ROBUST_KERNELS,
+    robust_noise_model,
+)
+from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.status import HasStatus, Status
 
-__all__ = ["ROBUST_KERNELS", "STEP_PRIORS", "GraphFit", "refine_graph"]
+__all__ = ["STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
 
-ROBUST_KERNELS = ("huber", "cauchy", "tukey")
 #: Readings of step bounds in the graph (see the module docstring).
 STEP_PRIORS = ("uniform", "dead_zone")
 # Sigma of the gauge priors relative to noise_std. The pinned directions are unobservable, so how
@@ -51,7 +58,7 @@ _GAUGE_TIGHT = 1e-2
 
 
 @dataclass(frozen=True)
-class GraphFit:
+class GraphFit(HasStatus):
     """Result of :func:`refine_graph`. M receivers, K sources, d = 2 or 3.
 
     Attributes:
@@ -66,9 +73,9 @@ class GraphFit:
         error: final value of the graph's cost (GTSAM's error: half the weighted squared sum).
         initial_error: the cost at the starting point.
         iterations: Levenberg-Marquardt iterations.
-        converged: LM finished within its iteration limit with a finite cost no larger than the
-            start's.
-        message: why not, when ``converged`` is False; empty otherwise.
+        status: CONVERGED when LM finished within its iteration limit with a finite cost no
+            larger than the start's, else SOLVER_FAILED (``converged`` is derived from it).
+        message: why not, when not converged; empty otherwise.
     """
 
     receivers: np.ndarray
@@ -80,34 +87,115 @@ class GraphFit:
     error: float
     initial_error: float
     iterations: int
-    converged: bool
+    status: Status
     message: str
 
 
+@dataclass(frozen=True)
+class LMOptions:
+    """Levenberg-Marquardt settings of :func:`refine_graph` (as GTSAM's LevenbergMarquardtParams).
+
+    Attributes:
+        max_iterations: iteration limit; 0 evaluates the graph without moving the points.
+        lambda_upper_bound: LM stops when its damping exceeds this (GTSAM's default is 1e5; see
+            :func:`run_levenberg_marquardt` for why the default here is 1e12).
+    """
+
+    # Planar trajectories leave a slow valley: from the truth, 80 iterations are typical at 1 cm
+    # noise, hence a limit well above that.
+
+    max_iterations: int = 500
+    lambda_upper_bound: float = 1e12
+
+
+@dataclass(frozen=True)
+class StepPrior:
+    """Step bounds read as a prior (module docstring): ``kind`` in STEP_PRIORS, ``sigma`` the
+    scale outside the bounds, metres."""
+
+    bounds: StepBounds
+    sigma: float
+    kind: str
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """Odometry factors: step lengths (M - 1,) and/or step vectors (M - 1, d), metres, each
+    Gaussian with ``sigma``."""
+
+    lengths: np.ndarray | None
+    vectors: np.ndarray | None
+    sigma: float | None
+
+
+@dataclass(frozen=True)
+class GraphProblem:
+    """The validated inputs of :func:`refine_graph`: start points, ranges and factor settings."""
+
+    receivers: np.ndarray  # (M, d) start
+    sources: np.ndarray  # (K, d) start
+    ranges: np.ndarray  # (M, K) metres
+    observed: np.ndarray  # (M, K) bool
+    noise_std: float
+    robust: str | None
+    robust_constant: float | None  # kernel threshold in units of noise_std
+    step_prior: StepPrior | None
+    odometry: Odometry
+    lm: LMOptions
+
+
 def check_step_bounds(step_bounds, m: int) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        lower, upper = (np.array(b, dtype=float, copy=True) for b in step_bounds)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(
-            "step_bounds must be a pair (lower, upper) of arrays of step lengths"
-        ) from exc
-    for name, b in (("lower", lower), ("upper", upper)):
-        if b.shape != (m - 1,):
+    """(lower, upper), each (m - 1,), from a pair or a :class:`StepBounds` (see its ``parse``)."""
+    bounds = StepBounds.parse(step_bounds, m - 1)
+    return bounds.lower.copy(), bounds.upper.copy()
+
+
+def check_lm_options(max_iterations, lambda_upper_bound) -> LMOptions:
+    """The LM settings, refused unless max_iterations is an integer >= 0 and the bound > 0."""
+    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):
+        raise InvalidInputError(f"max_iterations must be an integer >= 0; got {max_iterations!r}")
+    if not (lambda_upper_bound > 0):
+        raise InvalidInputError(f"lambda_upper_bound must be positive; got {lambda_upper_bound!r}")
+    return LMOptions(int(max_iterations), float(lambda_upper_bound))
+
+
+def robust_constant(robust: str | None, robust_scale, noise_std: float) -> float | None:
+    """The kernel's threshold in sigmas: robust_scale / noise_std, or the table's constant."""
+    if robust is None:
+        return None
+    c = ROBUST_KERNEL_CONSTANTS[robust] if robust_scale is None else robust_scale / noise_std
+    if not (np.isfinite(c) and c > 0):
+        raise InvalidInputError(f"robust_scale must be positive; got {robust_scale!r}")
+    return float(c)
+
+
+def parse_step_prior(step_bounds, step_sigma, kind: str, m: int, noise_std: float):
+    """The step prior from ``step_bounds`` (None without them); sigma defaults to the noise."""
+    if step_bounds is None:
+        return None
+    bounds = StepBounds.parse(step_bounds, m - 1)
+    sig = noise_std if step_sigma is None else float(step_sigma)
+    if not (np.isfinite(sig) and sig > 0):
+        raise InvalidInputError(f"step_sigma must be positive; got {step_sigma!r}")
+    return StepPrior(bounds, sig, kind)
+
+
+def parse_odometry(step_lengths, step_vectors, odometry_sigma, m: int, d: int) -> Odometry:
+    """Odometry lengths (M - 1,) and vectors (M - 1, d), checked."""
+    lengths = vectors = None
+    if step_lengths is not None:
+        lengths = np.asarray(step_lengths, dtype=float)
+        if lengths.shape != (m - 1,) or not np.all(np.isfinite(lengths)) or np.any(lengths < 0):
             raise InvalidInputError(
-                f"step_bounds {name} must have shape ({m - 1},) (one per step between the {m} "
-                f"receivers); got {shape_str(b.shape)}"
+                f"step_lengths must be ({m - 1},) finite non-negative; got {shape_str(lengths.shape)}"
             )
-        if not np.all(np.isfinite(b)):
-            raise InvalidInputError(f"step_bounds {name} must be finite")
-    if np.any(lower < 0):
-        i = int(np.argmax(lower < 0))
-        raise InvalidInputError(f"step_bounds lower must be >= 0; step {i} has {lower[i]}")
-    if np.any(lower > upper):
-        i = int(np.argmax(lower > upper))
-        raise InvalidInputError(
-            f"step_bounds must have lower <= upper; step {i} has [{lower[i]}, {upper[i]}]"
-        )
-    return lower, upper
+    if step_vectors is not None:
+        vectors = as_points(step_vectors, "step_vectors", dim=d)
+        if vectors.shape != (m - 1, d):
+            raise InvalidInputError(
+                f"step_vectors must have shape ({m - 1}, {d}); got {shape_str(vectors.shape)}"
+            )
+    return Odometry(lengths, vectors, odometry_sigma)
 
 
 def _gauge_points(points: np.ndarray) -> list[int]:
@@ -137,19 +225,19 @@ def _gauge_frame(points: np.ndarray, idx: list[int]) -> np.ndarray:
     return np.column_stack([e1, e2, np.cross(e1, e2)])
 
 
+def _partial_prior_error(at, rows, getter, this, values, jacobians):
+    """Error rows @ (p - at) of the point at this factor's key, Jacobian ``rows``."""
+    p = getattr(values, getter)(this.keys()[0])
+    if jacobians is not None:
+        jacobians[0] = rows
+    return rows @ (p - at)
+
+
 def _partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std: float):
     """CustomFactor pinning the components rows @ (p - at) of one point (rows: (n, d)), and no
     other: the gauge prior that leaves every observable direction to the measurements."""
-    at = at.copy()
-    rows = np.ascontiguousarray(rows)
     getter = "atPoint3" if len(at) == 3 else "atPoint2"
-
-    def error(this, values, jacobians):
-        p = getattr(values, getter)(this.keys()[0])
-        if jacobians is not None:
-            jacobians[0] = rows
-        return rows @ (p - at)
-
+    error = functools.partial(_partial_prior_error, at.copy(), np.ascontiguousarray(rows), getter)
     model = gtsam.noiseModel.Isotropic.Sigma(len(rows), _GAUGE_TIGHT * noise_std)
     return gtsam.CustomFactor(model, [key], error)
 
@@ -180,6 +268,181 @@ def _covariance(gtsam, graph, values, keys: list[int], d: int, *, gauge_free: bo
     return v @ v.T
 
 
+def graph_keys(gtsam, m: int, k: int) -> list[int]:
+    """GTSAM symbol keys X(i) of the M receivers, then L(j) of the K sources."""
+    return [gtsam.symbol("x", i) for i in range(m)] + [gtsam.symbol("l", j) for j in range(k)]
+
+
+def add_range_factors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
+    """One range factor per observed r_mk, Gaussian with noise_std or in the robust kernel."""
+    m, d = problem.receivers.shape
+    range_factor = gtsam.RangeFactor3 if d == 3 else gtsam.RangeFactor2
+    base = gtsam.noiseModel.Isotropic.Sigma(1, problem.noise_std)
+    noise = robust_noise_model(gtsam, base, problem.robust, problem.robust_constant)
+    r = problem.ranges
+    for i, j in np.argwhere(problem.observed):
+        graph.add(range_factor(keys[int(i)], keys[m + int(j)], float(r[i, j]), noise))
+
+
+def add_step_priors(gtsam, graph, prior: StepPrior, keys: list[int], d: int) -> None:
+    """Per step, a dead-zone range factor of half-width (upper - lower) / 2 at the midpoint, and
+    with "uniform" the moment-matched Gaussian of U(lower, upper) (never below sigma)."""
+    range_factor = gtsam.RangeFactor3 if d == 3 else gtsam.RangeFactor2
+    lower, upper, sig = prior.bounds.lower, prior.bounds.upper, prior.sigma
+    for i in range(prior.bounds.n_steps):
+        half = 0.5 * (upper[i] - lower[i])
+        model = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.L2WithDeadZone(half / sig),
+            gtsam.noiseModel.Isotropic.Sigma(1, sig),
+        )
+        graph.add(range_factor(keys[i], keys[i + 1], float(lower[i] + half), model))
+        if prior.kind == "uniform":  # mean and variance of U(lower, upper); never below sig
+            spread = max(2 * half / np.sqrt(12), sig)
+            model = gtsam.noiseModel.Isotropic.Sigma(1, spread)
+            graph.add(range_factor(keys[i], keys[i + 1], float(lower[i] + half), model))
+
+
+def add_odometry_factors(gtsam, graph, odometry: Odometry, keys: list[int], d: int) -> None:
+    """Gaussian step-length (range) and step-vector (between) factors with odometry.sigma."""
+    range_factor = gtsam.RangeFactor3 if d == 3 else gtsam.RangeFactor2
+    between_factor = gtsam.BetweenFactorPoint3 if d == 3 else gtsam.BetweenFactorPoint2
+    if odometry.lengths is not None:
+        model = gtsam.noiseModel.Isotropic.Sigma(1, odometry.sigma)
+        for i, length in enumerate(odometry.lengths):
+            graph.add(range_factor(keys[i], keys[i + 1], float(length), model))
+    if odometry.vectors is not None:
+        model = gtsam.noiseModel.Isotropic.Sigma(d, odometry.sigma)
+        for i, step in enumerate(odometry.vectors):
+            graph.add(between_factor(keys[i], keys[i + 1], step, model))
+
+
+def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem: GraphProblem):
+    """Priors on the unobservable rigid motion only: 6 coordinates (3 in 2-D) of three spread
+    points; with step vectors (which fix the orientation), the first point's translation."""
+    d = points.shape[1]
+    if problem.odometry.vectors is not None:
+        prior_factor = gtsam.PriorFactorPoint3 if d == 3 else gtsam.PriorFactorPoint2
+        noise = gtsam.noiseModel.Isotropic.Sigma(d, _GAUGE_TIGHT * problem.noise_std)
+        graph.add(prior_factor(keys[0], points[0], noise))
+        return
+    idx = _gauge_points(points)
+    frame = _gauge_frame(points, idx)
+    axes = [list(range(d)), list(range(1, d))]  # a: all; b: across the line ab
+    if d == 3:
+        axes.append([2])  # c: along the normal of the plane abc
+    for p, pinned in zip(idx, axes, strict=True):
+        graph.add(_partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, problem.noise_std))
+
+
+@dataclass(frozen=True)
+class LMRun:
+    """What Levenberg-Marquardt returned: GTSAM's values, the estimate (N, d) metres, the
+    iterations made and the graph's cost at the start and at the end."""
+
+    values: object
+    estimate: np.ndarray
+    iterations: int
+    initial_error: float
+    error: float
+
+
+def run_levenberg_marquardt(
+    gtsam, graph, points: np.ndarray, keys: list[int], lm: LMOptions
+) -> LMRun:
+    """LM from ``points`` (N, d). Raises SolverError on a non-finite cost."""
+    initial = gtsam.Values()
+    for key, p in zip(keys, points, strict=True):
+        initial.insert(key, p)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(lm.max_iterations))
+    params.setRelativeErrorTol(1e-9)
+    params.setAbsoluteErrorTol(1e-12)
+    # GTSAM stops once the damping passes lambdaUpperBound (1e5 by default). In the curved, flat
+    # valleys of few-step SLAM (sigma = 1 mm, M = 5) that stopped it 5-8 cm from the minimum,
+    # which a bound of 1e12 reaches (measured: mean trajectory error 7 -> 1.7 cm).
+    params.setlambdaUpperBound(float(lm.lambda_upper_bound))
+    initial_error = float(graph.error(initial))
+    result, iterations = initial, 0
+    if lm.max_iterations > 0:
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+        result = optimizer.optimize()
+        iterations = int(optimizer.iterations())
+    error = float(graph.error(result))
+    if not np.isfinite(error):
+        raise SolverError("GTSAM Levenberg-Marquardt diverged", status=f"error {error}")
+    at = result.atPoint3 if points.shape[1] == 3 else result.atPoint2
+    est = np.array([at(key) for key in keys])
+    return LMRun(result, est, iterations, initial_error, error)
+
+
+def build_graph(gtsam, problem: GraphProblem, keys: list[int]):
+    """The factor graph: ranges, step priors, odometry, then the gauge priors. Returns (graph,
+    the measurement factors alone (for the covariances), the start points (M + K, d))."""
+    d = problem.receivers.shape[1]
+    graph = gtsam.NonlinearFactorGraph()
+    add_range_factors(gtsam, graph, problem, keys)
+    if problem.step_prior is not None:
+        add_step_priors(gtsam, graph, problem.step_prior, keys, d)
+    add_odometry_factors(gtsam, graph, problem.odometry, keys, d)
+    measurements = graph.clone()  # without the gauge priors: the covariances come from these
+    points = np.vstack([problem.receivers, problem.sources])
+    add_gauge_priors(gtsam, graph, points, keys, problem)
+    return graph, measurements, points
+
+
+def lm_verdict(lm: LMOptions, run: LMRun) -> tuple[Status, str]:
+    """(status, message): SOLVER_FAILED when LM hit its iteration limit or the cost went up."""
+    message = ""
+    if 0 < lm.max_iterations <= run.iterations:
+        message += f"Levenberg-Marquardt hit the limit of {lm.max_iterations} iterations; "
+    if run.error > run.initial_error * (1 + 1e-9) + 1e-12:
+        message += "the cost went up; "
+    return (Status.SOLVER_FAILED if message else Status.CONVERGED), message.rstrip("; ")
+
+
+def graph_covariances(gtsam, measurements, values, keys, est: np.ndarray, problem: GraphProblem):
+    """(receiver (M, d, d), source (K, d, d), joint) covariances at the estimate ``est``
+    (M + K, d), in the receiver gauge unless step vectors fixed the orientation."""
+    m, d = problem.receivers.shape
+    gauge_free = problem.odometry.vectors is None
+    full = _covariance(gtsam, measurements, values, keys, d, gauge_free=gauge_free)
+    if gauge_free:
+        proj = receiver_gauge_projection(est[:m], est[m:])
+        full = proj @ full @ proj.T
+    blocks = np.array([full[i * d : (i + 1) * d, i * d : (i + 1) * d] for i in range(len(est))])
+    return frozen(blocks[:m]), frozen(blocks[m:]), frozen(full)
+
+
+def parse_graph_problem(
+    receivers, sources, ranges, *, noise_std, mask, step_bounds, step_sigma, step_prior,
+    step_lengths, step_vectors, odometry_sigma, robust, robust_scale, max_iterations,
+    lambda_upper_bound,
+) -> GraphProblem:  # fmt: skip
+    """The front door of :func:`refine_graph`: every input checked once, in the order of the
+    messages users know."""
+    x = as_points(receivers, "receivers")
+    m, d = x.shape
+    s = as_points(sources, "sources", dim=d)
+    observed = as_mask(mask, "mask", shape=(m, len(s)))
+    r = as_ranges(ranges, "ranges", shape=(m, len(s)), observed=observed)
+    if not (np.isfinite(noise_std) and noise_std > 0):
+        raise InvalidInputError(f"noise_std must be positive and finite; got {noise_std!r}")
+    if robust is not None and robust not in ROBUST_KERNELS:
+        raise InvalidInputError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
+    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):
+        raise InvalidInputError(f"max_iterations must be an integer >= 0; got {max_iterations!r}")
+    if step_prior not in STEP_PRIORS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
+    odometry = step_lengths is not None or step_vectors is not None
+    if odometry and not (odometry_sigma is not None and odometry_sigma > 0):
+        raise InvalidInputError("odometry_sigma (> 0) is required with step_lengths/step_vectors")
+    c = robust_constant(robust, robust_scale, noise_std)
+    prior = parse_step_prior(step_bounds, step_sigma, step_prior, m, noise_std)
+    odo = parse_odometry(step_lengths, step_vectors, odometry_sigma, m, d)
+    lm = check_lm_options(max_iterations, lambda_upper_bound)
+    return GraphProblem(x, s, r, observed, noise_std, robust, c, prior, odo, lm)
+
+
 def refine_graph(
     receivers: ArrayLike,
     sources: ArrayLike,
@@ -187,7 +450,7 @@ def refine_graph(
     *,
     noise_std: float,
     mask: ArrayLike | None = None,
-    step_bounds: tuple[ArrayLike, ArrayLike] | None = None,
+    step_bounds: StepBounds | tuple[ArrayLike, ArrayLike] | None = None,
     step_sigma: float | None = None,
     step_prior: str = "uniform",
     step_lengths: ArrayLike | None = None,
@@ -206,8 +469,8 @@ def refine_graph(
         ranges: (M, K) metres; entries outside ``mask`` are ignored.
         noise_std: standard deviation of the range noise, metres (> 0).
         mask: (M, K) boolean, True where observed.
-        step_bounds: (lower, upper), each (M - 1,), bounds on |x_{i+1} - x_i| in metres: a
-            step prior as ``step_prior`` says.
+        step_bounds: a :class:`StepBounds` or (lower, upper), each (M - 1,), bounds on
+            |x_{i+1} - x_i| in metres: a step prior as ``step_prior`` says.
         step_sigma: scale of the step prior outside the bounds, metres (default ``noise_std``).
         step_prior: "uniform" (dead zone plus the moment-matched Gaussian of a length uniform
             within the bounds) or "dead_zone" (no cost inside the bounds at all).
@@ -216,162 +479,36 @@ def refine_graph(
             coordinate Gaussian with ``odometry_sigma``. They fix the frame's orientation, so no
             gauge priors are added with them.
         robust: None (Gaussian), "huber", "cauchy" or "tukey" on the range factors.
-        robust_scale: the kernel's scale in metres; default 1.345, 1 and 4.685 ``noise_std`` for
-            Huber, Cauchy and Tukey (the usual constants).
+        robust_scale: the kernel's scale in metres; default the 95%-efficiency constants of
+            :data:`rangeslam.solvers.robust_kernels.ROBUST_KERNEL_CONSTANTS` times ``noise_std``.
         covariances: compute the marginal covariances (GTSAM Marginals).
-        max_iterations: Levenberg-Marquardt iteration limit (planar trajectories leave a slow
-            valley: from the truth, 80 iterations are typical at 1 cm noise); 0 evaluates the
-            graph's cost (and covariances) at the given points without moving them.
-        lambda_upper_bound: LM stops when its damping exceeds this (GTSAM's default is 1e5;
-            see the comment in the code for why the default here is 1e12).
+        max_iterations, lambda_upper_bound: Levenberg-Marquardt settings (:class:`LMOptions`);
+            max_iterations=0 evaluates the graph's cost (and covariances) at the given points.
 
     Returns a :class:`GraphFit`. Raises SolverError when LM returns a non-finite cost or the
     covariances are undefined (an unobservable direction beyond the gauge).
     """
     import gtsam  # the back end is imported on use, so `import rangeslam` stays light
 
-    x = as_points(receivers, "receivers")
-    m, d = x.shape
-    s = as_points(sources, "sources", dim=d)
-    k = len(s)
-    observed = as_mask(mask, "mask", shape=(m, k))
-    r = as_ranges(ranges, "ranges", shape=(m, k), observed=observed)
-    if not (np.isfinite(noise_std) and noise_std > 0):
-        raise InvalidInputError(f"noise_std must be positive and finite; got {noise_std!r}")
-    if robust is not None and robust not in ROBUST_KERNELS:
-        raise InvalidInputError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):
-        raise InvalidInputError(f"max_iterations must be an integer >= 0; got {max_iterations!r}")
-    if step_prior not in STEP_PRIORS:
-        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
-    odometry = step_lengths is not None or step_vectors is not None
-    if odometry and not (odometry_sigma is not None and odometry_sigma > 0):
-        raise InvalidInputError("odometry_sigma (> 0) is required with step_lengths/step_vectors")
-
-    point3 = d == 3
-    range_factor = gtsam.RangeFactor3 if point3 else gtsam.RangeFactor2
-    prior_factor = gtsam.PriorFactorPoint3 if point3 else gtsam.PriorFactorPoint2
-    between_factor = gtsam.BetweenFactorPoint3 if point3 else gtsam.BetweenFactorPoint2
-
-    def key_x(i: int) -> int:
-        return gtsam.symbol("x", i)
-
-    def key_l(j: int) -> int:
-        return gtsam.symbol("l", j)
-
-    graph = gtsam.NonlinearFactorGraph()
-    base = gtsam.noiseModel.Isotropic.Sigma(1, noise_std)
-    if robust is None:
-        range_noise = base
-    else:
-        default = {"huber": 1.345, "cauchy": 1.0, "tukey": 4.685}[robust]
-        c = default if robust_scale is None else robust_scale / noise_std
-        if not (np.isfinite(c) and c > 0):
-            raise InvalidInputError(f"robust_scale must be positive; got {robust_scale!r}")
-        kernel = {
-            "huber": gtsam.noiseModel.mEstimator.Huber,
-            "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
-            "tukey": gtsam.noiseModel.mEstimator.Tukey,
-        }[robust](c)
-        range_noise = gtsam.noiseModel.Robust.Create(kernel, base)
-    for i, j in np.argwhere(observed):
-        graph.add(range_factor(key_x(int(i)), key_l(int(j)), float(r[i, j]), range_noise))
-
-    if step_bounds is not None:
-        lower, upper = check_step_bounds(step_bounds, m)
-        sig = noise_std if step_sigma is None else float(step_sigma)
-        if not (np.isfinite(sig) and sig > 0):
-            raise InvalidInputError(f"step_sigma must be positive; got {step_sigma!r}")
-        for i in range(m - 1):
-            half = 0.5 * (upper[i] - lower[i])
-            model = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.L2WithDeadZone(half / sig),
-                gtsam.noiseModel.Isotropic.Sigma(1, sig),
-            )
-            graph.add(range_factor(key_x(i), key_x(i + 1), float(lower[i] + half), model))
-            if step_prior == "uniform":  # mean and variance of U(lower, upper); never below sig
-                spread = max(2 * half / np.sqrt(12), sig)
-                model = gtsam.noiseModel.Isotropic.Sigma(1, spread)
-                graph.add(range_factor(key_x(i), key_x(i + 1), float(lower[i] + half), model))
-    if step_lengths is not None:
-        lengths = np.asarray(step_lengths, dtype=float)
-        if lengths.shape != (m - 1,) or not np.all(np.isfinite(lengths)) or np.any(lengths < 0):
-            raise InvalidInputError(
-                f"step_lengths must be ({m - 1},) finite non-negative; got {shape_str(lengths.shape)}"
-            )
-        model = gtsam.noiseModel.Isotropic.Sigma(1, odometry_sigma)
-        for i in range(m - 1):
-            graph.add(range_factor(key_x(i), key_x(i + 1), float(lengths[i]), model))
-    if step_vectors is not None:
-        steps = as_points(step_vectors, "step_vectors", dim=d)
-        if steps.shape != (m - 1, d):
-            raise InvalidInputError(
-                f"step_vectors must have shape ({m - 1}, {d}); got {shape_str(steps.shape)}"
-            )
-        model = gtsam.noiseModel.Isotropic.Sigma(d, odometry_sigma)
-        for i in range(m - 1):
-            graph.add(between_factor(key_x(i), key_x(i + 1), steps[i], model))
-
-    measurements = graph.clone()  # without the gauge priors: the covariances come from these
-    points = np.vstack([x, s])
-    keys = [key_x(i) for i in range(m)] + [key_l(j) for j in range(k)]
-    if step_vectors is None:
-        # Gauge: priors on the unobservable rigid motion only, in a frame of 3 spread points.
-        idx = _gauge_points(points)
-        frame = _gauge_frame(points, idx)
-        axes = [list(range(d)), list(range(1, d))]  # a: all; b: across the line ab
-        if d == 3:
-            axes.append([2])  # c: along the normal of the plane abc
-        for p, pinned in zip(idx, axes, strict=True):
-            graph.add(_partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, noise_std))
-    else:  # odometry vectors fix the orientation; only the translation is free
-        graph.add(
-            prior_factor(
-                keys[0], points[0], gtsam.noiseModel.Isotropic.Sigma(d, _GAUGE_TIGHT * noise_std)
-            )
-        )
-
-    initial = gtsam.Values()
-    for key, p in zip(keys, points, strict=True):
-        initial.insert(key, p)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setRelativeErrorTol(1e-9)
-    params.setAbsoluteErrorTol(1e-12)
-    # GTSAM stops once the damping passes lambdaUpperBound (1e5 by default). In the curved, flat
-    # valleys of few-step SLAM (sigma = 1 mm, M = 5) that stopped it 5-8 cm from the minimum,
-    # which a bound of 1e12 reaches (measured: mean trajectory error 7 -> 1.7 cm).
-    if not (lambda_upper_bound > 0):
-        raise InvalidInputError(f"lambda_upper_bound must be positive; got {lambda_upper_bound!r}")
-    params.setlambdaUpperBound(float(lambda_upper_bound))
-    initial_error = float(graph.error(initial))
-    result, iterations = initial, 0
-    if max_iterations > 0:
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-        result = optimizer.optimize()
-        iterations = int(optimizer.iterations())
-    error = float(graph.error(result))
-    if not np.isfinite(error):
-        raise SolverError("GTSAM Levenberg-Marquardt diverged", status=f"error {error}")
-    at = result.atPoint3 if point3 else result.atPoint2
-    est = np.array([at(key) for key in keys])
-    message = ""
-    if 0 < max_iterations <= iterations:
-        message += f"Levenberg-Marquardt hit the limit of {max_iterations} iterations; "
-    if error > initial_error * (1 + 1e-9) + 1e-12:
-        message += "the cost went up; "
-
+    problem = parse_graph_problem(
+        receivers, sources, ranges, noise_std=noise_std, mask=mask, step_bounds=step_bounds,
+        step_sigma=step_sigma, step_prior=step_prior, step_lengths=step_lengths,
+        step_vectors=step_vectors, odometry_sigma=odometry_sigma, robust=robust,
+        robust_scale=robust_scale, max_iterations=max_iterations,
+        lambda_upper_bound=lambda_upper_bound,
+    )  # fmt: skip
+    m = len(problem.receivers)
+    keys = graph_keys(gtsam, m, len(problem.sources))
+    graph, measurements, points = build_graph(gtsam, problem, keys)
+    run = run_levenberg_marquardt(gtsam, graph, points, keys, problem.lm)
+    status, message = lm_verdict(problem.lm, run)
+    est = run.estimate
     rec_cov = src_cov = joint = None
     if covariances:
-        full = _covariance(gtsam, measurements, result, keys, d, gauge_free=step_vectors is None)
-        if step_vectors is None:
-            proj = receiver_gauge_projection(est[:m], est[m:])
-            full = proj @ full @ proj.T
-        blocks = np.array([full[i * d : (i + 1) * d, i * d : (i + 1) * d] for i in range(m + k)])
-        rec_cov, src_cov = frozen(blocks[:m]), frozen(blocks[m:])
-        joint = frozen(full)
-
-    residuals = np.where(observed, range_matrix(est[:m], est[m:]) - r, np.nan)
+        rec_cov, src_cov, joint = graph_covariances(
+            gtsam, measurements, run.values, keys, est, problem
+        )
+    residuals = np.where(problem.observed, range_matrix(est[:m], est[m:]) - problem.ranges, np.nan)
     return GraphFit(
         receivers=frozen(est[:m]),
         sources=frozen(est[m:]),
@@ -379,9 +516,9 @@ def refine_graph(
         source_cov=src_cov,
         joint_cov=joint,
         residuals=frozen(residuals),
-        error=error,
-        initial_error=initial_error,
-        iterations=iterations,
-        converged=not message,
-        message=message.rstrip("; "),
+        error=run.error,
+        initial_error=run.initial_error,
+        iterations=run.iterations,
+        status=status,
+        message=message,
     )

@@ -410,6 +410,142 @@ def _solver_options(name: str, calibrated: bool = False) -> dict:
     return {}
 
 
+@dataclass(frozen=True)
+class CompletionOptions:
+    """The iteration settings of :func:`complete_edm`, validated once.
+
+    Attributes:
+        method: one of :data:`METHODS`.
+        dim: embedding dimension d.
+        fit_weight: lambda of eq. (10), on data scaled to unit median distance.
+        max_iterations: SDP solves of the convex iteration at most.
+        tol: eigen-gap tolerance for convergence.
+    """
+
+    method: str
+    dim: int
+    fit_weight: float
+    max_iterations: int
+    tol: float
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise InvalidInputError(f"method must be one of {METHODS}; got {self.method!r}")
+        if not isinstance(self.dim, int | np.integer) or self.dim < 1:
+            raise InvalidInputError(f"dim must be a positive integer; got {self.dim!r}")
+        if not (np.isfinite(self.fit_weight) and self.fit_weight > 0):
+            raise InvalidInputError(
+                f"fit_weight must be positive and finite; got {self.fit_weight!r}"
+            )
+        if not (isinstance(self.max_iterations, int | np.integer) and self.max_iterations >= 1):
+            raise InvalidInputError(
+                f"max_iterations must be a positive integer; got {self.max_iterations!r}"
+            )
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One SDP solve of the convex iteration: its eigen gap, G (N, N), solver status, the solver
+    used and the range calibration (scale, offset) of that solve (None without range groups)."""
+
+    gap: float
+    gram: np.ndarray
+    status: str
+    solver: str
+    calibration: tuple[np.ndarray, np.ndarray] | None
+
+
+def _completion_problem(mask, problem, **build) -> EDMCompletionSDP:
+    """The SDP for ``mask``: built from the ``build`` keywords of :class:`EDMCompletionSDP`, or the
+    given ``problem`` checked against the mask (range groups and solver options are fixed at build
+    time)."""
+    if problem is None:
+        return EDMCompletionSDP(mask, **build)
+    if build["range_groups"] is not None or build["solver_options"] is not None:
+        raise InvalidInputError(
+            "range_groups and solver_options are fixed when the problem is built; pass them "
+            "there, not with problem"
+        )
+    if not np.array_equal(
+        np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), problem.mask
+    ):
+        raise InvalidInputError("mask differs from the mask the given problem was built for")
+    return problem
+
+
+def _checked_edm(edm_matrix, problem: EDMCompletionSDP, dim: int) -> np.ndarray:
+    """(N, N) float copy of the squared distances, finite and non-negative where observed."""
+    n = problem.n
+    if dim >= n:
+        raise InvalidInputError(f"dim must be smaller than the number of points {n}; got {dim}")
+    d = np.array(edm_matrix, dtype=float, copy=True)
+    if d.shape != (n, n):
+        raise InvalidInputError(f"edm_matrix must have shape ({n}, {n}); got {shape_str(d.shape)}")
+    observed = d[problem.pairs[:, 0], problem.pairs[:, 1]]
+    if not np.all(np.isfinite(observed)) or np.any(observed < 0):
+        raise InvalidInputError("edm_matrix must be finite and non-negative where observed")
+    return d
+
+
+def _start_direction(method: str, z0, n: int) -> np.ndarray:
+    """Z (N, N) of the first solve: z0 or I for the convex iteration, +-I for trace min/max."""
+    if method == "convex_iteration":
+        z = np.eye(n) if z0 is None else np.asarray(z0, dtype=float)
+        if z.shape != (n, n):
+            raise InvalidInputError(f"z0 must have shape ({n}, {n}); got {shape_str(z.shape)}")
+        if not np.all(np.isfinite(z)) or not np.allclose(z, z.T, atol=1e-9):
+            raise InvalidInputError("z0 must be a finite symmetric matrix")
+        return z
+    if z0 is not None:
+        raise InvalidInputError(f"z0 is only used by the convex iteration, not {method!r}")
+    return np.eye(n) if method == "trace_min" else -np.eye(n)
+
+
+def _convex_iteration(
+    problem: EDMCompletionSDP, z: np.ndarray, options: CompletionOptions
+) -> tuple[Iterate, list[float]]:
+    """Alternate step (i) (the SDP) and step (ii) (Z from the eigenvectors), eq. (10).
+
+    Stops when the gap is below ``tol`` or stalls (no relative progress of 1e-3 over 5
+    iterations); returns the iterate with the smallest gap and the gap after every solve.
+    """
+    iterations = options.max_iterations if options.method == "convex_iteration" else 1
+    gaps: list[float] = []
+    best = None
+    for _ in range(iterations):
+        g, status, used = problem.solve(z)
+        gaps.append(eigen_gap(g, options.dim))
+        if best is None or gaps[-1] <= best.gap:
+            best = Iterate(gaps[-1], g, status, used, problem.calibration())
+        if gaps[-1] <= options.tol:
+            break
+        if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
+            break  # stalled: the last 5 iterations did not improve on the earlier best
+        z = low_rank_direction(g, options.dim)
+    return best, gaps
+
+
+def _completion_result(best: Iterate, gaps: list[float], options: CompletionOptions):
+    """The :class:`EDMCompletion` of the best iterate: converged when its gap is below ``tol``
+    (always for trace_min and trace_max, which do not target a rank)."""
+    converged = options.method != "convex_iteration" or best.gap <= options.tol
+    calibration = best.calibration
+    return EDMCompletion(
+        gram=frozen(best.gram),
+        edm=frozen(np.maximum(gram_to_edm(best.gram), 0.0)),
+        points=frozen(embed(best.gram, options.dim)),
+        eigen_gap=best.gap,
+        gaps=frozen(np.array(gaps)),
+        iterations=len(gaps),
+        converged=bool(converged),
+        status=best.status,
+        solver=best.solver,
+        method=options.method,
+        range_scale=None if calibration is None else frozen(calibration[0]),
+        range_offset=None if calibration is None else frozen(calibration[1]),
+    )
+
+
 def complete_edm(
     edm_matrix: ArrayLike,
     mask: ArrayLike,
@@ -459,87 +595,24 @@ def complete_edm(
     5 iterations); ``converged`` then stays False and the iterate with the smallest gap is
     returned. For trace_min and trace_max ``converged`` is True: they do not target a rank.
     """
-    if method not in METHODS:
-        raise InvalidInputError(f"method must be one of {METHODS}; got {method!r}")
-    if not isinstance(dim, int | np.integer) or dim < 1:
-        raise InvalidInputError(f"dim must be a positive integer; got {dim!r}")
-    if not (np.isfinite(fit_weight) and fit_weight > 0):
-        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
-        raise InvalidInputError(
-            f"max_iterations must be a positive integer; got {max_iterations!r}"
-        )
-    if problem is None:
-        problem = EDMCompletionSDP(
-            mask,
-            bounded_pairs=bounded_pairs,
-            loss=loss,
-            solver=solver,
-            range_groups=range_groups,
-            range_model=range_model,
-            solver_options=solver_options,
-        )
-    elif range_groups is not None or solver_options is not None:
-        raise InvalidInputError(
-            "range_groups and solver_options are fixed when the problem is built; pass them "
-            "there, not with problem"
-        )
-    elif not np.array_equal(
-        np.asarray(mask, dtype=bool) & ~np.eye(problem.n, dtype=bool), problem.mask
-    ):
-        raise InvalidInputError("mask differs from the mask the given problem was built for")
-    n = problem.n
-    if dim >= n:
-        raise InvalidInputError(f"dim must be smaller than the number of points {n}; got {dim}")
-    d = np.array(edm_matrix, dtype=float, copy=True)
-    if d.shape != (n, n):
-        raise InvalidInputError(f"edm_matrix must have shape ({n}, {n}); got {shape_str(d.shape)}")
-    observed = d[problem.pairs[:, 0], problem.pairs[:, 1]]
-    if not np.all(np.isfinite(observed)) or np.any(observed < 0):
-        raise InvalidInputError("edm_matrix must be finite and non-negative where observed")
+    options = CompletionOptions(method, dim, fit_weight, max_iterations, tol)
+    problem = _completion_problem(
+        mask,
+        problem,
+        bounded_pairs=bounded_pairs,
+        loss=loss,
+        solver=solver,
+        range_groups=range_groups,
+        range_model=range_model,
+        solver_options=solver_options,
+    )
+    d = _checked_edm(edm_matrix, problem, dim)
     problem.set_data(
         d,
         fit_weight=fit_weight,
         weights=weights,
         bounds=None if bounds is None else (np.asarray(bounds[0]), np.asarray(bounds[1])),
     )
-    if method == "convex_iteration":
-        z = np.eye(n) if z0 is None else np.asarray(z0, dtype=float)
-        if z.shape != (n, n):
-            raise InvalidInputError(f"z0 must have shape ({n}, {n}); got {shape_str(z.shape)}")
-        if not np.all(np.isfinite(z)) or not np.allclose(z, z.T, atol=1e-9):
-            raise InvalidInputError("z0 must be a finite symmetric matrix")
-        iterations = max_iterations
-    else:
-        if z0 is not None:
-            raise InvalidInputError(f"z0 is only used by the convex iteration, not {method!r}")
-        z = np.eye(n) if method == "trace_min" else -np.eye(n)
-        iterations = 1
-    gaps: list[float] = []
-    best = None
-    for _ in range(iterations):
-        g, status, used = problem.solve(z)
-        gaps.append(eigen_gap(g, dim))
-        if best is None or gaps[-1] <= best[0]:
-            best = (gaps[-1], g, status, used, problem.calibration())
-        if gaps[-1] <= tol:
-            break
-        if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
-            break  # stalled: the last 5 iterations did not improve on the earlier best
-        z = low_rank_direction(g, dim)
-    gap, g, status, used, calibration = best
-    converged = method != "convex_iteration" or gap <= tol
-    return EDMCompletion(
-        gram=frozen(g),
-        edm=frozen(np.maximum(gram_to_edm(g), 0.0)),
-        points=frozen(embed(g, dim)),
-        eigen_gap=gap,
-        gaps=frozen(np.array(gaps)),
-        iterations=len(gaps),
-        converged=bool(converged),
-        status=status,
-        solver=used,
-        method=method,
-        range_scale=None if calibration is None else frozen(calibration[0]),
-        range_offset=None if calibration is None else frozen(calibration[1]),
-    )
+    z = _start_direction(method, z0, problem.n)
+    best, gaps = _convex_iteration(problem, z, options)
+    return _completion_result(best, gaps, options)

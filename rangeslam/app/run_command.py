@@ -1,0 +1,257 @@
+"""``rangeslam run``: the room (known microphones) or the trajectory (step bounds) from RIR files.
+
+One library call does the work (:func:`rangeslam.acoustics.pipeline.run_rirs`, then
+:func:`~rangeslam.acoustics.pipeline.evaluate_run` when the file holds ground truth); this module
+reads the flags and files, then prints and writes the report (Markdown, CSV, JSON, plots).
+Exit 0 converged, 1 not converged, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["RunInputs", "read_matrix", "run", "run_inputs"]
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What ``rangeslam run`` passes to ``run_rirs`` besides the RIRs.
+
+    Attributes:
+        mics: (M, 3) microphone positions, metres, or None (walk mode).
+        step_bounds: (2, M - 1) step bounds, metres, or None (array mode).
+        c: speed of sound, m/s.
+        options: further keywords of ``run_rirs`` (the measured preset, keyframes).
+        origin: where the geometry and c came from, for the report.
+    """
+
+    mics: Any
+    step_bounds: Any
+    c: float
+    options: dict = field(default_factory=dict)
+    origin: str = ""
+
+
+@dataclass(frozen=True)
+class RunAttempt:
+    """The files loaded and the run, or the bad-input error that stopped it; the warnings seen."""
+
+    loaded: Any = None
+    inputs: RunInputs | None = None
+    result: Any = None
+    warnings: tuple[str, ...] = ()
+    error: Exception | None = None
+
+
+def read_matrix(path: Path, flag: str):
+    """A numeric matrix from .npy, or .csv / .txt (comma- or whitespace-separated, '#' comments)."""
+    import numpy as np
+
+    from rangeslam.errors import DataFormatError, InvalidInputError
+
+    if not path.is_file():
+        raise InvalidInputError(f"{flag} {path}: no such file")
+    try:
+        if path.suffix.lower() == ".npy":
+            arr = np.load(path, allow_pickle=False)
+        else:
+            text = path.read_text()
+            delimiter = "," if "," in text else None
+            arr = np.loadtxt(path, delimiter=delimiter, ndmin=2)
+        arr = np.asarray(arr, dtype=float)
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(f"{flag} {path}: not a readable numeric matrix ({exc})") from exc
+    return arr
+
+
+def _keyframes(args: argparse.Namespace, loaded):
+    """(K,) int indices of the RIRs that are steps (--keyframes, else the npz's), or None."""
+    import numpy as np
+
+    from rangeslam.errors import InvalidInputError
+
+    keys = loaded.keyframes
+    if args.keyframes is not None:
+        keys = read_matrix(args.keyframes, "--keyframes").reshape(-1)
+        if not np.all(keys == np.round(keys)):
+            raise InvalidInputError(f"--keyframes {args.keyframes}: must hold RIR indices")
+        keys = keys.astype(int)
+    return keys
+
+
+def _known_geometry(args: argparse.Namespace, loaded, n: int) -> tuple[Any, Any, str]:
+    """(mics (M, 3) or None, step bounds (2, n - 1) or None, where they came from): from the
+    flags, else from the npz; exactly one of the two."""
+    from rangeslam.errors import InvalidInputError
+
+    m = loaded.n_rirs
+    if args.mics is not None:
+        mics = read_matrix(args.mics, "--mics")
+        if mics.shape != (m, 3):
+            raise InvalidInputError(
+                f"--mics {args.mics}: must hold one row x y z per RIR, ({m}, 3); got {mics.shape}"
+            )
+        return mics, None, f"--mics {args.mics}"
+    if args.step_bounds is not None:
+        b = read_matrix(args.step_bounds, "--step-bounds")
+        if b.shape == (n - 1, 2) and b.shape != (2, n - 1):
+            b = b.T
+        if b.shape != (2, n - 1):
+            raise InvalidInputError(
+                f"--step-bounds {args.step_bounds}: must hold lower and upper bounds of the "
+                f"{n - 1} steps, (2, {n - 1}) or ({n - 1}, 2); got {b.shape}"
+            )
+        return None, b, f"--step-bounds {args.step_bounds}"
+    return _geometry_from_npz(args, loaded)
+
+
+def _geometry_from_npz(args: argparse.Namespace, loaded) -> tuple[Any, Any, str]:
+    """(mics or None, step bounds or None, origin) from the npz, as the flags choose."""
+    from rangeslam.errors import InvalidInputError
+
+    if args.mics_from_npz or args.step_bounds_from_npz:
+        want = "mics" if args.mics_from_npz else "step_bounds"
+        value = getattr(loaded, want)
+        if value is None:
+            raise InvalidInputError(f"--{want.replace('_', '-')}-from-npz: the RIRs hold no {want}")
+        mics, bounds = (value, None) if want == "mics" else (None, value)
+        return mics, bounds, f"{want} from the npz"
+    if loaded.mics is not None and loaded.step_bounds is not None:
+        raise InvalidInputError(
+            "the npz holds both mics and step_bounds: choose with --mics-from-npz (the room) or "
+            "--step-bounds-from-npz (the trajectory)"
+        )
+    if loaded.mics is not None:
+        return loaded.mics, None, "mics from the npz"
+    if loaded.step_bounds is not None:
+        return None, loaded.step_bounds, "step_bounds from the npz"
+    raise InvalidInputError(
+        "say what is known: --mics FILE (microphone positions, (M, 3)) or --step-bounds FILE "
+        "(bounds on each step of a moving microphone, (2, M - 1))"
+    )
+
+
+def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
+    """The microphones or step bounds, c, and options of ``run_rirs``, from the flags and npz."""
+    import numpy as np
+
+    from rangeslam.acoustics.echoes import SPEED_OF_SOUND
+    from rangeslam.acoustics.pipeline import MEASURED_RIR_OPTIONS
+    from rangeslam.errors import InvalidInputError
+
+    keys = _keyframes(args, loaded)
+    n = loaded.n_rirs if keys is None else len(keys)  # steps
+    mics, bounds, origin = _known_geometry(args, loaded, n)
+    if keys is not None and bounds is None:
+        raise InvalidInputError("keyframes are steps of a walk: give step bounds with them")
+    if args.measured and bounds is not None:
+        raise InvalidInputError(
+            "--measured is a preset of the array mode (room_from_rirs); not for --step-bounds"
+        )
+    if args.c is not None:
+        c, c_origin = args.c, "--c"
+    elif loaded.c is not None:
+        c, c_origin = loaded.c, "the npz"
+    else:
+        c, c_origin = SPEED_OF_SOUND, "default"
+    options = dict(MEASURED_RIR_OPTIONS) if args.measured else {}
+    if keys is not None:
+        options["keyframes"] = keys
+    return RunInputs(
+        mics=None if mics is None else np.asarray(mics),
+        step_bounds=bounds,
+        c=float(c),
+        options=options,
+        origin=f"{origin}; c = {c:g} m/s ({c_origin})",
+    )
+
+
+def _attempt(args: argparse.Namespace) -> RunAttempt:
+    """Load the RIRs, read what is known, run the pipeline; bad input and warnings recorded."""
+    import warnings
+
+    from rangeslam.acoustics.pipeline import load_rirs, run_rirs
+    from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+
+    loaded = inputs = res = error = None
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", UserWarning)
+        try:
+            loaded = load_rirs(args.rirs[0] if len(args.rirs) == 1 else args.rirs, fs=args.fs)
+            inputs = run_inputs(args, loaded)
+            res = run_rirs(
+                loaded.rirs,
+                loaded.fs,
+                mics=inputs.mics,
+                step_bounds=inputs.step_bounds,
+                c=inputs.c,
+                dim=args.dim,
+                rng=args.seed,
+                clipped="use" if args.use_clipped else "mask",
+                **inputs.options,
+            )
+        except (InvalidInputError, DegenerateGeometryError) as exc:
+            error = exc
+    caught = tuple(
+        str(w.message)
+        if issubclass(w.category, UserWarning)
+        else f"{w.category.__name__}: {w.message}"
+        for w in seen
+    )
+    return RunAttempt(loaded=loaded, inputs=inputs, result=res, warnings=caught, error=error)
+
+
+def _errors_against_truth(res, loaded):
+    """:func:`evaluate_run` against the file's ground truth; a truth that cannot be compared is
+    a warning (the answer stands) and no errors."""
+    from rangeslam.acoustics.pipeline import RunErrors, evaluate_run
+    from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+
+    try:
+        return evaluate_run(
+            res, source=loaded.source, room_size=loaded.room_size, trajectory=loaded.trajectory
+        )
+    except (InvalidInputError, DegenerateGeometryError) as exc:  # the answer stands; the truth not
+        print(f"rangeslam: warning: ground truth not compared: {exc}", file=sys.stderr)
+        return RunErrors()
+
+
+def run(args: argparse.Namespace) -> int:
+    """`rangeslam run`: the map or the trajectory from RIRs, printed, written and plotted."""
+    from rangeslam.app.reports import versions, write_summary
+    from rangeslam.app.run_report import (
+        array_report,
+        report_header,
+        run_plots,
+        run_record,
+        walk_report,
+    )
+
+    attempt = _attempt(args)
+    for text in attempt.warnings:
+        print(f"rangeslam: warning: {text}", file=sys.stderr)
+    if attempt.error is not None:
+        print(f"rangeslam: error: {attempt.error}", file=sys.stderr)
+        return 2
+    res, loaded = attempt.result, attempt.loaded
+    errs = _errors_against_truth(res, loaded)
+    lines = report_header(args, attempt)
+    record = run_record(args, attempt)
+    if res.mode == "array":
+        written = array_report(args.out, res, errs, loaded, lines, record)
+    else:
+        written = walk_report(args.out, res, errs, lines, record)
+    written += run_plots(args, loaded, res)
+    text = "\n".join(lines)
+    (args.out / "run_summary.md").write_text(text + "\n")
+    written.insert(0, write_summary(args.out / "run_summary.json", **record, versions=versions()))
+    print(text)
+    print("\nwritten: " + ", ".join(str(p) for p in written))
+    if not res.converged:
+        print(f"rangeslam: not converged: {res.message}", file=sys.stderr)
+        return 1
+    return 0

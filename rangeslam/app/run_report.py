@@ -1,0 +1,266 @@
+"""The report of ``rangeslam run``: Markdown lines, the JSON record, CSV files and plots of a
+:class:`~rangeslam.acoustics.pipeline.RunResult`. Formatting only; the numbers come from the run
+and from :func:`~rangeslam.acoustics.pipeline.evaluate_run`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from rangeslam.app.reports import fmt, markdown, write_csv
+from rangeslam.evaluation.metrics import SHOEBOX_WALLS
+
+__all__ = ["array_report", "report_header", "run_plots", "run_record", "walk_report"]
+
+
+def report_header(args: argparse.Namespace, attempt) -> list[str]:
+    """The report's first lines: RIRs, mode, inputs, the verdict, and a table of flagged RIRs."""
+    res, loaded = attempt.result, attempt.loaded
+    m, length = loaded.rirs.shape
+    mode_text = (
+        "array mode (known microphones: the room)"
+        if res.mode == "array"
+        else "walk mode (step bounds: the trajectory)"
+    )
+    lines = [
+        f"# rangeslam run: {m} RIRs, {loaded.fs:g} Hz, {length} samples "
+        f"({length / loaded.fs:.3f} s), {mode_text}",
+        "",
+        f"inputs: {', '.join(str(p) for p in args.rirs)}; {attempt.inputs.origin}"
+        + ("; measured-RIR preset" if args.measured else "")
+        + f"; seed {args.seed}",
+        "",
+        f"**converged: {res.converged}**. {res.message}",
+        "",
+    ]
+    flagged = res.silent | res.no_echoes | res.clipped
+    if flagged.any():
+        rows = [[f"rirs[{i}]", loaded.names[i], _problems(res, i)] for i in np.flatnonzero(flagged)]
+        lines += [markdown(["RIR", "file", "problem"], rows), ""]
+    return lines
+
+
+def _problems(res, i: int) -> str:
+    """What was wrong with RIR ``i``: silent, clipped, no echo detected, masked."""
+    return ", ".join(
+        w
+        for w, f in (
+            ("silent", res.silent[i]),
+            ("clipped", res.clipped[i]),
+            ("no echo detected", res.no_echoes[i] and not res.masked[i]),
+            ("masked", res.masked[i]),
+        )
+        if f
+    )
+
+
+def run_record(args: argparse.Namespace, attempt) -> dict:
+    """The JSON record's common part: inputs, mode, verdict, flagged RIRs, warnings."""
+    res, loaded = attempt.result, attempt.loaded
+    return {
+        "command": "run",
+        "inputs": [str(p) for p in args.rirs],
+        "names": list(loaded.names),
+        "fs": loaded.fs,
+        "c": attempt.inputs.c,
+        "mode": res.mode,
+        "converged": res.converged,
+        "message": res.message,
+        "seed": args.seed,
+        "measured_preset": bool(args.measured),
+        "silent": [int(i) for i in np.flatnonzero(res.silent)],
+        "no_echoes": [int(i) for i in np.flatnonzero(res.no_echoes)],
+        "clipped": [int(i) for i in np.flatnonzero(res.clipped)],
+        "masked": [int(i) for i in np.flatnonzero(res.masked)],
+        "use_clipped": bool(args.use_clipped),
+        "warnings": list(attempt.warnings),
+    }
+
+
+def array_report(out: Path, res, errs, loaded, lines: list[str], record: dict) -> list[Path]:
+    """Array mode: the loudspeaker, the walls and their errors against a true shoebox, appended
+    to ``lines`` and ``record``; writes run_walls.csv; returns the files written."""
+    src = res.source
+    lines += [
+        "| loudspeaker | x [m] | y [m] | z [m] | error [mm] |",
+        "|---|---|---|---|---|",
+        "| estimated | "
+        + (" | ".join(fmt(float(v)) for v in src) if src is not None else "- | - | -")
+        + f" | {fmt(errs.source_error, 1e3, 1)} |",
+    ]
+    if loaded.source is not None:
+        lines.append("| true | " + " | ".join(fmt(float(v)) for v in loaded.source) + " | |")
+    record["source"] = None if src is None else src.tolist()
+    record["source_error_m"] = errs.source_error
+    wall_rows = _wall_rows(res)
+    lines += ["", f"{len(wall_rows)} walls (normal . x = offset, outward normal):", ""]
+    lines.append(_wall_table(wall_rows))
+    record["walls"] = wall_rows
+    if errs.wall_errors is not None:
+        lines += _shoebox_lines(errs.wall_errors)
+        record["wall_errors_m"] = dict(
+            zip(SHOEBOX_WALLS, (float(e) for e in errs.wall_errors), strict=True)
+        )
+    return [write_csv(out / "run_walls.csv", wall_rows)] if wall_rows else []
+
+
+def _wall_rows(res) -> list[dict]:
+    """One CSV row per estimated wall: normal (nx, ny, nz), offset in metres, microphones."""
+    if res.wall_normals is None:
+        return []
+    return [
+        {
+            "wall": k,
+            "nx": float(n[0]),
+            "ny": float(n[1]),
+            "nz": float(n[2]),
+            "offset_m": float(o),
+            "microphones": int(res.wall_support[k]),
+        }
+        for k, (n, o) in enumerate(zip(res.wall_normals, res.wall_offsets, strict=True))
+    ]
+
+
+def _wall_table(wall_rows: list[dict]) -> str:
+    """The walls as a Markdown table (normals to 3 decimals, offsets to 0.1 mm)."""
+    return markdown(
+        ["wall", "normal", "offset [m]", "microphones"],
+        [
+            [
+                str(w["wall"]),
+                "(" + ", ".join(f"{round(w[a], 3) + 0.0:+.3f}" for a in ("nx", "ny", "nz")) + ")",
+                f"{round(w['offset_m'], 4) + 0.0:.4f}",
+                str(w["microphones"]),
+            ]
+            for w in wall_rows
+        ],
+    )
+
+
+def _shoebox_lines(wall_errors) -> list[str]:
+    """The error of each true shoebox wall (mm), as Markdown lines."""
+    return [
+        "",
+        "Against the true shoebox (nearest estimated wall within 25 degrees):",
+        "",
+        markdown(
+            ["true wall", "error [mm]"],
+            [
+                [name, fmt(float(e), 1e3, 1) if np.isfinite(e) else "no wall found"]
+                for name, e in zip(SHOEBOX_WALLS, wall_errors, strict=True)
+            ],
+        ),
+    ]
+
+
+def walk_report(out: Path, res, errs, lines: list[str], record: dict) -> list[Path]:
+    """Walk mode: the trajectory's length and error and the landmarks, appended to ``lines``
+    and ``record``; writes run_trajectory.csv and run_landmarks.csv; returns the files."""
+    from rangeslam.sim.trajectories import step_lengths
+
+    written = []
+    traj, marks = res.trajectory, res.landmarks
+    if traj is not None and not (np.all(np.isfinite(traj)) and np.all(np.isfinite(marks))):
+        lines.append("the trajectory or the landmarks are not finite: no answer to report")
+    elif traj is not None:
+        path_len = float(step_lengths(traj).sum())
+        lines += [
+            f"trajectory: {len(traj)} positions, {path_len:.3f} m long"
+            + (
+                f", RMS error {errs.trajectory_rmse * 100:.2f} cm after rigid alignment "
+                "(with reflection) onto the true one"
+                if errs.trajectory_rmse is not None and np.isfinite(errs.trajectory_rmse)
+                else ""
+            ),
+            "",
+            f"{len(marks)} landmarks (loudspeaker and image sources), SLAM frame:",
+            "",
+            markdown(
+                ["landmark", *("xyz"[: marks.shape[1]])],
+                [[str(k), *(f"{v:.4f}" for v in p)] for k, p in enumerate(marks)],
+            ),
+        ]
+        written.append(write_csv(out / "run_trajectory.csv", _point_rows("step", traj)))
+        written.append(write_csv(out / "run_landmarks.csv", _point_rows("landmark", marks)))
+        record["trajectory"] = traj.tolist()
+        record["landmarks"] = marks.tolist()
+        record["trajectory_length_m"] = path_len
+    else:
+        lines.append("no trajectory: the tracking gave SLAM nothing to work on")
+    record["trajectory_rmse_m"] = errs.trajectory_rmse
+    return written
+
+
+def _point_rows(key: str, points: np.ndarray) -> list[dict]:
+    """One CSV row per point (N, d): its index under ``key``, then x, y (, z)."""
+    axes = "xyz"[: points.shape[1]]
+    return [
+        {key: i, **{a: float(v) for a, v in zip(axes, p, strict=True)}}
+        for i, p in enumerate(points)
+    ]
+
+
+def run_plots(args: argparse.Namespace, loaded, res) -> list[Path]:
+    """The RIR matrix, and the room (array) or the trajectory (walk)."""
+    from rangeslam.app.plotting import plot_rir_matrix, plot_room_estimate, plot_walk_estimate
+    from rangeslam.geometry.alignment import align
+    from rangeslam.geometry.room import Room
+
+    out = args.out
+    fs = loaded.fs
+    latest = max((float(d.times[-1]) for d in res.detections if d.found), default=0.0)
+    n = min(loaded.rirs.shape[1], max(int(1.25 * latest * fs) + 1, 64))
+    written = [
+        plot_rir_matrix(
+            out / "run_rir_matrix.png",
+            loaded.rirs[:, :n],
+            fs,
+            title=f"{loaded.n_rirs} RIRs ({'microphones' if res.mode == 'array' else 'steps'})",
+            xlabel="microphone" if res.mode == "array" else "step",
+        )
+    ]
+    if res.mode == "array":
+        rec = res.result.reconstruction
+        true_room = Room.shoebox(loaded.room_size) if loaded.room_size is not None else None
+        written.append(
+            plot_room_estimate(
+                out / "run_room.png",
+                wall_normals=res.wall_normals,
+                wall_offsets=res.wall_offsets,
+                mics=res.mics,
+                source=res.source,
+                image_sources=res.image_sources,
+                room=None if rec is None else rec.room,
+                true_room=true_room,
+                true_source=loaded.source,
+                title=f"room from {loaded.n_rirs} RIRs: "
+                + ("converged" if res.converged else "not converged"),
+            )
+        )
+    elif res.trajectory is not None:
+        s = res.result.slam
+        rot = shift = None
+        truth = loaded.trajectory
+        finite = np.all(np.isfinite(res.trajectory))
+        if truth is not None and truth.shape == res.trajectory.shape and finite:
+            a = align(res.trajectory, truth, reflection=True)
+            rot, shift = a.rotation, a.translation
+        else:
+            truth = None
+        written.append(
+            plot_walk_estimate(
+                out / "run_trajectory.png",
+                receivers=res.trajectory,
+                sources=res.landmarks,
+                receiver_cov=getattr(s, "receiver_cov", None),
+                source_cov=getattr(s, "source_cov", None),
+                true_trajectory=truth,
+                rotation=rot,
+                translation=shift,
+                title=f"walk from {loaded.n_rirs} RIRs: "
+                + ("converged" if res.converged else "not converged"),
+            )
+        )
+    return written

@@ -1,0 +1,194 @@
+"""Range-odometry data: odometry and ranges to beacons, validated, and dead reckoning.
+
+Data: :class:`RangeOdometry` (``RangeOdometry.from_plaza`` for the CMU Plaza sets: J. Djugash,
+B. Hamner and S. Roth, "Navigating with ranging radios: five data sets with ground truth",
+Journal of Field Robotics 26(9), 2009).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rangeslam._validation import as_float_array, frozen, shape_str
+from rangeslam.errors import InvalidInputError
+
+__all__ = ["RangeOdometry", "dead_reckoning"]
+
+
+@dataclass(frozen=True, eq=False)  # arrays: compared by identity
+class RangeOdometry:
+    """Odometry and ranges to beacons, validated. N odometry steps, R ranges, B beacons.
+
+    Attributes:
+        pose_time: (N + 1,) time of each pose [s], strictly increasing (pose 0 is the start).
+        odometry: (N, 2) per step: distance travelled [m] (>= 0) and heading change [rad]; step k
+            takes pose k to pose k + 1, moving then turning (Pose2(d, 0, dtheta)).
+        range_pose: (R,) index of the pose each range was measured from, non-decreasing (time
+            order, which the incremental mode needs).
+        range_beacon: (R,) beacon of each range, 0..B-1.
+        ranges: (R,) measured ranges [m], > 0 (uncalibrated: see ``range_calibration``).
+        n_beacons: B.
+    """
+
+    pose_time: np.ndarray
+    odometry: np.ndarray
+    range_pose: np.ndarray
+    range_beacon: np.ndarray
+    ranges: np.ndarray
+    n_beacons: int | None = None
+
+    def __post_init__(self) -> None:
+        """Validate and freeze (copies); InvalidInputError names what is wrong. Runs for direct
+        construction too, so a RangeOdometry is always valid."""
+        odo = as_float_array(self.odometry, "odometry")
+        if odo.ndim != 2 or odo.shape[1] != 2 or len(odo) < 1:
+            raise InvalidInputError(
+                f"odometry must have shape (N, 2) (distance, heading change) with N >= 1; got "
+                f"{shape_str(odo.shape)}"
+            )
+        _finite(odo, "odometry")
+        if np.any(odo[:, 0] < 0):
+            i = int(np.argmax(odo[:, 0] < 0))
+            raise InvalidInputError(f"odometry distances must be >= 0; row {i} has {odo[i, 0]}")
+        t = as_float_array(self.pose_time, "pose_time")
+        if t.shape != (len(odo) + 1,):
+            raise InvalidInputError(
+                f"pose_time must have shape ({len(odo) + 1},) (one more than odometry rows); got "
+                f"{shape_str(t.shape)}"
+            )
+        _finite(t, "pose_time")
+        if np.any(np.diff(t) <= 0):
+            i = int(np.argmax(np.diff(t) <= 0)) + 1
+            raise InvalidInputError(f"pose_time must increase strictly; entry {i} does not")
+        r = as_float_array(self.ranges, "ranges")
+        if r.ndim != 1 or len(r) < 1:
+            raise InvalidInputError(f"ranges must be 1-D and non-empty; got {shape_str(r.shape)}")
+        _finite(r, "ranges")
+        if np.any(r <= 0):
+            i = int(np.argmax(r <= 0))
+            raise InvalidInputError(f"ranges must be > 0; entry {i} is {r[i]}")
+        pose = _as_index(self.range_pose, "range_pose", len(r), len(t))
+        if np.any(np.diff(pose) < 0):
+            i = int(np.argmax(np.diff(pose) < 0)) + 1
+            raise InvalidInputError(
+                f"range_pose must be non-decreasing (ranges in time order); entry {i} goes back"
+            )
+        b = self.n_beacons
+        if b is None:
+            b = int(np.max(_as_index(self.range_beacon, "range_beacon", len(r), 2**62))) + 1
+        if isinstance(b, bool) or not isinstance(b, int | np.integer) or b < 1:
+            raise InvalidInputError(f"n_beacons must be a positive integer; got {self.n_beacons!r}")
+        beacon = _as_index(self.range_beacon, "range_beacon", len(r), int(b))
+        for name, value in (
+            ("pose_time", t),
+            ("odometry", odo),
+            ("range_pose", pose),
+            ("range_beacon", beacon),
+            ("ranges", r),
+        ):
+            object.__setattr__(self, name, frozen(value))
+        object.__setattr__(self, "n_beacons", int(b))
+
+    @classmethod
+    def create(
+        cls,
+        pose_time: ArrayLike,
+        odometry: ArrayLike,
+        range_pose: ArrayLike,
+        range_beacon: ArrayLike,
+        ranges: ArrayLike,
+        n_beacons: int | None = None,
+    ) -> RangeOdometry:
+        """The same as the constructor, with ``n_beacons`` optional (max beacon index + 1)."""
+        return cls(pose_time, odometry, range_pose, range_beacon, ranges, n_beacons)
+
+    @classmethod
+    def from_plaza(cls, data) -> RangeOdometry:
+        """The odometry and ranges of a :class:`~rangeslam.datasets.PlazaDataset` (beacons as its
+        rows; each range at the first pose at or after its time, as GTSAM's Plaza examples do)."""
+        return cls.create(
+            data.pose_time,
+            data.odometry,
+            data.range_pose,
+            data.range_beacon_index,
+            data.ranges,
+            len(data.beacon_ids),
+        )
+
+    def first(self, n_poses: int) -> RangeOdometry:
+        """The first ``n_poses`` poses (n_poses - 1 odometry steps) and the ranges among them."""
+        if not (isinstance(n_poses, int | np.integer) and 2 <= n_poses <= len(self.pose_time)):
+            raise InvalidInputError(
+                f"n_poses must be an integer in [2, {len(self.pose_time)}]; got {n_poses!r}"
+            )
+        keep = self.range_pose < n_poses
+        return RangeOdometry.create(
+            self.pose_time[:n_poses],
+            self.odometry[: n_poses - 1],
+            self.range_pose[keep],
+            self.range_beacon[keep],
+            self.ranges[keep],
+            self.n_beacons,
+        )
+
+
+def _finite(arr: np.ndarray, name: str) -> None:
+    if not np.all(np.isfinite(arr)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise InvalidInputError(f"{name} must be finite; entry {bad} is {arr[bad]}")
+
+
+def _as_index(value: ArrayLike, name: str, length: int, upper: int) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf":
+        raise InvalidInputError(f"{name} must hold integers; got dtype {arr.dtype}")
+    if arr.shape != (length,):
+        raise InvalidInputError(f"{name} must have shape ({length},); got {shape_str(arr.shape)}")
+    integral = arr.dtype.kind in "iu" or (
+        arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr))
+    )
+    if not integral:
+        raise InvalidInputError(f"{name} must hold integers; got dtype {arr.dtype}")
+    idx = arr.astype(np.int64)
+    if np.any((idx < 0) | (idx >= upper)):
+        i = int(np.argmax((idx < 0) | (idx >= upper)))
+        raise InvalidInputError(f"{name} must lie in [0, {upper - 1}]; entry {i} is {idx[i]}")
+    return idx
+
+
+def check_data(data) -> None:
+    """InvalidInputError unless ``data`` is a :class:`RangeOdometry`."""
+    if not isinstance(data, RangeOdometry):
+        raise InvalidInputError(
+            f"data must be a RangeOdometry (see RangeOdometry.create); got {type(data).__name__}"
+        )
+
+
+def all_heard_placed(data: RangeOdometry, placed: np.ndarray) -> bool:
+    """Every beacon that was ranged to got a position (beacons never heard do not count)."""
+    heard = np.isin(np.arange(data.n_beacons), data.range_beacon)
+    return bool(np.all(placed[heard]))
+
+
+def dead_reckoning(odometry: np.ndarray, start_pose: np.ndarray) -> np.ndarray:
+    """(N + 1, 3) poses from integrating (N, 2) odometry (distance [m], heading change [rad]).
+
+    Each step moves, then turns: the pose composed with Pose2(d, 0, dtheta).
+    """
+    d, dtheta = odometry[:, 0], odometry[:, 1]
+    theta = start_pose[2] + np.concatenate([[0.0], np.cumsum(dtheta)])
+    x = start_pose[0] + np.concatenate([[0.0], np.cumsum(d * np.cos(theta[:-1]))])
+    y = start_pose[1] + np.concatenate([[0.0], np.cumsum(d * np.sin(theta[:-1]))])
+    return np.column_stack([x, y, theta])
+
+
+def compose_poses(frame: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Poses (n, 3) expressed in ``frame`` (3,) or per-pose frames (n, 3), moved to the world."""
+    frame = np.broadcast_to(frame, poses.shape)
+    c, s = np.cos(frame[:, 2]), np.sin(frame[:, 2])
+    x = frame[:, 0] + c * poses[:, 0] - s * poses[:, 1]
+    y = frame[:, 1] + s * poses[:, 0] + c * poses[:, 1]
+    return np.column_stack([x, y, frame[:, 2] + poses[:, 2]])

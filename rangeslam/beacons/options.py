@@ -1,0 +1,123 @@
+"""The settings of range-only SLAM with odometry, parsed once at the front door."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from rangeslam._validation import as_float_array
+from rangeslam.errors import InvalidInputError
+from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
+
+__all__ = ["RANGE_CALIBRATIONS", "BeaconSlamOptions"]
+
+#: Range models: measured range = (1 + s) * distance + b with s and b unknown ("affine"), s alone
+#: ("scale"), b alone ("offset", a constant bias), or neither (None: ranges taken as distances).
+RANGE_CALIBRATIONS = ("affine", "scale", "offset", None)
+
+
+def positive_number(value, name: str) -> float:
+    """A finite number > 0 (bools refused); InvalidInputError naming ``name`` otherwise."""
+    ok = not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.number)
+    if not (ok and np.isfinite(value) and value > 0):
+        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
+    return float(value)
+
+
+def check_initialisation(initialisation: str, rng) -> None:
+    """InvalidInputError unless ``initialisation`` is "edm" or "random" (the latter with a rng)."""
+    if initialisation not in ("edm", "random"):
+        raise InvalidInputError(f"initialisation must be 'edm' or 'random'; got {initialisation!r}")
+    if initialisation == "random" and not isinstance(rng, np.random.Generator):
+        raise InvalidInputError(
+            f"rng must be a numpy Generator for initialisation='random'; got {rng!r}"
+        )
+
+
+@dataclass(frozen=True, eq=False)  # odometry_sigma is an array
+class BeaconSlamOptions:
+    """Settings of :func:`~rangeslam.beacons.beacon_slam` and its incremental form, validated on
+    construction (InvalidInputError names the setting). Also the keywords those functions take.
+
+    Attributes:
+        range_calibration: the range model (:data:`RANGE_CALIBRATIONS`): "affine" (default),
+            "scale", "offset" or None.
+        per_beacon: one calibration per beacon instead of one shared by all.
+        range_sigma: standard deviation of a range [m].
+        odometry_sigma: (3,) per-step standard deviations along and across the track [m] and of
+            the heading [rad].
+        robust: kernel on the range factors: "huber" (default), "cauchy", "tukey" or None
+            (:data:`rangeslam.solvers.robust_kernels.ROBUST_KERNELS`).
+        calibration_sigma: zero-mean prior standard deviations of the scale error s and the
+            offset b [m] (weak: they only keep the graph determinate).
+        window_length: metres of travel per EDM window.
+        keyframes: about how many ranges per window enter its EDM, shared among the beacons
+            heard (each gets at least ``min_ranges``); the SDP has one point per keyframe pose
+            plus one per beacon.
+        min_ranges, min_spread: a beacon is placed in a window only when heard at least
+            ``min_ranges`` times from poses spread ``min_spread`` metres across their line.
+        pose_weight: weight of the dead-reckoned pose-pose distances in a window's EDM fit
+            (ranges weigh 1).
+    """
+
+    range_calibration: str | None = "affine"
+    per_beacon: bool = False
+    # 1 m is about twice the spread of Plaza1's ranges after the affine calibration (0.54 m):
+    # the 3-sigma inlier gate of ``range_inlier`` then flags none of them.
+    range_sigma: float = 1.0
+    # 0.01 m, 0.01 m, 0.002 rad per 0.2 s step: of the size of the drift of Plaza1's odometry
+    # against its ground truth over 100-300 steps.
+    odometry_sigma: np.ndarray = (0.01, 0.01, 0.002)
+    robust: str | None = "huber"
+    calibration_sigma: tuple[float, float] = (0.2, 10.0)
+    window_length: float = 150.0
+    keyframes: int = 24
+    min_ranges: int = 6
+    min_spread: float = 1.0
+    pose_weight: float = 10.0
+
+    def __post_init__(self) -> None:
+        """Validate every setting and store it in its canonical type."""
+        if self.range_calibration not in RANGE_CALIBRATIONS:
+            raise InvalidInputError(
+                f"range_calibration must be one of {RANGE_CALIBRATIONS}; got "
+                f"{self.range_calibration!r}"
+            )
+        if self.robust is not None and self.robust not in ROBUST_KERNELS:
+            raise InvalidInputError(
+                f"robust must be None or one of {ROBUST_KERNELS}; got {self.robust!r}"
+            )
+        osig = as_float_array(self.odometry_sigma, "odometry_sigma")
+        if osig.shape != (3,) or not np.all(np.isfinite(osig)) or np.any(osig <= 0):
+            raise InvalidInputError(
+                "odometry_sigma must be three positive numbers (along [m], across [m], heading "
+                f"[rad] per step); got {self.odometry_sigma!r}"
+            )
+        csig = as_float_array(self.calibration_sigma, "calibration_sigma")
+        if csig.shape != (2,) or not np.all(np.isfinite(csig)) or np.any(csig <= 0):
+            raise InvalidInputError(
+                "calibration_sigma must be two positive numbers (prior sd of the scale error s "
+                f"and of the offset b [m]); got {self.calibration_sigma!r}"
+            )
+        for name in ("range_sigma", "window_length", "min_spread", "pose_weight"):
+            object.__setattr__(self, name, positive_number(getattr(self, name), name))
+        for name in ("keyframes", "min_ranges"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, int | np.integer) and value >= 3):
+                raise InvalidInputError(f"{name} must be an integer >= 3; got {value!r}")
+            object.__setattr__(self, name, int(value))
+        if not isinstance(self.per_beacon, bool | np.bool_):
+            raise InvalidInputError(f"per_beacon must be True or False; got {self.per_beacon!r}")
+        object.__setattr__(self, "per_beacon", bool(self.per_beacon))
+        object.__setattr__(self, "odometry_sigma", osig)
+        object.__setattr__(self, "calibration_sigma", (float(csig[0]), float(csig[1])))
+
+    @classmethod
+    def from_settings(cls, settings: dict) -> BeaconSlamOptions:
+        """The options from keyword ``settings`` (defaults for the rest); unknown names refused."""
+        known = sorted(f.name for f in fields(cls))
+        unknown = sorted(set(settings) - set(known))
+        if unknown:
+            raise InvalidInputError(f"unknown setting(s) {unknown}; known: {known}")
+        return cls(**settings)

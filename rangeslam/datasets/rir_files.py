@@ -1,0 +1,305 @@
+"""Room impulse responses from files: one ``.npz``, one multichannel WAV, or several mono WAVs.
+
+:func:`load_rirs` reads them, with whatever else an npz says (microphones, step bounds, the speed
+of sound, ground truth), into a :class:`LoadedRirs`; :func:`rangeslam.acoustics.pipeline.run_rirs`
+runs a pipeline on them. Bad files are refused with a :class:`~rangeslam.errors.DataFormatError`
+naming the file: RIRs of different lengths or sampling rates (never padded, cropped or resampled:
+sample 0 must be the emission in every RIR), NaN or infinite samples, a missing sampling rate,
+arrays of the wrong shape.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rangeslam._validation import frozen, shape_str
+from rangeslam.errors import DataFormatError, InvalidInputError
+
+__all__ = ["LoadedRirs", "SilentRirWarning", "load_rirs"]
+
+
+class SilentRirWarning(UserWarning):
+    """A RIR has every sample 0: no range can come from it, its row is masked."""
+
+
+@dataclass(frozen=True, eq=False)
+class LoadedRirs:
+    """RIRs read by :func:`load_rirs`, with whatever else the file said. M RIRs of L samples.
+
+    Attributes:
+        rirs: (M, L) float64, sample n at time n / fs from the emission; int PCM scaled to [-1, 1).
+        fs: sampling rate, Hz.
+        names: (M,) where each row came from: ``"file.npz:rirs[m]"``, ``"mic03.wav"``,
+            ``"array.wav:channel 2"``.
+        mics: (M, d) microphone positions, metres, when an npz held them (``mics``, or dEchorate's
+            ``mics_v3``); else None.
+        step_bounds: (2, M - 1) lower and upper bounds on each step, metres (npz ``step_bounds``);
+            else None.
+        c: speed of sound, m/s (npz ``c``); else None.
+        source: (d,) true loudspeaker position (npz ``source`` or ``src_v3``), for evaluation only.
+        room_size: (3,) true shoebox size (npz ``room_size``), for evaluation only.
+        trajectory: true microphone positions of a walk, (M, d) at every RIR or at the keyframes
+            (npz ``trajectory``), for evaluation.
+        keyframes: (M,) the RIRs that are SLAM steps (npz ``keyframes``), when there are more
+            RIRs than steps; else None.
+    """
+
+    rirs: np.ndarray
+    fs: float
+    names: tuple[str, ...]
+    mics: np.ndarray | None = None
+    step_bounds: np.ndarray | None = None
+    c: float | None = None
+    source: np.ndarray | None = None
+    room_size: np.ndarray | None = None
+    trajectory: np.ndarray | None = None
+    keyframes: np.ndarray | None = None
+
+    @property
+    def n_rirs(self) -> int:
+        """M."""
+        return int(self.rirs.shape[0])
+
+
+def _natural_key(path: Path) -> list:
+    """Sort key of a file name with its numbers compared as numbers (mic2 before mic10)."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path.name)]
+
+
+def check_fs(fs: object, name: str = "fs") -> float:
+    """``fs`` as a positive finite float, Hz; InvalidInputError naming ``name`` otherwise."""
+    if isinstance(fs, bool) or not isinstance(fs, int | float | np.integer | np.floating):
+        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
+    if not (math.isfinite(fs) and fs > 0):
+        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
+    return float(fs)
+
+
+def first_bad(x: np.ndarray) -> tuple[int, ...] | None:
+    """Index of the first entry of ``x`` that is NaN or infinite, or None when all are finite."""
+    bad = np.argwhere(~np.isfinite(x))
+    return None if len(bad) == 0 else tuple(int(i) for i in bad[0])
+
+
+def load_rirs(
+    path_or_paths: str | Path | Sequence[str | Path], *, fs: float | None = None
+) -> LoadedRirs:
+    """Read M RIRs from one ``.npz``, one multichannel WAV, or several mono WAVs.
+
+    Args:
+        path_or_paths: one of
+            - an ``.npz`` with ``rirs`` (M, L) and ``fs`` (scalar, Hz), and optionally ``mics``
+              (M, 3) (or dEchorate's ``mics_v3``), ``step_bounds`` (2, M - 1), ``keyframes``
+              (the RIRs that are steps, when not all are), ``c`` (m/s), and
+              ground truth for evaluation: ``source`` (or ``src_v3``), ``room_size``,
+              ``trajectory`` (M, 3); other arrays are ignored;
+            - a WAV file: each channel is one RIR;
+            - a directory: its WAV files, one mono RIR each, in natural order of their names
+              (``mic2.wav`` before ``mic10.wav``);
+            - a list of WAV files, one mono RIR each, in the order given.
+        fs: sampling rate, Hz, for an npz without ``fs``. When the files state one, ``fs`` must
+            agree with it (it is a check, never a resampling).
+
+    Integer PCM is scaled to [-1, 1) (divided by 2^(bits - 1); 8-bit is unsigned, centred first);
+    float WAVs are read as they are.
+
+    Raises:
+        DataFormatError naming the file: unreadable, wrong shapes, NaN or infinite samples, files
+        of different lengths or sampling rates (nothing is padded, cropped or resampled), a
+        multichannel file among several, ``fs`` missing or contradicting the file.
+        InvalidInputError: no such file, a directory without WAV files, a bad ``fs``.
+    """
+    if fs is not None:
+        fs = check_fs(fs)
+    if isinstance(path_or_paths, str | Path):
+        p = Path(path_or_paths)
+        if p.is_dir():
+            paths = sorted(
+                (q for q in p.iterdir() if q.suffix.lower() == ".wav" and q.is_file()),
+                key=_natural_key,
+            )
+            if not paths:
+                npz = sorted(q.name for q in p.glob("*.npz"))
+                hint = f"; it holds {', '.join(npz[:3])}: pass that file" if npz else ""
+                raise InvalidInputError(f"path_or_paths: no .wav files in the directory {p}{hint}")
+        else:
+            paths = [p]
+    elif isinstance(path_or_paths, Sequence):
+        paths = [Path(q) for q in path_or_paths]
+        if not paths:
+            raise InvalidInputError("path_or_paths must name at least one file; got none")
+    else:
+        raise InvalidInputError(
+            f"path_or_paths must be a path or a list of paths; got {type(path_or_paths).__name__}"
+        )
+    for q in paths:
+        if not q.is_file():
+            raise InvalidInputError(f"path_or_paths: {q} is not a file")
+    suffixes = {q.suffix.lower() for q in paths}
+    if ".npz" in suffixes:
+        if len(paths) != 1:
+            raise InvalidInputError(
+                "path_or_paths: give one .npz, or WAV files; got "
+                + ", ".join(str(q) for q in paths[:4])
+            )
+        return _load_npz(paths[0], fs)
+    for q in paths:
+        if q.suffix.lower() != ".wav":
+            raise DataFormatError(f"{q}: not a .wav or .npz file")
+    return _load_wavs(paths, fs)
+
+
+def _npz_array(raw: dict, keys: tuple[str, ...], p: Path, shape: tuple[int | None, ...]):
+    """The first of ``keys`` in ``raw`` as finite float64 of ``shape`` (None: any size), or None."""
+    for key in keys:
+        if key in raw:
+            try:
+                arr = np.asarray(raw[key], dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise DataFormatError(f"{p}: {key} is not numeric ({exc})") from exc
+            if arr.ndim != len(shape) or any(
+                s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)
+            ):
+                want = shape_str(tuple("*" if s is None else s for s in shape))  # type: ignore[misc]
+                raise DataFormatError(
+                    f"{p}: {key} must have shape {want}; got {shape_str(arr.shape)}"
+                )
+            bad = first_bad(arr)
+            if bad is not None:
+                raise DataFormatError(f"{p}: {key}{list(bad)} is {arr[bad]}, not a finite number")
+            return arr
+    return None
+
+
+def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
+    """The RIRs and whatever else the npz ``p`` holds, each array checked."""
+    try:
+        with np.load(p, allow_pickle=False) as data:
+            raw = {k: data[k] for k in data.files}
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
+    if "rirs" not in raw:
+        raise DataFormatError(f"{p}: no 'rirs' array (M, L); it holds {sorted(raw)}")
+    try:
+        rirs = np.array(raw["rirs"], dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{p}: rirs is not numeric ({exc})") from exc
+    if rirs.ndim != 2 or rirs.shape[1] < 3 or rirs.shape[0] < 1:
+        raise DataFormatError(
+            f"{p}: rirs must have shape (M, L), one RIR per row; got {shape_str(rirs.shape)}"
+        )
+    bad = first_bad(rirs)
+    if bad is not None:
+        raise DataFormatError(f"{p}: rirs[{bad[0]}] sample {bad[1]} is {rirs[bad]}")
+    m = rirs.shape[0]
+    file_fs = _npz_array(raw, ("fs",), p, ())
+    if file_fs is None and fs is None:
+        raise DataFormatError(f"{p}: no 'fs' array; give the sampling rate (fs=, --fs)")
+    if file_fs is not None:
+        file_fs = float(file_fs)
+        if not file_fs > 0:
+            raise DataFormatError(f"{p}: fs must be a positive number of Hz; got {file_fs:g}")
+        if fs is not None and fs != file_fs:
+            raise DataFormatError(f"{p}: fs is {file_fs:g} Hz, but fs={fs:g} was given")
+    mics = _npz_array(raw, ("mics", "mics_v3"), p, (m, None))
+    if mics is not None and mics.shape[1] not in (2, 3):
+        raise DataFormatError(f"{p}: mics must have shape ({m}, 3); got {shape_str(mics.shape)}")
+    bounds = _npz_array(raw, ("step_bounds",), p, (2, None))
+    c = _npz_array(raw, ("c",), p, ())
+    if c is not None and not c > 0:
+        raise DataFormatError(f"{p}: c must be a positive speed of sound in m/s; got {c}")
+    source = _npz_array(raw, ("source", "src_v3"), p, (None,))
+    size = _npz_array(raw, ("room_size",), p, (3,))
+    trajectory = _npz_array(raw, ("trajectory",), p, (None, None))
+    keys = None
+    if "keyframes" in raw:
+        keys = np.asarray(raw["keyframes"])
+        if keys.ndim != 1 or not np.issubdtype(keys.dtype, np.integer):
+            raise DataFormatError(f"{p}: keyframes must be (M,) integers; got {keys.dtype}")
+    n_steps = m if keys is None else len(keys)
+    if bounds is not None and bounds.shape != (2, n_steps - 1):
+        raise DataFormatError(
+            f"{p}: step_bounds must have shape (2, {n_steps - 1}) for {n_steps} steps; got "
+            f"{shape_str(bounds.shape)}"
+        )
+    return LoadedRirs(
+        rirs=frozen(rirs),
+        fs=float(file_fs if file_fs is not None else fs),
+        names=tuple(f"{p.name}:rirs[{i}]" for i in range(m)),
+        mics=None if mics is None else frozen(mics),
+        step_bounds=None if bounds is None else frozen(bounds),
+        c=None if c is None else float(c),
+        source=None if source is None else frozen(source),
+        room_size=None if size is None else frozen(size),
+        trajectory=None if trajectory is None else frozen(trajectory),
+        keyframes=None if keys is None else frozen(keys.astype(int)),
+    )
+
+
+def _read_wav(q: Path) -> tuple[float, np.ndarray]:
+    """(fs, (C, N) float64) of one WAV file, int PCM scaled to [-1, 1)."""
+    from scipy.io import wavfile
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", wavfile.WavFileWarning)  # unknown chunks (cue, list)
+            rate, data = wavfile.read(q)
+    except (OSError, ValueError) as exc:
+        raise DataFormatError(f"{q}: not a readable WAV file ({exc})") from exc
+    if data.dtype == np.uint8:
+        x = (data.astype(float) - 128.0) / 128.0
+    elif np.issubdtype(data.dtype, np.integer):
+        x = data.astype(float) / float(2 ** (8 * data.dtype.itemsize - 1))
+    else:
+        x = data.astype(float)
+    x = x.reshape(len(x), -1).T
+    if x.shape[1] < 3:
+        raise DataFormatError(f"{q}: holds {x.shape[1]} samples; a RIR needs at least 3")
+    bad = first_bad(x)
+    if bad is not None:
+        where = f"channel {bad[0]} " if x.shape[0] > 1 else ""
+        raise DataFormatError(f"{q}: {where}sample {bad[1]} is {x[bad]}, not a finite number")
+    return float(rate), x
+
+
+def _load_wavs(paths: list[Path], fs: float | None) -> LoadedRirs:
+    """The RIRs of one multichannel WAV or several mono WAVs of one length and sampling rate."""
+    read = []
+    for q in paths:
+        rate, x = _read_wav(q)
+        if rate <= 0:
+            raise DataFormatError(f"{q}: sampling rate {rate:g} Hz in the header")
+        if fs is not None and rate != fs:
+            raise DataFormatError(f"{q}: sampled at {rate:g} Hz, but fs={fs:g} was given")
+        if len(paths) > 1 and x.shape[0] > 1:
+            raise DataFormatError(
+                f"{q}: has {x.shape[0]} channels; with several files each must be mono (one RIR "
+                "per file), or give one multichannel file"
+            )
+        q0, rate0, x0 = read[0] if read else (q, rate, x)
+        if rate != rate0:
+            raise DataFormatError(
+                f"{q}: sampled at {rate:g} Hz, but {q0} at {rate0:g} Hz; RIRs must share one "
+                "sampling rate (resample them first)"
+            )
+        if x.shape[1] != x0.shape[1]:
+            raise DataFormatError(
+                f"{q}: has {x.shape[1]} samples, but {q0} has {x0.shape[1]}; RIRs must all have "
+                "the same length, sample 0 at the emission (nothing is padded or cropped)"
+            )
+        read.append((q, rate, x))
+    names = [
+        name
+        for q, _, x in read
+        for name in ([q.name] if len(x) == 1 else [f"{q.name}:channel {c}" for c in range(len(x))])
+    ]
+    return LoadedRirs(
+        rirs=frozen(np.vstack([x for _, _, x in read])), fs=read[0][1], names=tuple(names)
+    )

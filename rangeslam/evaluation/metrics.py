@@ -1,0 +1,188 @@
+"""Errors against ground truth: walls, trajectories after rigid alignment (APE), NEES.
+
+Pure numpy (and scipy.stats for the NEES band); every function takes estimates and the truth and
+returns numbers, never touching files or plots.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from rangeslam._validation import as_float_array, as_points, shape_str
+from rangeslam.errors import InvalidInputError
+from rangeslam.geometry.alignment import Alignment, align
+from rangeslam.geometry.room import Room
+
+__all__ = [
+    "SHOEBOX_WALLS",
+    "ApeStatistics",
+    "PositionErrors",
+    "ape",
+    "ape_statistics",
+    "mean_nees",
+    "planar_source_error",
+    "shoebox_wall_errors",
+    "trajectory_nees",
+    "trajectory_rmse",
+    "wall_errors",
+]
+
+#: Names of the walls of ``Room.shoebox(size)`` (its order), as :func:`shoebox_wall_errors` uses.
+SHOEBOX_WALLS = ("west x0", "east xL", "south y0", "north yW", "floor z0", "ceiling zH")
+
+
+def shoebox_wall_errors(
+    wall_normals: ArrayLike,
+    wall_offsets: ArrayLike,
+    room_size: ArrayLike,
+    *,
+    max_angle: float = 25.0,
+) -> np.ndarray:
+    """(6,) metres: how far each wall of the shoebox [0, L] x [0, W] x [0, H] is from its estimate.
+
+    For true wall k (``Room.shoebox`` order, :data:`SHOEBOX_WALLS`), the estimated wall with the
+    nearest normal; the error is the distance from the centre of the true wall (the room's centre
+    projected onto it) to that plane. inf when no estimated normal is within ``max_angle`` degrees.
+    """
+    normals = as_points(wall_normals, "wall_normals", dim=3)
+    offsets = as_float_array(wall_offsets, "wall_offsets")
+    if offsets.shape != (len(normals),):
+        raise InvalidInputError(
+            f"wall_offsets must have shape ({len(normals)},); got {shape_str(offsets.shape)}"
+        )
+    room = Room.shoebox(room_size)
+    centre = np.asarray(room_size, dtype=float) / 2
+    out = []
+    for n_true, o_true in zip(room.normals, room.offsets, strict=True):
+        p = centre + (o_true - n_true @ centre) * n_true
+        cos = normals @ n_true
+        j = int(np.argmax(cos))
+        ok = cos[j] > np.cos(np.radians(max_angle))
+        out.append(abs(normals[j] @ p - offsets[j]) if ok else np.inf)
+    return np.array(out)
+
+
+def wall_errors(
+    room: Room, normals: np.ndarray, offsets: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Offset errors (K,) in metres and normal angle errors (K,) in degrees, walls in the same order.
+
+    The offset error of wall k is the distance from the true wall's centroid p_k (the paper's
+    description of a wall by n_k and p_k) to the estimated plane, |n_k_est . p_k - o_k_est|: the
+    offset where the wall is, independent of where the coordinate origin happens to be.
+    """
+    cos = np.clip(np.einsum("kd,kd->k", normals, room.normals), -1.0, 1.0)
+    offset_err = np.abs(np.einsum("kd,kd->k", normals, room.wall_centroids) - offsets)
+    return offset_err, np.degrees(np.arccos(cos))
+
+
+def trajectory_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """RMS error (metres) of ``estimate`` (M, d) against ``truth`` (M, d) after the best rigid
+    motion with reflection (a SLAM frame is arbitrary up to both)."""
+    return float(align(estimate, truth, reflection=True).rmse)
+
+
+def trajectory_nees(
+    alignment: Alignment, cov: np.ndarray | None, truth: np.ndarray
+) -> tuple[float, int]:
+    """NEES of an aligned trajectory: e^T P^+ e with e (M d,) the error after ``alignment`` and
+    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ drops the rigid
+    motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
+    m, d = truth.shape
+    dof = m * d - d * (d + 1) // 2
+    if dof <= 0:
+        raise InvalidInputError(f"{m} points in {d}-D leave nothing beyond a rigid motion")
+    if cov is None:
+        return float("nan"), dof
+    rot = np.kron(np.eye(m), alignment.rotation)
+    w, v = np.linalg.eigh(rot @ cov @ rot.T)
+    w, v = w[-dof:], v[:, -dof:]
+    proj = v.T @ (alignment.aligned - truth).ravel()
+    return float(np.sum(proj**2 / w)), dof
+
+
+def mean_nees(nees, dofs, level: float = 0.95) -> tuple[float, float, float]:
+    """Mean NEES per degree of freedom over trials (those with a finite NEES), and the two-sided
+    ``level`` chi-square band of that mean for a consistent estimator: (mean, low, high); NaNs
+    when no trial has one."""
+    from scipy.stats import chi2
+
+    nees, dofs = np.asarray(nees, dtype=float), np.asarray(dofs, dtype=float)
+    good = np.isfinite(nees)
+    if not good.any():
+        return float("nan"), float("nan"), float("nan")
+    total = float(dofs[good].sum())
+    lo, hi = chi2.ppf([(1 - level) / 2, (1 + level) / 2], total) / total
+    return float(nees[good].sum() / total), float(lo), float(hi)
+
+
+def planar_source_error(
+    alignment: Alignment, sources: np.ndarray, landmarks: np.ndarray, height: float
+) -> float:
+    """RMS error (metres) of ``sources`` (K, 3) moved by ``alignment`` against ``landmarks``
+    (K, 3), each taken up to its mirror image in the plane z = ``height`` of a planar walk."""
+    got = alignment.apply(sources)
+    mirrored = got.copy()
+    mirrored[:, 2] = 2 * height - got[:, 2]
+    d = np.minimum(
+        np.linalg.norm(got - landmarks, axis=1), np.linalg.norm(mirrored - landmarks, axis=1)
+    )
+    return float(np.sqrt(np.mean(d**2)))
+
+
+@dataclass(frozen=True)
+class PositionErrors:
+    """APE of one trajectory: position errors (n,) after rigid alignment, beacon errors (B,),
+    metres; the aligned positions (n, d) and beacons (B, d). NaN where an estimate is missing."""
+
+    errors: np.ndarray
+    beacon_errors: np.ndarray
+    aligned: np.ndarray
+    aligned_beacons: np.ndarray
+
+
+def ape(
+    positions: np.ndarray, truth: np.ndarray, beacons: np.ndarray, true_beacons: np.ndarray
+) -> PositionErrors:
+    """Absolute position error as evo's APE: rigidly align ``positions`` (n, d) onto ``truth``
+    (n, d) (no scale) and carry ``beacons`` (B, d) along. Rows that are not finite (a method that
+    stopped) are left out of the alignment and count as missing (NaN) in the errors."""
+    n, d = positions.shape
+    ok = np.all(np.isfinite(positions), axis=1)
+    fit = align(positions[ok], truth[ok])
+    aligned = np.full((n, d), np.nan)
+    aligned[ok] = fit.aligned
+    errors = np.full(n, np.nan)
+    errors[ok] = fit.errors
+    moved = fit.apply(np.nan_to_num(beacons))
+    moved[~np.all(np.isfinite(beacons), axis=1)] = np.nan
+    beacon_errors = np.linalg.norm(moved - true_beacons, axis=1)
+    return PositionErrors(errors, beacon_errors, aligned, moved)
+
+
+@dataclass(frozen=True)
+class ApeStatistics:
+    """Mean, median, max and RMS (metres) of the finite position errors, as evo's APE reports
+    them, and how many errors were missing (NaN: poses a method did not estimate)."""
+
+    mean: float
+    median: float
+    max: float
+    rmse: float
+    missing: int
+
+
+def ape_statistics(errors: np.ndarray) -> ApeStatistics:
+    """The :class:`ApeStatistics` of ``errors`` (n,), metres, NaN where a pose is missing."""
+    errors = np.asarray(errors, dtype=float)
+    e = errors[np.isfinite(errors)]
+    return ApeStatistics(
+        mean=float(e.mean()),
+        median=float(np.median(e)),
+        max=float(e.max()),
+        rmse=float(np.sqrt(np.mean(e**2))),
+        missing=int(np.sum(~np.isfinite(errors))),
+    )

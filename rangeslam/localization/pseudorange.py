@@ -1,0 +1,395 @@
+"""Pseudorange multilateration: one point and one unknown range offset (Problem 1).
+
+When the emission time of an event is known only up to an error tau (seconds), each range measured
+from it is r = ||x - a|| + b with one constant offset b = c tau (metres).
+:func:`multilaterate_with_offset` locates one point and b from M >= d + 2 ranges (pseudoranges, as
+in GPS). Squaring (r - b)^2 = ||x - a||^2 gives
+
+    r_m^2 - ||a_m||^2 = -2 a_m.x + 2 r_m b + (||x||^2 - b^2)                       (E1)
+
+linear in (x, b, t = ||x||^2 - b^2). The starts are its unconstrained least-squares solution and
+Bancroft's (Bancroft, "An algebraic solution of the GPS equations", IEEE Trans. AES 21(1), 1985):
+(x, b) = p + t q from the d + 1 columns of (E1) without t, and t from the quadratic
+t = ||x(t)||^2 - b(t)^2. Each start is refined by Gauss-Newton (Levenberg-Marquardt) on the range
+residuals ||x - a_m|| + b - r_m (the Gaussian ML) and the lowest cost is kept. With ``robust``,
+wrong ranges are rejected first by the robust start shared with :func:`rangeslam.multilaterate`
+(:mod:`rangeslam.localization.robust_start`, subsets of d + 2 anchors). See
+:mod:`rangeslam.localization.emission` for identifiability.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import least_squares
+
+from rangeslam._validation import as_float_array, as_mask, as_points, as_ranges, frozen, shape_str
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+from rangeslam.localization.multilateration import affine_rank, check_spanning
+from rangeslam.localization.robust_start import (
+    INLIER_K,
+    TRUNCATED_STD,
+    Refit,
+    check_robust_options,
+    offset_range_residuals,
+    refine_inliers,
+    robust_start,
+)
+from rangeslam.status import HasStatus, Status
+
+__all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
+
+# Smallest singular value of the (scaled, weighted) Jacobian over the largest below which the
+# offset and the position cannot be told apart (a rank-deficient fit).
+RANK_RTOL = 1e-8
+
+
+def pseudoranges(value: ArrayLike, name: str, shape: tuple[int, ...], observed: np.ndarray):
+    """Ranges with an offset: finite where observed, any sign (an offset may make them negative).
+
+    Unobserved entries are set to 0.
+    """
+    return as_ranges(value, name, shape=shape, observed=observed, signed=True)
+
+
+# --- one point and one offset (pseudorange multilateration) -------------------------------------
+
+
+@dataclass(frozen=True)
+class OffsetMultilaterationResult(HasStatus):
+    """Result of :func:`multilaterate_with_offset`.
+
+    Attributes:
+        position: (d,) estimated point, metres.
+        offset: estimated range offset b, metres: ranges = ||position - anchor|| + offset.
+        residuals: (M,) ||x - a_m|| + b - r_m, metres; NaN where not observed.
+        inliers: (M,) True for the ranges used in the final fit.
+        cost: weighted sum of squared range residuals over the inliers (m^2 times the weights).
+        dop: (d + 1,) square roots of the diagonal of (J^T W J)^-1 at the solution, J the Jacobian
+            of the residuals in (position, offset): the standard deviations of the coordinates
+            and of the offset per unit range noise (dilution of precision); in metres when the
+            weights are 1 / sigma^2.
+        status: :class:`rangeslam.status.Status`: OUTLIERS when too few ranges agreed with the
+            robust start, SOLVER_FAILED when the inlier set kept changing or least squares did
+            not converge (``converged`` is ``status is CONVERGED``).
+        message: what happened, in words.
+    """
+
+    position: np.ndarray
+    offset: float
+    residuals: np.ndarray
+    inliers: np.ndarray
+    cost: float
+    dop: np.ndarray
+    status: Status
+    message: str
+
+    @property
+    def n_outliers(self) -> int:
+        return int(np.sum(~self.inliers & np.isfinite(self.residuals)))
+
+
+def _offset_residuals(z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+    """||x - a|| + b - r for z = (x, b) (d + 1,) or (H, d + 1) hypotheses."""
+    return offset_range_residuals(z, anchors, ranges, offset=True)
+
+
+def _offset_jacobian(z: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """(M, d + 1) rows [u_m, 1], u_m = (x - a_m) / ||x - a_m||."""
+    diff = z[:-1] - anchors
+    u = diff / np.maximum(np.linalg.norm(diff, axis=1, keepdims=True), 1e-300)
+    return np.column_stack([u, np.ones(len(anchors))])
+
+
+def _closed_form_starts(
+    anchors: np.ndarray, ranges: np.ndarray, sw: np.ndarray
+) -> list[np.ndarray]:
+    """Starting points z = (x, b) from the linearisation (E1), weighted by sw = sqrt(weights).
+
+    The unconstrained least-squares solution in (x, b, t) (when the d + 2 columns are independent)
+    and Bancroft's solutions of the constraint t = ||x||^2 - b^2 along the line of least-squares
+    solutions (x, b)(t) (real roots; the vertex of the quadratic when the roots are complex).
+    """
+    n, d = anchors.shape
+    y = (ranges**2 - np.einsum("nd,nd->n", anchors, anchors)) * sw
+    a1 = np.column_stack([-2.0 * anchors, 2.0 * ranges]) * sw[:, None]
+    ones = sw
+    starts: list[np.ndarray] = []
+    a_full = np.column_stack([a1, ones])
+    sv = np.linalg.svd(a_full, compute_uv=False)
+    if n >= d + 2 and sv[-1] > 1e-10 * sv[0]:
+        starts.append(np.linalg.lstsq(a_full, y, rcond=None)[0][: d + 1])
+    sv1 = np.linalg.svd(a1, compute_uv=False)
+    if sv1[-1] > 1e-10 * sv1[0]:
+        p = np.linalg.lstsq(a1, y, rcond=None)[0]
+        q = -np.linalg.lstsq(a1, ones, rcond=None)[0]
+        sign = np.r_[np.ones(d), -1.0]  # t = z^T diag(1, ..., 1, -1) z
+        qa = float(np.sum(sign * q * q))
+        qb = float(2.0 * np.sum(sign * p * q) - 1.0)
+        qc = float(np.sum(sign * p * p))
+        if abs(qa) > 1e-12 * max(abs(qb), abs(qc), 1e-300):
+            disc = qb * qb - 4.0 * qa * qc
+            if disc >= 0:
+                root = math.sqrt(disc)
+                ts = [(-qb + root) / (2.0 * qa), (-qb - root) / (2.0 * qa)]
+            else:
+                ts = [-qb / (2.0 * qa)]
+        elif qb != 0:
+            ts = [-qc / qb]
+        else:
+            ts = []
+        starts.extend(p + t * q for t in ts)
+    return [s for s in starts if np.all(np.isfinite(s))]
+
+
+@dataclass(frozen=True)
+class OffsetFit:
+    """Weighted ML of z = (x, b) (d + 1,) in scaled units: its cost, whether scipy converged, and
+    scipy's message."""
+
+    z: np.ndarray
+    cost: float
+    ok: bool
+    message: str
+
+
+def _fit_offset(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) -> OffsetFit:
+    """Weighted ML of (x, b) from all given ranges (scaled units), the best of the closed-form
+    starts refined by Levenberg-Marquardt."""
+    sw = np.sqrt(weights)
+    starts = _closed_form_starts(anchors, ranges, sw)
+    if not starts:
+        raise DegenerateGeometryError(
+            "the linearised pseudorange equations (E1) are rank-deficient for these anchors and "
+            "ranges: no starting point"
+        )
+    best = None
+    for z0 in starts:
+        fit = least_squares(
+            lambda z: sw * _offset_residuals(z, anchors, ranges),
+            z0,
+            jac=lambda z: sw[:, None] * _offset_jacobian(z, anchors),
+            method="lm",
+            xtol=1e-15,
+            ftol=1e-15,
+            gtol=1e-15,
+        )
+        cost = float(fit.fun @ fit.fun)
+        if np.all(np.isfinite(fit.x)) and (best is None or cost < best.cost):
+            best = OffsetFit(fit.x, cost, fit.status > 0, str(fit.message))
+    if best is None:
+        raise DegenerateGeometryError("every refinement of the pseudorange starts diverged")
+    return best
+
+
+def _rank_ok(z: np.ndarray, anchors: np.ndarray, weights: np.ndarray) -> tuple[bool, np.ndarray]:
+    """Whether the weighted Jacobian has full rank d + 1, and the dop (d + 1,) (inf if not)."""
+    jac = np.sqrt(weights)[:, None] * _offset_jacobian(z, anchors)
+    sv = np.linalg.svd(jac, compute_uv=False)
+    if sv.size < jac.shape[1] or sv[-1] <= RANK_RTOL * sv[0]:
+        return False, np.full(jac.shape[1], np.inf)
+    cov = np.linalg.inv(jac.T @ jac)
+    return True, np.sqrt(np.diag(cov))
+
+
+@dataclass(frozen=True)
+class OffsetProblem:
+    """The inputs of :func:`multilaterate_with_offset`, parsed once and scaled to unit size.
+
+    Attributes:
+        anchors, ranges, weights: (M, d), (M,), (M,) as given (validated).
+        observed: (M,) True where observed; ``use`` also has a positive weight.
+        centre, scale: the used anchors' centroid (d,) and RMS radius, metres.
+        anchors_s, ranges_s: centred and divided by ``scale``; weights_s: weights over their mean.
+    """
+
+    anchors: np.ndarray
+    ranges: np.ndarray
+    weights: np.ndarray
+    observed: np.ndarray
+    use: np.ndarray
+    centre: np.ndarray
+    scale: float
+    anchors_s: np.ndarray
+    ranges_s: np.ndarray
+    weights_s: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.anchors.shape[1]
+
+    @property
+    def n_use(self) -> int:
+        return int(self.use.sum())
+
+
+@dataclass(frozen=True)
+class InlierVerdict:
+    """The ranges to fit last, with the status and message of the outlier rejection."""
+
+    inliers: np.ndarray
+    status: Status
+    message: str
+
+
+def _parse_offset_problem(anchors, ranges, weights, mask, robust_options) -> OffsetProblem:
+    """Validate anchors (M, d), ranges (M,), weights, mask and the robust options once; scale."""
+    a = as_points(anchors, "anchors")
+    m, d = a.shape
+    observed = as_mask(mask, "mask", shape=(m,))
+    r = pseudoranges(ranges, "ranges", (m,), observed)
+    if weights is None:
+        w = np.ones(m)
+    else:
+        w = as_float_array(weights, "weights")
+        if w.shape != (m,):
+            raise InvalidInputError(f"weights must have shape ({m},); got {shape_str(w.shape)}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise InvalidInputError("weights must be finite and non-negative")
+    check_robust_options(*robust_options)
+    use = observed & (w > 0)
+    n_use = int(use.sum())
+    if n_use < d + 2:
+        raise InvalidInputError(
+            f"multilateration with an unknown offset in {d}-D needs at least {d + 2} observed "
+            f"ranges with positive weight (d + 1 leave two solutions); got {n_use} "
+            f"(anchors {shape_str(a.shape)})"
+        )
+    check_spanning(a[use], d, "anchors", "the point is ambiguous (mirror images)")
+    # Centre on the anchors and scale to unit size; the offset scales with the ranges.
+    centre = a[use].mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((a[use] - centre) ** 2, axis=1))))
+    a_s, r_s = (a - centre) / scale, r / scale
+    return OffsetProblem(a, r, w, observed, use, centre, scale, a_s, r_s, w / np.mean(w[use]))
+
+
+def _offset_refit(prob: OffsetProblem, inliers: np.ndarray, fixed: bool) -> Refit:
+    """ML of (x, b) on the inliers and, without a fixed threshold, 2.5 times their noise scale."""
+    fit = _fit_offset(prob.anchors_s[inliers], prob.ranges_s[inliers], prob.weights_s[inliers])
+    if fixed:
+        return Refit(fit.z, fit, None)
+    dof = max(int(inliers.sum()) - prob.dim - 1, 1)
+    sigma = math.sqrt(fit.cost / dof) / TRUNCATED_STD
+    return Refit(fit.z, fit, max(INLIER_K * sigma, 1e-9))
+
+
+def _offset_inliers(
+    prob: OffsetProblem, inlier_threshold: float | None, max_hypotheses: int, rng
+) -> InlierVerdict:
+    """LMedS (or MSAC) over subsets of d + 2 anchors, then threshold-and-refit until stable."""
+    d, n_use, scale, use = prob.dim, prob.n_use, prob.scale, prob.use
+    idx = np.flatnonzero(use)
+    fixed = None if inlier_threshold is None else inlier_threshold / scale
+    start = robust_start(
+        prob.anchors_s[idx],
+        prob.ranges_s[idx],
+        offset=True,
+        max_hypotheses=max_hypotheses,
+        rng=rng,
+        threshold=fixed,
+    )
+    if start is None:
+        message = "every subset of d + 2 ranges is rank-deficient: no outlier rejection"
+        return InlierVerdict(use.copy(), Status.CONVERGED, message)
+    search = refine_inliers(
+        lambda z: _offset_residuals(z, prob.anchors_s, prob.ranges_s),
+        lambda inl: _offset_refit(prob, inl, fixed is not None),
+        start.z,
+        use,
+        fixed if fixed is not None else max(INLIER_K * start.sigma, 1e-9),
+        lambda inl: inl.sum() >= d + 2 and affine_rank(prob.anchors_s[inl]) >= d,
+    )
+    kept = int(search.inliers.sum())
+    if search.settled:
+        message = f"pseudorange least squares after outlier rejection: {kept} of {n_use} kept"
+        return InlierVerdict(search.inliers, Status.CONVERGED, message)
+    # Not converged: refit on every used range when too few inliers are left.
+    inliers = use.copy() if kept < d + 2 else search.inliers
+    if search.rejected is None:
+        message = "robust multilateration: the inlier set was still changing after 20 re-fits"
+        return InlierVerdict(inliers, Status.SOLVER_FAILED, message)
+    message = (
+        f"robust multilateration failed: only {int(search.rejected.sum())} of {n_use} ranges "
+        f"agree within {search.threshold * scale:.3g} m, or they do not span {d}-D"
+    )
+    return InlierVerdict(inliers, Status.OUTLIERS, message)
+
+
+def _offset_result(prob: OffsetProblem, verdict: InlierVerdict) -> OffsetMultilaterationResult:
+    """The final ML fit on the inliers, its rank test and the result in the caller's units."""
+    inliers, status, message = verdict.inliers, verdict.status, verdict.message
+    fit = _fit_offset(prob.anchors_s[inliers], prob.ranges_s[inliers], prob.weights_s[inliers])
+    z = fit.z
+    if not fit.ok:
+        status = status if status is not Status.CONVERGED else Status.SOLVER_FAILED
+        message += f"; least squares did not converge: {fit.message}"
+    full_rank, dop = _rank_ok(z, prob.anchors_s[inliers], prob.weights_s[inliers])
+    if not full_rank:
+        raise DegenerateGeometryError(
+            "the offset cannot be told from the distance: the directions from the point to the "
+            "anchors lie on a cone (u . n = const), so (position, offset) is a family of fits"
+        )
+    d, scale, w = prob.dim, prob.scale, prob.weights
+    pos = prob.centre + scale * z[:d]
+    b = float(scale * z[d])
+    res = np.where(
+        prob.observed, np.linalg.norm(prob.anchors - pos, axis=1) + b - prob.ranges, np.nan
+    )
+    return OffsetMultilaterationResult(
+        position=frozen(pos),
+        offset=b,
+        residuals=frozen(res),
+        inliers=frozen(inliers & prob.observed),
+        cost=float(np.sum((w * res**2)[inliers])),
+        # dop in metres per unit weight: the scaled Jacobian is unitless, weights were normalised.
+        dop=frozen(dop / np.sqrt(np.mean(w[prob.use]))),
+        status=status,
+        message=message,
+    )
+
+
+def multilaterate_with_offset(
+    anchors: ArrayLike,
+    ranges: ArrayLike,
+    *,
+    weights: ArrayLike | None = None,
+    mask: ArrayLike | None = None,
+    robust: bool = False,
+    inlier_threshold: float | None = None,
+    max_hypotheses: int = 2000,
+    rng: np.random.Generator | int | None = None,
+) -> OffsetMultilaterationResult:
+    """Locate a point and a common range offset from ranges r_m = ||x - a_m|| + b (pseudoranges).
+
+    Args:
+        anchors: (M, d) known positions, d = 2 or 3; the observed ones must affinely span R^d and
+            number at least d + 2 (d + 1 pseudoranges leave two solutions in general).
+        ranges: (M,) measured ranges in metres, each offset by the same unknown b (any sign).
+        weights: (M,) non-negative weights of the squared range residuals (1 / sigma_m^2 for the
+            ML); None for equal weights.
+        mask: (M,) bool, True where observed; unobserved entries are ignored.
+        robust: reject wrong ranges (least median of squares over subsets of d + 2 anchors, then
+            a threshold of 2.5 robust standard deviations and re-fits). Needs M >= d + 3 observed.
+        inlier_threshold: with ``robust``, a fixed bound in metres on |residual| instead (MSAC).
+        max_hypotheses: with ``robust``, random subsets tried when there are more than this.
+        rng: random generator (or seed) for the subset draws.
+
+    Returns:
+        :class:`OffsetMultilaterationResult`. Raises DegenerateGeometryError when the anchors do
+        not span R^d or the fit's Jacobian is rank-deficient (b cannot be told from the distance:
+        anchors on a cone around the point).
+    """
+    rng = np.random.default_rng(rng)
+    prob = _parse_offset_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
+    d, n_use = prob.dim, prob.n_use
+    if robust and n_use >= d + 3:
+        verdict = _offset_inliers(prob, inlier_threshold, int(max_hypotheses), rng)
+    else:
+        message = "pseudorange least squares"
+        if robust:
+            message = f"no outlier rejection possible with {n_use} ranges in {d}-D (needs {d + 3})"
+        verdict = InlierVerdict(prob.use.copy(), Status.CONVERGED, message)
+    return _offset_result(prob, verdict)

@@ -1,0 +1,227 @@
+"""Robust starts for multilateration: LMedS or MSAC over minimal anchor subsets. Pure numpy.
+
+Squaring ||x - a_m|| + b = r_m linearises the range equations (eq. 3 of the paper; (E1) of
+:mod:`rangeslam.localization.emission` with an offset b):
+
+    r_m^2 - ||a_m||^2 = -2 a_m.x [+ 2 r_m b] + t,       t = ||x||^2 [- b^2]
+
+so a subset of d + 1 (d + 2 with the offset) anchors gives the exact solution of a square linear
+system. Every subset's point is scored on all anchors by the h-th smallest squared range residual
+(least median of squares, Rousseeuw, "Least median of squares regression", JASA 1984) or, with a
+known threshold, by the truncated squared residuals (MSAC, Torr and Zisserman 2000), which
+tolerates more than half wrong ranges when the wrong ones disagree among themselves.
+
+:func:`refine_inliers` then repeats threshold-and-refit (reweighted least squares, Rousseeuw and
+Leroy 1987) from that start until the inlier set repeats.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from rangeslam._robust import MAD_TO_STD
+from rangeslam.errors import InvalidInputError
+
+__all__ = [
+    "INLIER_K",
+    "InlierSearch",
+    "Refit",
+    "RobustStart",
+    "check_robust_options",
+    "minimal_subset_points",
+    "minimal_subsets",
+    "offset_range_residuals",
+    "refine_inliers",
+    "robust_start",
+]
+
+#: Inlier threshold of the robust multilaterations, in robust standard deviations (Rousseeuw and
+#: Leroy's 2.5).
+INLIER_K = 2.5
+#: Refits of :func:`refine_inliers` before it gives up on a changing inlier set.
+MAX_REFITS = 20
+#: Standard deviation of a unit normal truncated to +-2.5: residuals kept by a 2.5 sigma
+#: threshold are that much too tight.
+TRUNCATED_STD = 0.9546
+
+
+@dataclass(frozen=True)
+class RobustStart:
+    """The best minimal-subset hypothesis.
+
+    Attributes:
+        z: (d,) point x, or (d + 1,) point and offset (x, b) with ``offset``.
+        sigma: robust standard deviation of its range residuals (units of the ranges).
+    """
+
+    z: np.ndarray
+    sigma: float
+
+
+@dataclass(frozen=True)
+class Refit:
+    """One refit on an inlier set: the new estimate ``z``, the fit it came from (the caller's
+    type) and the new inlier threshold (None keeps the old one)."""
+
+    z: np.ndarray
+    fit: object
+    threshold: float | None
+
+
+@dataclass(frozen=True)
+class InlierSearch:
+    """Outcome of :func:`refine_inliers`.
+
+    Attributes:
+        z: the last estimate (the start when nothing was refitted).
+        fit: the last :attr:`Refit.fit` (None when nothing was refitted).
+        inliers: (M,) the last inlier set that was fitted (all False when none was).
+        rejected: (M,) the candidate set that ended the search because ``enough`` refused it;
+            None otherwise.
+        threshold: the last inlier threshold on |range residual| (units of the ranges).
+        settled: True when the inlier set repeated (the search converged).
+    """
+
+    z: np.ndarray
+    fit: object
+    inliers: np.ndarray
+    rejected: np.ndarray | None
+    threshold: float
+    settled: bool
+
+
+def offset_range_residuals(z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, offset: bool):
+    """||x - a_m|| [+ b] - r_m for z = x (or (x, b) with ``offset``), (q,) or (H, q) hypotheses."""
+    x = z[..., :-1] if offset else z
+    dist = np.linalg.norm(anchors - x[..., None, :], axis=-1)
+    if offset:
+        return dist + z[..., -1][..., None] - ranges
+    return dist - ranges
+
+
+def minimal_subsets(candidates: np.ndarray, p: int, max_subsets: int, rng) -> np.ndarray:
+    """(H, p) subsets of p of the ``candidates``: all when at most ``max_subsets``, else random."""
+    if math.comb(len(candidates), p) <= max_subsets:
+        return np.array(list(itertools.combinations(candidates, p)), dtype=int).reshape(-1, p)
+    return candidates[np.argsort(rng.random((max_subsets, len(candidates))), axis=1)[:, :p]]
+
+
+def subset_solutions(
+    anchors: np.ndarray, ranges: np.ndarray, subsets: np.ndarray, offset: bool
+) -> np.ndarray:
+    """(H', q) exact solutions of the linearised range equations of each (H, p) subset.
+
+    Columns [-2 a, (2 r), 1] for unknowns (x, (b), t); q = d (+1 with ``offset``). Affinely
+    dependent subsets (smallest singular value below 1e-8 of the largest) are skipped.
+    """
+    d = anchors.shape[1]
+    p = subsets.shape[1]
+    a_sub = anchors[subsets]
+    cols = [-2.0 * a_sub]
+    if offset:
+        cols.append(2.0 * ranges[subsets][..., None])
+    cols.append(np.ones((len(subsets), p, 1)))
+    mat = np.concatenate(cols, axis=2)
+    rhs = ranges[subsets] ** 2 - np.einsum("hpd,hpd->hp", a_sub, a_sub)
+    sv = np.linalg.svd(mat, compute_uv=False)
+    ok = sv[:, -1] > 1e-8 * sv[:, 0]
+    return np.linalg.solve(mat[ok], rhs[ok][..., None])[..., 0][:, : d + int(offset)]
+
+
+def minimal_subset_points(
+    anchors: np.ndarray,
+    ranges: np.ndarray,
+    candidates: np.ndarray,
+    max_subsets: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Points (H, d) from subsets of d+1 of the ``candidates`` (indices into anchors (M, d)).
+
+    Each subset gives the exact solution of the linear system [-2 a^T, 1] [x; t] = r^2 - ||a||^2
+    (d+1 equations, d+1 unknowns); all subsets when there are at most ``max_subsets`` of them,
+    otherwise that many random ones. Affinely dependent subsets are skipped.
+    """
+    subsets = minimal_subsets(candidates, anchors.shape[1] + 1, max_subsets, rng)
+    return subset_solutions(anchors, ranges, subsets, offset=False)
+
+
+def robust_start(
+    anchors: np.ndarray,
+    ranges: np.ndarray,
+    *,
+    offset: bool = False,
+    max_hypotheses: int,
+    rng: np.random.Generator,
+    threshold: float | None = None,
+) -> RobustStart | None:
+    """LMedS (or MSAC with ``threshold``) hypothesis over minimal subsets of anchors (M, d).
+
+    Unknowns q = d (x) or d + 1 (x and the range offset b with ``offset``); subsets have q + 1
+    members (the linear system also carries t). None when every subset is affinely dependent.
+    """
+    n, d = anchors.shape
+    q = d + int(offset)
+    p = q + 1
+    subsets = minimal_subsets(np.arange(n), p, max_hypotheses, rng)
+    z = subset_solutions(anchors, ranges, subsets, offset)
+    if len(z) == 0:
+        return None
+    res2 = offset_range_residuals(z, anchors, ranges, offset) ** 2
+    h = (n + p + 1) // 2  # Rousseeuw's order statistic for the highest breakdown point
+    lmeds = np.partition(res2, h - 1, axis=1)[:, h - 1]
+    score = lmeds if threshold is None else np.minimum(res2, threshold**2).sum(axis=1)
+    best = int(np.argmin(score))
+    # Finite-sample consistency correction of Rousseeuw and Leroy (1987) for the q unknowns.
+    sigma = MAD_TO_STD * (1.0 + 5.0 / max(n - q, 1)) * math.sqrt(lmeds[best])
+    return RobustStart(z=z[best], sigma=sigma)
+
+
+def refine_inliers(
+    residuals: Callable[[np.ndarray], np.ndarray],
+    refit: Callable[[np.ndarray], Refit],
+    z: np.ndarray,
+    candidates: np.ndarray,
+    threshold: float,
+    enough: Callable[[np.ndarray], bool],
+) -> InlierSearch:
+    """Keep the ``candidates`` (M,) with |residuals(z)| <= threshold, refit, until the set repeats.
+
+    ``refit(inliers)`` fits the inliers (a :class:`Refit`); ``enough(inliers)`` says whether a
+    set can be fitted at all (the search stops when it cannot). A cycle through borderline ranges
+    counts as repeating. At most :data:`MAX_REFITS` refits.
+    """
+    inliers = np.zeros(len(candidates), dtype=bool)
+    seen: list[np.ndarray] = []
+    fit = None
+    for _ in range(MAX_REFITS):
+        new = candidates & (np.abs(residuals(z)) <= threshold)
+        if not enough(new):
+            return InlierSearch(z, fit, inliers, new, threshold, settled=False)
+        if any(np.array_equal(new, old) for old in [inliers, *seen]):
+            return InlierSearch(z, fit, inliers, None, threshold, settled=True)
+        seen.append(inliers)
+        inliers = new
+        step = refit(inliers)
+        z, fit = step.z, step.fit
+        if step.threshold is not None:
+            threshold = step.threshold
+    return InlierSearch(z, fit, inliers, None, threshold, settled=False)
+
+
+def check_robust_options(inlier_threshold: float | None, max_hypotheses: int) -> None:
+    """Raise InvalidInputError unless the threshold (metres) is positive and the count an int."""
+    if inlier_threshold is not None and not (
+        np.isfinite(inlier_threshold) and inlier_threshold > 0
+    ):
+        raise InvalidInputError(
+            f"inlier_threshold must be a positive number of metres; got {inlier_threshold}"
+        )
+    if not isinstance(max_hypotheses, int | np.integer) or max_hypotheses < 1:
+        raise InvalidInputError(
+            f"max_hypotheses must be a positive integer; got {max_hypotheses!r}"
+        )
