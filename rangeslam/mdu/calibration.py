@@ -138,7 +138,7 @@ def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndar
         sources=points[m:],
         residuals=residuals,
         rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
-        converged=True,
+        status=Status.CONVERGED,
         message="",
         nfev=0,
     )

@@ -17,6 +17,7 @@ from scipy.optimize import least_squares
 
 from rangeslam._validation import as_mask, as_points, as_ranges, frozen
 from rangeslam.errors import InvalidInputError
+from rangeslam.status import HasStatus, Status
 
 __all__ = ["UnfoldingFit", "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
 
@@ -24,7 +25,7 @@ LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 @dataclass(frozen=True)
-class UnfoldingFit:
+class UnfoldingFit(HasStatus):
     """Result of :func:`refine_unfolding`.
 
     Attributes:
@@ -32,7 +33,8 @@ class UnfoldingFit:
         sources: (K, d) refined sources, metres.
         residuals: (M, K) fitted minus measured range, metres; NaN where not in the fit's mask.
         rms: RMS of the residuals in the fit, metres.
-        converged: scipy reported convergence (status > 0).
+        status: CONVERGED when scipy reported convergence (its status > 0), else SOLVER_FAILED;
+            ``converged`` is derived from it.
         message: scipy's message.
         nfev: residual evaluations.
     """
@@ -41,7 +43,7 @@ class UnfoldingFit:
     sources: np.ndarray
     residuals: np.ndarray
     rms: float
-    converged: bool
+    status: Status
     message: str
     nfev: int
 
@@ -136,7 +138,7 @@ def refine_unfolding(
         sources=frozen(points[m:]),
         residuals=frozen(residuals),
         rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
-        converged=bool(fit.status > 0),
+        status=Status.CONVERGED if fit.status > 0 else Status.SOLVER_FAILED,
         message=str(fit.message),
         nfev=int(fit.nfev),
     )
