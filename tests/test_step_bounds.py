@@ -20,6 +20,7 @@ def test_parse_pair_gives_read_only_copies():
     assert b.lower[0] == 0.1
     lo, hi = b  # unpacks as the pair it replaces
     assert lo is b.lower and hi is b.upper
+    assert b[0] is b.lower and b[1] is b.upper
     np.testing.assert_allclose(b.midpoints, [0.2, 0.3])
     assert b.n_steps == 2
 

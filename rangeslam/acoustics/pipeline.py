@@ -49,6 +49,7 @@ from rangeslam.datasets.rir_files import (
 )
 from rangeslam.errors import InvalidInputError
 from rangeslam.evaluation.metrics import SHOEBOX_WALLS, shoebox_wall_errors, trajectory_rmse
+from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import HasStatus, Status
 
 __all__ = [
@@ -179,8 +180,9 @@ def _as_rirs(rirs: ArrayLike | Sequence[ArrayLike]) -> np.ndarray:
     return x
 
 
-def _check_bounds(step_bounds: Any, m: int, what: str = "RIRs") -> np.ndarray:
-    """(2, M - 1) finite bounds, 0 <= lower <= upper, for M steps (``what``: RIRs, keyframes)."""
+def _check_bounds(step_bounds: Any, m: int, what: str = "RIRs") -> StepBounds:
+    """Finite bounds, 0 <= lower <= upper, on the M - 1 steps of M ``what`` (RIRs, keyframes),
+    as the :class:`StepBounds` that walk_from_rirs, slam and refine_graph take unchanged."""
     if m < 2:
         raise InvalidInputError(f"a walk needs at least 2 {what} (steps); got {m}")
     try:
@@ -203,7 +205,7 @@ def _check_bounds(step_bounds: Any, m: int, what: str = "RIRs") -> np.ndarray:
         raise InvalidInputError(
             f"step_bounds must have 0 <= lower <= upper; step {i} has [{b[0, i]:g}, {b[1, i]:g}]"
         )
-    return b
+    return StepBounds(lower=b[0], upper=b[1])
 
 
 def run_rirs(
@@ -344,8 +346,8 @@ def _check_mics(mics: ArrayLike, dim: int, m: int) -> np.ndarray:
     return pts
 
 
-def _check_walk_bounds(step_bounds: Any, keyframes: ArrayLike | None, m: int) -> np.ndarray:
-    """(2, K - 1) step bounds for the K steps: every RIR, or the ``keyframes``."""
+def _check_walk_bounds(step_bounds: Any, keyframes: ArrayLike | None, m: int) -> StepBounds:
+    """Bounds for the K steps: every RIR, or the ``keyframes``."""
     if keyframes is None:
         return _check_bounds(step_bounds, m)
     keys = np.asarray(keyframes)
@@ -467,7 +469,7 @@ def _run_array(
 
 
 def _run_walk(
-    x: np.ndarray, fs: float, bounds: np.ndarray, *, c: float, dim: int, rng, options: RirRunOptions
+    x: np.ndarray, fs: float, bounds: StepBounds, *, c: float, dim: int, rng, options: RirRunOptions
 ) -> PipelineAnswer:
     """Walk mode: ``rangeslam.acoustics.walk.walk_from_rirs`` with the eq. (11) step
     bounds, and the trajectory and landmarks of its SLAM."""
@@ -483,7 +485,7 @@ def _run_walk(
     res = walk_from_rirs(
         x,
         fs,
-        step_bounds=(bounds[0], bounds[1]),
+        step_bounds=bounds,
         c=c,
         dim=dim,
         rng=rng,

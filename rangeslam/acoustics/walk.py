@@ -22,9 +22,10 @@ from rangeslam._validation import frozen
 from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection, detect_echoes_many
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
-from rangeslam.mdu.core import canonical_frame, residual_verdict, rotated_covariances
+from rangeslam.mdu.core import canonical_frame, residual_status, rotated_covariances
 from rangeslam.mdu.slam import SlamResult, slam
-from rangeslam.solvers.gtsam_graph import check_step_bounds, refine_graph
+from rangeslam.solvers.gtsam_graph import refine_graph
+from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import HasStatus, Status
 
 __all__ = ["WalkFromRirs", "walk_from_rirs"]
@@ -282,7 +283,7 @@ def walk_from_rirs(
     prob = _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
     topts = dict(track_options or {})
     topts.setdefault("c", c)
-    max_step = topts.pop("max_step", _frame_steps(prob.upper, prob.keys, len(dets)))
+    max_step = topts.pop("max_step", _frame_steps(prob.bounds.upper, prob.keys, len(dets)))
     tracks = track_echoes(dets, max_step, **topts)
     prob = replace(prob, gate_floor=_GATE_FLOOR * (c / dets[0].fs))
     key = tracks.rows(prob.keys)
@@ -311,8 +312,7 @@ class _WalkProblem:
     """The checked inputs of :func:`walk_from_rirs`: M keyframes of F frames."""
 
     keys: np.ndarray  # (M,) frame of each SLAM step
-    lower: np.ndarray  # (M - 1,) lower bounds on the steps, metres
-    upper: np.ndarray  # (M - 1,) upper bounds on the steps, metres
+    bounds: StepBounds  # (M - 1,) bounds on the steps between keyframes (eq. 11), metres
     dim: int
     n_start: int
     min_hits: int
@@ -324,11 +324,6 @@ class _WalkProblem:
     def m(self) -> int:
         """M, the number of SLAM steps."""
         return len(self.keys)
-
-    @property
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lower, upper) step bounds (eq. 11)."""
-        return self.lower, self.upper
 
 
 @dataclass(frozen=True)
@@ -404,7 +399,7 @@ def _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
         raise InvalidInputError(f"rirs must hold at least 3 RIRs (frames); got {n_frames}")
     keys = _keyframes(keyframes, n_frames)
     m = len(keys)
-    lower, upper = check_step_bounds(step_bounds, m)
+    bounds = StepBounds.parse(step_bounds, m - 1)
     if dim not in (2, 3):
         raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
     if not (isinstance(n_start, int | np.integer) and n_start >= dim + 1):
@@ -425,8 +420,7 @@ def _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
         raise InvalidInputError(f"isolation must be a number of samples >= 0; got {isolation!r}")
     return _WalkProblem(
         keys=keys,
-        lower=lower,
-        upper=upper,
+        bounds=bounds,
         dim=dim,
         n_start=n_start,
         min_hits=min_hits,
@@ -589,7 +583,7 @@ def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise
     fit, r_all, m_all = final.fit, final.ranges, final.mask
     res = np.where(m_all, fit.residuals, np.nan)
     ssr = float(np.nansum(res**2))
-    ok, why = residual_verdict(
+    status, why = residual_status(
         ssr,
         m_all,
         prob.dim,
@@ -598,16 +592,15 @@ def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise
         chi_square=noise is not None,
         bounded=True,
     )
-    status = Status.CONVERGED if ok else Status.INCONSISTENT
     msg = why
     if not start.converged:
         msg += f"the EDM start did not converge ({start.message}); "
         if status is Status.CONVERGED:
-            status = Status(getattr(start, "status", Status.INCONSISTENT))
+            status = start.status
     if not fit.converged:
         msg += f"GTSAM: {fit.message}; "
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
-    pinned = _steps_on_bounds(fit.receivers, prob.lower, prob.upper)
+    pinned = _steps_on_bounds(fit.receivers, prob.bounds.lower, prob.bounds.upper)
     if pinned > _MAX_PINNED * (prob.m - 1):
         msg += (
             f"{pinned} of the {prob.m - 1} steps sit on a step bound: the bounds, not the ranges, "

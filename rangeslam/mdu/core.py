@@ -36,7 +36,6 @@ __all__ = [
     "mdu_mask",
     "passes_residual_test",
     "residual_status",
-    "residual_verdict",
     "rotated_covariances",
     "unknowns_up_to_rigid_motion",
     "validated_ranges",
@@ -282,21 +281,3 @@ def residual_status(
         status = Status.NOT_IDENTIFIABLE
         message += "no redundant ranges and no step bounds: the trajectory is not unique; "
     return status, message
-
-
-def residual_verdict(
-    ssr: float,
-    observed: np.ndarray,
-    dim: int,
-    noise_std: float | None,
-    scale: float,
-    *,
-    chi_square: bool,
-    bounded: bool,
-) -> tuple[bool, str]:
-    """Whether a trajectory's range residual is acceptable, and if not why (the message; see
-    :func:`residual_status`, which also says why as a :class:`~rangeslam.status.Status`)."""
-    status, message = residual_status(
-        ssr, observed, dim, noise_std, scale, chi_square=chi_square, bounded=bounded
-    )
-    return status is Status.CONVERGED, message

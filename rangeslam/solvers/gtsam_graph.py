@@ -144,12 +144,6 @@ class GraphProblem:
     lm: LMOptions
 
 
-def check_step_bounds(step_bounds, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """(lower, upper), each (m - 1,), from a pair or a :class:`StepBounds` (see its ``parse``)."""
-    bounds = StepBounds.parse(step_bounds, m - 1)
-    return bounds.lower.copy(), bounds.upper.copy()
-
-
 def check_lm_options(max_iterations, lambda_upper_bound) -> LMOptions:
     """The LM settings, refused unless max_iterations is an integer >= 0 and the bound > 0."""
     if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):

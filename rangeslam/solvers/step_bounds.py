@@ -25,7 +25,8 @@ class StepBounds:
         lower: (M - 1,) finite, >= 0.
         upper: (M - 1,) finite, >= lower.
 
-    Unpacks as a pair (``lower, upper = bounds``), as the tuples it replaces.
+    Unpacks and indexes as a pair (``lower, upper = bounds``; ``bounds[1]``), as the tuples it
+    replaces.
     """
 
     lower: np.ndarray
@@ -78,6 +79,10 @@ class StepBounds:
         """Yield lower, then upper."""
         yield self.lower
         yield self.upper
+
+    def __getitem__(self, side: int) -> np.ndarray:
+        """``bounds[0]`` is lower, ``bounds[1]`` upper, as in the (lower, upper) pairs it replaces."""
+        return (self.lower, self.upper)[side]
 
 
 def _check_lengths(lower: np.ndarray, upper: np.ndarray, n_steps: int, name: str) -> None:
