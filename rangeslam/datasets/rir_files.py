@@ -49,6 +49,11 @@ class LoadedRirs:
             (npz ``trajectory``), for evaluation.
         keyframes: (M,) the RIRs that are SLAM steps (npz ``keyframes``), when there are more
             RIRs than steps; else None.
+        landmarks: (K, d) true image sources (the landmarks of a walk; npz ``landmarks``), for
+            evaluation only.
+        wall_normals: (W, d) true outward unit wall normals (npz ``wall_normals``), for evaluation
+            only; a room that is not a shoebox is given this way, with ``wall_offsets``.
+        wall_offsets: (W,) true wall offsets, metres: wall k is {x : n_k . x = offset_k}.
     """
 
     rirs: np.ndarray
@@ -61,6 +66,9 @@ class LoadedRirs:
     room_size: np.ndarray | None = None
     trajectory: np.ndarray | None = None
     keyframes: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
+    wall_normals: np.ndarray | None = None
+    wall_offsets: np.ndarray | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -218,6 +226,15 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     source = _npz_array(raw, ("source", "src_v3"), p, (None,))
     size = _npz_array(raw, ("room_size",), p, (3,))
     trajectory = _npz_array(raw, ("trajectory",), p, (None, None))
+    landmarks = _npz_array(raw, ("landmarks",), p, (None, None))
+    normals = _npz_array(raw, ("wall_normals",), p, (None, None))
+    offsets = _npz_array(raw, ("wall_offsets",), p, (None,))
+    if (normals is None) != (offsets is None) or (
+        normals is not None and len(normals) != len(offsets)
+    ):
+        raise DataFormatError(
+            f"{p}: wall_normals (W, d) and wall_offsets (W,) come together, one row per wall"
+        )
     keys = None
     if "keyframes" in raw:
         keys = np.asarray(raw["keyframes"])
@@ -240,6 +257,9 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
         room_size=None if size is None else frozen(size),
         trajectory=None if trajectory is None else frozen(trajectory),
         keyframes=None if keys is None else frozen(keys.astype(int)),
+        landmarks=None if landmarks is None else frozen(landmarks),
+        wall_normals=None if normals is None else frozen(normals),
+        wall_offsets=None if offsets is None else frozen(offsets),
     )
 
 
