@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rangeslam.app import arg_types
 from rangeslam.app.bench_command import bench as bench_command
 from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
@@ -18,57 +19,6 @@ class CliParser(argparse.ArgumentParser):
     def error(self, message: str) -> None:
         """Print ``rangeslam: error: message`` and exit with code 2."""
         self.exit(2, f"rangeslam: error: {message}\n")
-
-
-def _writable_dir(text: str) -> Path:
-    """A directory, created if need be, that can be written to (--out)."""
-    path = Path(text)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".rangeslam-write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise argparse.ArgumentTypeError(f"cannot write to --out {text}: {exc.strerror}") from exc
-    return path
-
-
-def _non_negative(text: str) -> float:
-    """A float >= 0."""
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0; got {text}")
-    return value
-
-
-def _fraction(text: str) -> float:
-    """A float in [0, 1]."""
-    value = float(text)
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1]; got {text}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    """An integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    """A finite float > 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number; got {text}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number; got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -87,7 +37,9 @@ def _add_demo(sub) -> None:
     demo = sub.add_parser(
         "demo", help="simulate rooms, reconstruct them from echoes, print and plot"
     )
-    demo.add_argument("--out", type=_writable_dir, default="rangeslam-out", help="output directory")
+    demo.add_argument(
+        "--out", type=arg_types.writable_dir, default="rangeslam-out", help="output directory"
+    )
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     demo.add_argument(
         "--mics",
@@ -107,13 +59,13 @@ def _add_demo(sub) -> None:
     )
     demo.add_argument(
         "--sigma",
-        type=_non_negative,
+        type=arg_types.non_negative,
         default=1e-3,
         help="range noise std in metres (default 0.001)",
     )
     demo.add_argument(
         "--outliers",
-        type=_fraction,
+        type=arg_types.fraction,
         default=0.05,
         help="fraction of echo picks made wrong (default 0.05)",
     )
@@ -132,13 +84,16 @@ def _add_bench(sub) -> None:
     )
     bench.add_argument(
         "--trials",
-        type=_positive_int,
+        type=arg_types.positive_int,
         default=50,
         help="trials per cell (50); plaza: random starts of the methods that have them",
     )
     bench.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     bench.add_argument(
-        "--jobs", type=_positive_int, default=1, help="trials in parallel processes (default 1)"
+        "--jobs",
+        type=arg_types.positive_int,
+        default=1,
+        help="trials in parallel processes (default 1)",
     )
     bench.add_argument(
         "--scheduler",
@@ -146,13 +101,13 @@ def _add_bench(sub) -> None:
         help="submit the trials to this Dask distributed scheduler (needs rangeslam[dask])",
     )
     bench.add_argument(
-        "--out", type=_writable_dir, default="rangeslam-bench", help="output directory"
+        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output directory"
     )
     bench.add_argument(
-        "--sigmas", type=_non_negative, nargs="+", help="range noise levels in metres"
+        "--sigmas", type=arg_types.non_negative, nargs="+", help="range noise levels in metres"
     )
     bench.add_argument(
-        "--steps", type=_positive_int, nargs="+", help="numbers of steps M (fig5, compare)"
+        "--steps", type=arg_types.positive_int, nargs="+", help="numbers of steps M (fig5, compare)"
     )
     bench.add_argument(
         "--bounds",
@@ -217,7 +172,7 @@ def _add_run(sub) -> None:
     run.add_argument("rirs", nargs="+", type=Path, metavar="RIRS", help=".npz, .wav or directory")
     run.add_argument(
         "--fs",
-        type=_positive_float,
+        type=arg_types.positive_float,
         help="sampling rate, Hz (for an npz without fs; a check for WAVs)",
     )
     known = run.add_mutually_exclusive_group()
@@ -244,7 +199,9 @@ def _add_run(sub) -> None:
         "recorded (default: the npz's keyframes, else every RIR)",
     )
     run.add_argument(
-        "--c", type=_positive_float, help="speed of sound, m/s (default: the npz's c, else 343)"
+        "--c",
+        type=arg_types.positive_float,
+        help="speed of sound, m/s (default: the npz's c, else 343)",
     )
     run.add_argument("--dim", type=int, choices=(2, 3), default=3, help="2 or 3 (walks; default 3)")
     run.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -259,5 +216,7 @@ def _add_run(sub) -> None:
         action="store_true",
         help="use clipped RIRs (default: leave them out, like silent ones, with a warning)",
     )
-    run.add_argument("--out", type=_writable_dir, default="rangeslam-run", help="output directory")
+    run.add_argument(
+        "--out", type=arg_types.writable_dir, default="rangeslam-run", help="output directory"
+    )
     run.set_defaults(func=run_command)
