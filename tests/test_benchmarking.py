@@ -92,7 +92,7 @@ def test_dask_cluster_gives_the_same_rows():
 def test_unreachable_scheduler_is_a_one_line_error(tmp_path, capsys):
     code = main(["bench", "fig3", "--trials", "1", "--sigmas", "0", "--out", str(tmp_path),
                  "--scheduler", "tcp://127.0.0.1:9"])  # fmt: skip
-    assert code == 1
+    assert code == 2  # the address given is bad input
     err = capsys.readouterr().err
     assert err.startswith("rangeslam: error: cannot reach the Dask scheduler")
 

@@ -10,12 +10,15 @@ import pytest
 from rangeslam.app.cli import main
 
 
-def test_demo_end_to_end(tmp_path, capsys):
-    """`rangeslam demo` prints the wall table, a small Fig. 3 and Fig. 5 comparison, writes every
-    plot (rooms, Fig. 3, Fig. 5, the SLAM estimate with its ellipses, the RIR matrix), exits 0."""
-    code = main(["demo", "--out", str(tmp_path), "--seed", "3"])
+def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
+    """`rangeslam demo`, as the README's first line runs it (no --out, in an empty folder), prints
+    the wall table, a small Fig. 3 and Fig. 5 comparison, writes every plot (rooms, Fig. 3, Fig. 5,
+    the SLAM estimate with its ellipses, the RIR matrix) to ./rangeslam-out, exits 0."""
+    monkeypatch.chdir(tmp_path)
+    code = main(["demo", "--seed", "3"])
     out = capsys.readouterr().out
     assert code == 0
+    tmp_path = tmp_path / "rangeslam-out"
     assert "| room | wall | true offset [m]" in out and "| shoebox | True |" in out
     assert "| sigma (mm) | trials | failed | median error (mm)" in out
     assert "EKF + RTS mean / median (cm)" in out
@@ -46,7 +49,10 @@ def test_console_script_runs():
         (["frobnicate"], "invalid choice"),
         (["demo", "--sigma", "-1"], "must be >= 0"),
         (["demo", "--outliers", "1.5"], r"must be in \[0, 1\]"),
-        (["demo", "--mics", "2"], "invalid choice"),
+        (["demo", "--mics", "2"], "--mics: must be from 4 to 64; got 2$"),
+        (["demo", "--sources", "x"], "--sources: must be an integer; got x$"),
+        (["bench", "fig5", "--steps", "2"], "--steps: must be from 3 to"),
+        (["bench"], "required: EXPERIMENT"),
     ],
 )
 def test_bad_options_give_one_line_errors(argv, match, capsys):
@@ -98,3 +104,96 @@ def test_default_output_folder_is_created(tmp_path, monkeypatch, argv, folder):
     args = build_parser().parse_args(argv)
     assert args.out == tmp_path / folder or args.out.resolve() == tmp_path / folder
     assert (tmp_path / folder).is_dir()
+
+
+def test_version(capsys):
+    """`rangeslam --version` answers with the installed version."""
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert re.fullmatch(r"rangeslam \S+\n", capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("experiment", ["fig3", "fig5", "compare", "plaza"])
+def test_each_bench_experiment_has_its_own_help(experiment, capsys):
+    """`rangeslam bench EXPERIMENT -h` lists that experiment's options with their defaults, and
+    not the options of the others."""
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", experiment, "-h"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    assert "(default:" in text and "--seed" in text
+    assert ("--dataset" in text) == (experiment == "plaza")
+    assert ("--steps" in text) == (experiment in ("fig5", "compare"))
+
+
+def test_bench_in_an_empty_folder_writes_its_default_folder(tmp_path, monkeypatch, capsys):
+    """`rangeslam bench fig3` without --out writes to ./rangeslam-bench, created on the way."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["bench", "fig3", "--trials", "1", "--sigmas", "0"]) == 0
+    written = {p.name for p in (tmp_path / "rangeslam-bench").iterdir()}
+    assert {"fig3_trials.csv", "fig3_summary.json", "fig3_summary.md", "fig3.png"} <= written
+
+
+def test_progress_off_a_terminal_comes_before_the_end(tmp_path):
+    """Piped (no terminal), a bench prints a progress line per finished cell, with the count and
+    the time left, on standard error, and the first one arrives before the run's last line."""
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "rangeslam.app.cli",
+            "bench",
+            "fig3",
+            "--trials",
+            "1",
+            "--sigmas",
+            "0",
+            "0.001",
+            "0.002",
+            "--out",
+            str(tmp_path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    lines = [line.rstrip("\n") for line in proc.stdout]
+    assert proc.wait() == 0
+    progress = [i for i, line in enumerate(lines) if line.startswith("rangeslam: fig3: ")]
+    final = [i for i, line in enumerate(lines) if "trials (0 failed)" in line]
+    assert progress and final and progress[0] < final[0]
+    assert re.search(
+        r"1/3 trials \(sigma=0.0 done\), [\d.]+ s elapsed, about .+ left", lines[progress[0]]
+    )
+    table = [i for i, line in enumerate(lines) if line.startswith("| sigma")]
+    assert progress[-1] < table[0]
+
+
+def test_an_interrupted_bench_keeps_what_it_finished(tmp_path, monkeypatch, capsys):
+    """A run stopped after two trials (Ctrl-C) exits 130 and its CSV holds the two trials."""
+    import csv
+
+    from rangeslam.app import benchmarking
+
+    real = benchmarking.run_trial
+    calls = []
+
+    def stop_at_the_third(trial, keep_trajectories=False):
+        calls.append(trial)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(trial, keep_trajectories)
+
+    monkeypatch.setattr(benchmarking, "run_trial", stop_at_the_third)
+    code = main(
+        ["bench", "fig3", "--trials", "2", "--sigmas", "0", "0.001", "--out", str(tmp_path)]
+    )
+    assert code == 130
+    assert "what finished is in the output folder" in capsys.readouterr().err
+    with (tmp_path / "fig3_trials.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["cell"], r["trial"], r["status"]) for r in rows] == [
+        ("0", "0", "ok"),
+        ("0", "1", "ok"),
+    ]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["fraction", "non_negative", "positive_float", "positive_int", "writable_dir"]
+__all__ = ["fraction", "int_in", "non_negative", "positive_float", "positive_int", "writable_dir"]
 
 
 def writable_dir(text: str) -> Path:
@@ -58,3 +58,20 @@ def positive_float(text: str) -> float:
     if not (value > 0 and value < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a positive number; got {text}")
     return value
+
+
+def int_in(low: int, high: int):
+    """An argument type: an integer in [low, high], refused otherwise with the range in words
+    (not argparse's list of every valid choice)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer; got {text}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be from {low} to {high}; got {text}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse

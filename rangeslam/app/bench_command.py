@@ -15,13 +15,15 @@ __all__ = ["bench", "run_bench", "run_plaza_bench"]
 
 
 def bench(args: argparse.Namespace) -> int:
-    """``rangeslam bench WHICH``: the Plaza bench, or a simulated one with the parsed options."""
+    """``rangeslam bench EXPERIMENT``: the Plaza bench, or a simulated one with the parsed
+    options."""
     from rangeslam.app.benchmarking import BOUND_SETTINGS
 
     if args.which == "plaza":
         return run_plaza_bench(args)
-
-    bounds = BOUND_SETTINGS[args.bounds]
+    slam = {}
+    if args.which != "fig3":
+        slam = dict(steps=args.steps, bounds=BOUND_SETTINGS[args.bounds], placement=args.placement)
     return run_bench(
         args.which,
         trials=args.trials,
@@ -30,10 +32,8 @@ def bench(args: argparse.Namespace) -> int:
         jobs=args.jobs,
         scheduler=args.scheduler,
         sigmas=args.sigmas,
-        steps=args.steps,
-        bounds=bounds,
-        placement=args.placement,
         tum=args.tum,
+        **slam,
     )
 
 
@@ -51,55 +51,84 @@ def run_bench(
     placement: str = "centred",
     tum: bool = False,
 ) -> int:
-    """Plan, run and write a benchmark: CSV per trial, timings, JSON and Markdown summaries, a
-    plot, optionally TUM trajectories. Prints the Markdown table."""
+    """Plan, run and write a benchmark: CSV per trial (rewritten as trials finish, so a run
+    stopped late keeps what it finished), timings, JSON and Markdown summaries, a plot,
+    optionally TUM trajectories. Shows progress on standard error; prints the Markdown table.
+    Returns 0, or 1 when every trial failed (the reasons are in the CSV's status column)."""
     from rangeslam.app import benchmarking as bm
+    from rangeslam.app.progress import Progress
 
     plan = bm.plan(
         which, trials, seed, sigmas=sigmas, steps=steps, bounds=bounds, placement=placement
     )
     t0 = time.perf_counter()
+    finished: list = []
+
+    def keep(outcome) -> None:
+        finished.append(outcome)
+        _write_trial_csvs(out, which, finished)
+
     outcomes = bm.run_trials(
-        plan, jobs=jobs, scheduler=scheduler, keep_trajectories=tum, progress=sys.stderr.isatty()
+        plan,
+        jobs=jobs,
+        scheduler=scheduler,
+        keep_trajectories=tum,
+        progress=Progress(len(plan), which),
+        on_outcome=keep,
     )
     wall = time.perf_counter() - t0
-    rows = [o.row for o in outcomes]
     written = _write_trial_csvs(out, which, outcomes)
-    header, table, records = bm.summary_table(which, rows, [o.seconds for o in outcomes])
-    text = bm.markdown(header, table)
-    (out / f"{which}_summary.md").write_text(text + "\n")
-    failed = sum(r["status"] != "ok" for r in rows)
-    written.append(
-        bm.write_summary(
-            out / f"{which}_summary.json",
-            bench=which,
-            seed=seed,
-            trials_per_cell=trials,
-            jobs=jobs,
-            scheduler=scheduler,
-            failed_trials=failed,
-            wall_seconds=wall,
-            versions=bm.versions(),
-            cells=records,
-        )
+    written += _write_bench_summary(
+        out, which, outcomes, wall=wall, seed=seed, trials=trials, jobs=jobs, scheduler=scheduler
     )
+    rows = [o.row for o in outcomes]
     written.append(_plot_bench(out, which, rows))
     if tum:
         written.append(_write_bench_tum(out, which, outcomes))
-    print(text)
+    failed = [r for r in rows if r["status"] != "ok"]
     print(
-        f"\n{len(rows)} trials ({failed} failed) in {wall:.1f} s; seed {seed}; written: "
+        f"\n{len(rows)} trials ({len(failed)} failed) in {wall:.1f} s; seed {seed}; written: "
         + ", ".join(str(p) for p in written)
     )
-    return 1 if failed == len(rows) else 0
+    if len(failed) == len(rows):
+        print(f"rangeslam: every trial failed; the first: {failed[0]['status']}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_bench_summary(out: Path, which: str, outcomes, *, wall: float, seed: int, **run):
+    """The Markdown table (printed and written) and the JSON summary of a finished run."""
+    from rangeslam.app import benchmarking as bm
+
+    rows = [o.row for o in outcomes]
+    header, table, records = bm.summary_table(which, rows, [o.seconds for o in outcomes])
+    text = bm.markdown(header, table)
+    markdown_path = out / f"{which}_summary.md"
+    markdown_path.write_text(text + "\n")
+    print(text)
+    json_path = bm.write_summary(
+        out / f"{which}_summary.json",
+        bench=which,
+        seed=seed,
+        trials_per_cell=run["trials"],
+        jobs=run["jobs"],
+        scheduler=run["scheduler"],
+        failed_trials=sum(r["status"] != "ok" for r in rows),
+        wall_seconds=wall,
+        versions=bm.versions(),
+        cells=records,
+    )
+    return [markdown_path, json_path]
 
 
 def _write_trial_csvs(out: Path, which: str, outcomes) -> list[Path]:
-    """The per-trial CSV (deterministic values) and the timings CSV (wall times apart)."""
+    """The per-trial CSV (deterministic values, in the plan's order) and the timings CSV (wall
+    times apart)."""
     from rangeslam.app.reports import write_csv
 
-    rows = [o.row for o in outcomes]
-    timings = [{"cell": o.row["cell"], "trial": o.row["trial"], **o.seconds} for o in outcomes]
+    ordered = sorted(outcomes, key=lambda o: (o.row["cell"], o.row["trial"]))
+    rows = [o.row for o in ordered]
+    timings = [{"cell": o.row["cell"], "trial": o.row["trial"], **o.seconds} for o in ordered]
     return [
         write_csv(out / f"{which}_trials.csv", rows),
         write_csv(out / f"{which}_timings.csv", timings),
@@ -130,30 +159,67 @@ def _write_bench_tum(out: Path, which: str, outcomes) -> Path:
 
 
 def run_plaza_bench(args: argparse.Namespace) -> int:
-    """Every method on a Plaza data set, the cost against length, a plot; CSV, JSON, Markdown."""
+    """Every method on a Plaza data set, the cost against length, a plot; CSV, JSON, Markdown,
+    each CSV rewritten as runs finish; progress on standard error."""
     from rangeslam.app import plaza_bench as pb
-    from rangeslam.app.plotting import plot_plaza
-    from rangeslam.app.reports import markdown, versions, write_csv, write_summary
+    from rangeslam.app.progress import Progress
+    from rangeslam.app.reports import write_csv
     from rangeslam.datasets import plaza
 
     dataset = plaza(args.dataset)
-    out = args.out
+    out, stem = args.out, f"plaza_{dataset.name}"
+    lengths = args.lengths or []
+    n_runs = len(pb.method_runs(args.methods, args.trials)) + 2 * len(lengths)
     t0 = time.perf_counter()
     kept: dict = {}
-    rows = pb.method_rows(
-        dataset, trials=args.trials, seed=args.seed, methods=args.methods, keep=kept
-    )
-    lengths = pb.length_rows(dataset, args.lengths, seed=args.seed) if args.lengths else []
+    with Progress(n_runs, f"{dataset.name}", unit="runs", min_interval=0.0) as progress:
+        rows = pb.method_rows(
+            dataset,
+            trials=args.trials,
+            seed=args.seed,
+            methods=args.methods,
+            keep=kept,
+            progress=progress,
+            on_row=lambda r: write_csv(out / f"{stem}_methods.csv", r),
+        )
+        length_rows = pb.length_rows(
+            dataset,
+            lengths,
+            seed=args.seed,
+            progress=progress,
+            on_row=lambda r: write_csv(out / f"{stem}_lengths.csv", r),
+        )
     wall = time.perf_counter() - t0
-    stem = f"plaza_{dataset.name}"
-    written = [write_csv(out / f"{stem}_methods.csv", rows)]
-    if lengths:
-        written.append(write_csv(out / f"{stem}_lengths.csv", lengths))
+    written = [out / f"{stem}_methods.csv"] + ([out / f"{stem}_lengths.csv"] if lengths else [])
+    written += _write_plaza_outputs(args, dataset, rows, length_rows, kept, wall)
+    failed = [r for r in rows if r["status"] != "ok"]
+    print(
+        f"\n{len(rows)} runs ({len(failed)} failed) in {wall:.1f} s; seed {args.seed}; written: "
+        + ", ".join(str(p) for p in written)
+    )
+    if len(failed) == len(rows):
+        print(f"rangeslam: every run failed; the first: {failed[0]['status']}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_plaza_outputs(args, dataset, rows, length_rows, kept: dict, wall: float) -> list[Path]:
+    """The Markdown table (printed), the JSON summary, the plot and the TUM files of a Plaza
+    bench."""
+    from rangeslam.app import plaza_bench as pb
+    from rangeslam.app.plotting import plot_plaza
+    from rangeslam.app.reports import markdown, versions, write_summary
+
+    out, stem = args.out, f"plaza_{dataset.name}"
     text = f"## {dataset.name}: methods\n\n" + markdown(*pb.methods_table(rows))
-    if lengths:
-        text += "\n\n## Cost against trajectory length\n\n" + markdown(*pb.lengths_table(lengths))
+    if length_rows:
+        text += "\n\n## Cost against trajectory length\n\n" + markdown(
+            *pb.lengths_table(length_rows)
+        )
     (out / f"{stem}_summary.md").write_text(text + "\n")
-    written.append(
+    print(text)
+    written = [
+        out / f"{stem}_summary.md",
         write_summary(
             out / f"{stem}_summary.json",
             bench="plaza",
@@ -164,20 +230,14 @@ def run_plaza_bench(args: argparse.Namespace) -> int:
             wall_seconds=wall,
             versions=versions(),
             methods=rows,
-            lengths=lengths,
-        )
-    )
+            lengths=length_rows,
+        ),
+    ]
     evaluations = {name: pb.evaluate(res, dataset) for name, res in kept.items()}
     written.append(plot_plaza(out / f"{stem}.png", dataset, kept, evaluations))
     if args.tum:
         written.append(_write_plaza_tum(out, stem, dataset, kept))
-    print(text)
-    failed = sum(r["status"] != "ok" for r in rows)
-    print(
-        f"\n{len(rows)} runs ({failed} failed) in {wall:.1f} s; seed {args.seed}; written: "
-        + ", ".join(str(p) for p in written)
-    )
-    return 1 if failed == len(rows) else 0
+    return written
 
 
 def _write_plaza_tum(out: Path, stem: str, dataset, kept: dict) -> Path:

@@ -13,11 +13,12 @@ differ between runs), so that the CSV of a seed is the same whatever the paralle
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from rangeslam.app.progress import Progress
 from rangeslam.app.reports import markdown, versions, write_csv, write_summary, write_tum
 from rangeslam.errors import InvalidInputError
 from rangeslam.evaluation.metrics import mean_nees, trajectory_rmse
@@ -244,39 +245,61 @@ def run_trials(
     jobs: int = 1,
     scheduler: str | None = None,
     keep_trajectories: bool = False,
-    progress: bool = False,
+    progress: Progress | bool = False,
+    on_outcome: Callable[[TrialOutcome], None] | None = None,
 ) -> list[TrialOutcome]:
     """Run ``trials`` in order (``jobs`` = 1), over ``jobs`` processes, or on the Dask cluster at
-    ``scheduler`` (needs the ``dask`` extra). Outcomes come back in the order of ``trials``."""
-    from tqdm import tqdm
+    ``scheduler`` (needs the ``dask`` extra). Outcomes come back in the order of ``trials``.
 
+    ``progress``: a :class:`~rangeslam.app.progress.Progress` to update per finished trial (a cell
+    is named when its last trial finishes), True for a default one on standard error, False for
+    none. ``on_outcome`` is called with each outcome as it finishes (to write it at once)."""
     if not (isinstance(jobs, int) and jobs >= 1):
         raise InvalidInputError(f"jobs must be a positive integer; got {jobs!r}")
     if scheduler is not None and jobs != 1:
         raise InvalidInputError("give either jobs (local processes) or scheduler (Dask), not both")
-    bar = tqdm(total=len(trials), disable=not progress, unit="trial", leave=False)
-    try:
+    if not isinstance(progress, Progress):
+        label = trials[0].bench if trials else "bench"
+        progress = Progress(len(trials), label, enabled=bool(progress))
+    tracker = _CellTracker(trials, progress, on_outcome)
+    with progress:
         if scheduler is not None:
-            return _run_dask(trials, scheduler, keep_trajectories, bar)
+            return _run_dask(trials, scheduler, keep_trajectories, tracker)
         if jobs == 1:
-            out = []
-            for t in trials:
-                out.append(run_trial(t, keep_trajectories))
-                bar.update()
-            return out
-        from concurrent.futures import ProcessPoolExecutor
+            return [tracker.finished(run_trial(t, keep_trajectories)) for t in trials]
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=jobs) as pool:
             futures = [pool.submit(run_trial, t, keep_trajectories) for t in trials]
-            for f in futures:
-                f.result()
-                bar.update()
+            for f in as_completed(futures):
+                tracker.finished(f.result())
             return [f.result() for f in futures]
-    finally:
-        bar.close()
 
 
-def _run_dask(trials, scheduler: str, keep: bool, bar) -> list[TrialOutcome]:
+class _CellTracker:
+    """Counts finished trials per cell: updates the progress (naming a cell when its last trial
+    is in) and hands each outcome to ``on_outcome``."""
+
+    def __init__(self, trials: Sequence[Trial], progress: Progress, on_outcome) -> None:
+        self.left: dict[int, int] = {}
+        self.names: dict[int, str] = {}
+        for t in trials:
+            self.left[t.cell] = self.left.get(t.cell, 0) + 1
+            self.names[t.cell] = ", ".join(f"{k}={v}" for k, v in t.params if k != "placement")
+        self.progress = progress
+        self.on_outcome = on_outcome
+
+    def finished(self, outcome: TrialOutcome) -> TrialOutcome:
+        """Record one finished trial; returns it."""
+        cell = outcome.row["cell"]
+        self.left[cell] -= 1
+        if self.on_outcome is not None:
+            self.on_outcome(outcome)
+        self.progress.update(stage=self.names[cell] if self.left[cell] == 0 else None)
+        return outcome
+
+
+def _run_dask(trials, scheduler: str, keep: bool, tracker: _CellTracker) -> list[TrialOutcome]:
     """Run ``trials`` on the Dask cluster at ``scheduler``, in order; bad addresses refused."""
     try:
         from dask.distributed import Client, as_completed
@@ -288,8 +311,8 @@ def _run_dask(trials, scheduler: str, keep: bool, bar) -> list[TrialOutcome]:
         raise InvalidInputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
     with client:
         futures = client.map(run_trial, list(trials), keep_trajectories=keep, pure=False)
-        for _ in as_completed(futures):
-            bar.update()
+        for future in as_completed(futures):
+            tracker.finished(future.result())
         return client.gather(futures)
 
 

@@ -1,8 +1,10 @@
 """The ``rangeslam`` command. It parses, calls library functions and writes; no math lives here.
 
 The parser is :mod:`rangeslam.app.parser`; the commands are :mod:`rangeslam.app.demo_command`,
-:mod:`rangeslam.app.bench_command` and :mod:`rangeslam.app.run_command`; the report writers
-:mod:`rangeslam.app.reports`.
+:mod:`rangeslam.app.bench_command`, :mod:`rangeslam.app.simulate_command` and
+:mod:`rangeslam.app.run_command`; the report writers :mod:`rangeslam.app.reports`. Exit codes:
+0 converged, 1 not converged or a solver failure (the reason printed), 2 bad input, 130
+interrupted.
 """
 
 from __future__ import annotations
@@ -21,16 +23,22 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
     )
-    from rangeslam.errors import RangeSlamError
+    from rangeslam.errors import InvalidInputError, RangeSlamError
 
     try:
         return int(args.func(args))
+    except InvalidInputError as exc:  # bad input found past the parser: exit 2, as documented
+        print(f"rangeslam: error: {exc}", file=sys.stderr)
+        return 2
     except RangeSlamError as exc:
         print(f"rangeslam: error: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:  # an output that cannot be written: one line, no traceback
         print(f"rangeslam: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("rangeslam: interrupted; what finished is in the output folder", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

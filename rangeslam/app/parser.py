@@ -7,10 +7,11 @@ from pathlib import Path
 
 from rangeslam.app import arg_types
 from rangeslam.app.bench_command import bench as bench_command
+from rangeslam.app.benchmarking import FIG3_SIGMAS, FIG5_SIGMAS, FIG5_STEPS
 from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
 
-__all__ = ["CliParser", "build_parser"]
+__all__ = ["CliParser", "DefaultsHelpFormatter", "build_parser"]
 
 
 class CliParser(argparse.ArgumentParser):
@@ -21,140 +22,234 @@ class CliParser(argparse.ArgumentParser):
         self.exit(2, f"rangeslam: error: {message}\n")
 
 
+class DefaultsHelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that shows each option's default, except the empty ones (None, False)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The ``rangeslam`` parser: ``demo``, ``bench`` and ``run``, each with ``func`` to call."""
-    parser = CliParser(prog="rangeslam", description="Rooms, arrays and trajectories from ranges.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=CliParser)
+    """The ``rangeslam`` parser: ``demo``, ``bench``, ``simulate`` and ``run``, each with
+    ``func`` to call."""
+    parser = CliParser(
+        prog="rangeslam",
+        description="Rooms, arrays and trajectories from ranges (acoustic echoes, radio beacons). "
+        "Exit codes: 0 converged, 1 not converged (the reason is printed), 2 bad input.",
+    )
+    parser.add_argument("--version", action="version", version=f"rangeslam {_version()}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log what each step does")
+    sub = parser.add_subparsers(
+        dest="command", required=True, parser_class=CliParser, metavar="COMMAND"
+    )
     _add_demo(sub)
     _add_bench(sub)
+    # add_simulate_parser(sub)
     _add_run(sub)
     return parser
+
+
+def _version() -> str:
+    """The installed rangeslam's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("rangeslam")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _add_demo(sub) -> None:
     """``rangeslam demo``: the simulated rooms, and small Fig. 3 and Fig. 5 runs."""
     demo = sub.add_parser(
-        "demo", help="simulate rooms, reconstruct them from echoes, print and plot"
+        "demo",
+        help="simulate rooms, reconstruct them from echoes, small Fig. 3 and Fig. 5; print and plot",
+        description="Problem 1 on two simulated rooms (the paper's shoebox and a room with a cut "
+        "corner and a sloping ceiling), then small Fig. 3 (zero-knowledge calibration) and Fig. 5 "
+        "(range-only SLAM, every method) runs. About a minute on 2 cores. Exit 0 when every room "
+        "converged.",
+        formatter_class=DefaultsHelpFormatter,
     )
     demo.add_argument(
-        "--out", type=arg_types.writable_dir, default="rangeslam-out", help="output directory"
+        "--out", type=arg_types.writable_dir, default="rangeslam-out", help="output folder"
     )
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    demo.add_argument("--seed", type=int, default=0, help="random seed")
     demo.add_argument(
-        "--mics",
-        type=int,
-        default=8,
-        choices=range(4, 65),
-        metavar="M",
-        help="number of microphones, 4..64 (default 8)",
+        "--mics", type=arg_types.int_in(4, 64), default=8, metavar="M", help="microphones, 4 to 64"
     )
     demo.add_argument(
         "--sources",
-        type=int,
+        type=arg_types.int_in(1, 8),
         default=2,
-        choices=range(1, 9),
         metavar="J",
-        help="number of loudspeakers, 1..8 (default 2)",
+        help="loudspeakers, 1 to 8",
     )
     demo.add_argument(
-        "--sigma",
-        type=arg_types.non_negative,
-        default=1e-3,
-        help="range noise std in metres (default 0.001)",
+        "--sigma", type=arg_types.non_negative, default=1e-3, help="range noise std, metres"
     )
     demo.add_argument(
         "--outliers",
         type=arg_types.fraction,
         default=0.05,
-        help="fraction of echo picks made wrong (default 0.05)",
+        help="fraction of echo picks made wrong",
     )
     demo.set_defaults(func=demo_command)
 
 
 def _add_bench(sub) -> None:
-    """``rangeslam bench``: the paper's experiments and the Plaza bench."""
+    """``rangeslam bench fig3|fig5|compare|plaza``: one subcommand per experiment."""
     bench = sub.add_parser(
-        "bench", help="run the paper's experiments: fig3, fig5, or every SLAM method (compare)"
+        "bench",
+        help="the paper's experiments (fig3, fig5), every SLAM method side by side (compare), "
+        "the CMU Plaza radio data (plaza)",
+        description="Benchmarks: each writes CSV per trial, a JSON and Markdown summary and a "
+        "plot to --out as it goes, and shows progress. Run 'rangeslam bench EXPERIMENT -h' for "
+        "an experiment's options.",
     )
-    bench.add_argument(
-        "which",
-        choices=("fig3", "fig5", "compare", "plaza"),
-        help="what to run (plaza: range-only SLAM on the CMU Plaza radio data)",
+    experiments = bench.add_subparsers(
+        dest="which", required=True, parser_class=CliParser, metavar="EXPERIMENT"
     )
-    bench.add_argument(
-        "--trials",
-        type=arg_types.positive_int,
-        default=50,
-        help="trials per cell (50); plaza: random starts of the methods that have them",
+    common = _bench_common()
+    fig3 = experiments.add_parser(
+        "fig3",
+        parents=[common],
+        help="zero-knowledge array calibration against the CRLB (paper's Fig. 3)",
+        description="Fig. 3: 8 microphones and 7 sources, ranges between them with noise, the "
+        "array calibrated with no known position (Problem 2); error against the CRLB per noise "
+        "level.",
+        formatter_class=DefaultsHelpFormatter,
     )
-    bench.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    bench.add_argument(
-        "--jobs",
-        type=arg_types.positive_int,
-        default=1,
-        help="trials in parallel processes (default 1)",
+    fig3.add_argument(
+        "--sigmas",
+        type=arg_types.non_negative,
+        nargs="+",
+        default=list(FIG3_SIGMAS),
+        metavar="SIGMA",
+        help="range noise levels, metres",
     )
-    bench.add_argument(
+    for name, text in (
+        (
+            "fig5",
+            "range-only SLAM on the lemniscate (paper's Fig. 5): EDM only, EDM + GTSAM, GTSAM",
+        ),
+        (
+            "compare",
+            "every SLAM method on the same trials: fig5's and the EKF with its RTS smoother",
+        ),
+    ):
+        slam = experiments.add_parser(
+            name,
+            parents=[common],
+            help=text,
+            description=text + ".",
+            formatter_class=DefaultsHelpFormatter,
+        )
+        _add_slam_bench_options(slam)
+    plaza = experiments.add_parser(
+        "plaza",
+        help="range-only SLAM on the CMU Plaza radio data shipped with GTSAM",
+        description="Every method on a CMU Plaza data set (Djugash et al., JFR 2009; shipped with "
+        "GTSAM): errors against the ground truth, cost against trajectory length. Plaza2 is the "
+        "held-out set. A few minutes with the defaults.",
+        formatter_class=DefaultsHelpFormatter,
+    )
+    _add_plaza_options(plaza)
+
+
+def _bench_common() -> argparse.ArgumentParser:
+    """Options every simulated benchmark takes: trials, seed, parallelism, output."""
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--trials", type=arg_types.positive_int, default=50, help="trials per cell")
+    common.add_argument("--seed", type=int, default=0, help="random seed")
+    common.add_argument(
+        "--jobs", type=arg_types.positive_int, default=1, help="trials in parallel processes"
+    )
+    common.add_argument(
         "--scheduler",
         metavar="ADDRESS",
         help="submit the trials to this Dask distributed scheduler (needs rangeslam[dask])",
     )
-    bench.add_argument(
-        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output directory"
+    common.add_argument(
+        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
     )
-    bench.add_argument(
-        "--sigmas", type=arg_types.non_negative, nargs="+", help="range noise levels in metres"
+    common.add_argument(
+        "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
     )
-    bench.add_argument(
-        "--steps", type=arg_types.positive_int, nargs="+", help="numbers of steps M (fig5, compare)"
+    common.set_defaults(func=bench_command)
+    return common
+
+
+def _add_slam_bench_options(slam: argparse.ArgumentParser) -> None:
+    """The options of ``bench fig5`` and ``bench compare``: noise, steps, bounds."""
+    slam.add_argument(
+        "--sigmas",
+        type=arg_types.non_negative,
+        nargs="+",
+        default=list(FIG5_SIGMAS),
+        metavar="SIGMA",
+        help="range noise levels, metres",
     )
-    bench.add_argument(
+    slam.add_argument(
+        "--steps",
+        type=arg_types.int_in(3, 10_000),
+        nargs="+",
+        default=list(FIG5_STEPS),
+        metavar="M",
+        help="numbers of steps M (at least 3)",
+    )
+    slam.add_argument(
         "--bounds",
         choices=("both", "with", "without"),
         default="both",
-        help="+-20%% step bounds, none, or both (fig5, compare)",
+        help="+-20%% step bounds, none, or both",
     )
-    bench.add_argument(
+    slam.add_argument(
         "--placement",
         choices=("centred", "random"),
         default="centred",
         help="step bounds centred on the true steps (the paper) or the true step uniform in them",
     )
-    bench.add_argument(
-        "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
-    )
-    _add_plaza_options(bench)
-    bench.set_defaults(func=bench_command)
 
 
-def _add_plaza_options(bench: argparse.ArgumentParser) -> None:
-    """The options of ``rangeslam bench plaza``: data set, methods, lengths."""
+def _add_plaza_options(plaza: argparse.ArgumentParser) -> None:
+    """The options of ``rangeslam bench plaza``: data set, methods, lengths, starts."""
     from rangeslam.app.plaza_bench import DEFAULT_METHODS, PLAZA_METHODS
 
-    bench.add_argument(
-        "--dataset",
-        choices=("Plaza1", "Plaza2"),
-        default="Plaza1",
-        help="plaza: which CMU Plaza data set (default Plaza1)",
+    plaza.add_argument(
+        "--dataset", choices=("Plaza1", "Plaza2"), default="Plaza1", help="which CMU Plaza data set"
     )
-    bench.add_argument(
+    plaza.add_argument(
         "--methods",
         nargs="+",
         choices=PLAZA_METHODS,
         default=list(DEFAULT_METHODS),
         metavar="METHOD",
-        help="plaza: methods to run (default: all but 'isam2 random beacons'); one of "
-        + ", ".join(repr(m) for m in PLAZA_METHODS),
+        help="methods to run; any of " + ", ".join(repr(m) for m in PLAZA_METHODS),
     )
-    bench.add_argument(
+    plaza.add_argument(
+        "--trials",
+        type=arg_types.positive_int,
+        default=3,
+        help="random starts of each method that has them (the others run once)",
+    )
+    plaza.add_argument(
         "--lengths",
-        type=int,
+        type=arg_types.int_in(0, 10**7),
         nargs="*",
-        default=[250, 500, 1000, 2000, 0],
+        default=[250, 500, 1000, 0],
         metavar="N",
-        help="plaza: also run the EDM pipelines on the first N poses (0: all); none to skip",
+        help="also run the EDM pipelines on the first N poses (0: all); none to skip",
     )
+    plaza.add_argument("--seed", type=int, default=0, help="random seed")
+    plaza.add_argument(
+        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
+    )
+    plaza.add_argument(
+        "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
+    )
+    plaza.set_defaults(func=bench_command)
 
 
 def _add_run(sub) -> None:
@@ -217,6 +312,6 @@ def _add_run(sub) -> None:
         help="use clipped RIRs (default: leave them out, like silent ones, with a warning)",
     )
     run.add_argument(
-        "--out", type=arg_types.writable_dir, default="rangeslam-run", help="output directory"
+        "--out", type=arg_types.writable_dir, default="rangeslam-run", help="output folder"
     )
     run.set_defaults(func=run_command)

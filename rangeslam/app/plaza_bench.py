@@ -12,9 +12,11 @@ from the true start pose (the gauge, as GTSAM's example hard-codes it); the alig
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
+from rangeslam.app.progress import Progress
 from rangeslam.beacons import (
     BeaconSlamResult,
     RangeOdometry,
@@ -30,6 +32,7 @@ __all__ = [
     "evaluate",
     "length_rows",
     "method_rows",
+    "method_runs",
     "run_method",
 ]
 
@@ -141,27 +144,59 @@ def _row(method: str, trial: int, result: BeaconSlamResult | None, dataset, erro
     return row
 
 
-def method_rows(dataset, *, trials: int, seed: int, methods=DEFAULT_METHODS, keep=None):
+def method_runs(methods, trials: int) -> list[tuple[str, int]]:
+    """The (method, trial) pairs of a bench: ``trials`` of each method with random starts, one of
+    the others."""
+    return [(m, t) for m in methods for t in range(trials if m in RANDOM_METHODS else 1)]
+
+
+def method_rows(
+    dataset,
+    *,
+    trials: int,
+    seed: int,
+    methods=DEFAULT_METHODS,
+    keep=None,
+    progress: Progress | None = None,
+    on_row: Callable[[list[dict]], None] | None = None,
+):
     """One row per method (and per trial for the methods with random starts). ``keep``, a dict,
-    receives the first trial's result of each method (for plots and TUM files)."""
+    receives the first trial's result of each method (for plots and TUM files); ``progress`` is
+    updated after each run; ``on_row`` receives the rows so far after each run (to write them)."""
     rows = []
-    for method in methods:
-        for trial in range(trials if method in RANDOM_METHODS else 1):
-            rng = np.random.default_rng([seed, PLAZA_METHODS.index(method), trial])
-            try:
-                res = run_method(method, dataset, rng)
-            except RangeSlamError as exc:
-                rows.append(_row(method, trial, None, dataset, str(exc).splitlines()[0]))
-                continue
+    for method, trial in method_runs(methods, trials):
+        rng = np.random.default_rng([seed, PLAZA_METHODS.index(method), trial])
+        try:
+            res = run_method(method, dataset, rng)
+        except RangeSlamError as exc:
+            rows.append(_row(method, trial, None, dataset, str(exc).splitlines()[0]))
+        else:
             rows.append(_row(method, trial, res, dataset))
             if keep is not None and trial == 0:
                 keep[method] = res
+        _finished(rows, f"{method} #{trial + 1}", progress, on_row)
     return rows
 
 
-def length_rows(dataset, lengths, *, methods=("edm+gtsam", "edm+isam2"), seed: int = 0):
+def _finished(rows: list[dict], stage: str, progress: Progress | None, on_row) -> None:
+    """Tell the progress and the writer that a run finished."""
+    if on_row is not None:
+        on_row(rows)
+    if progress is not None:
+        progress.update(stage=stage)
+
+
+def length_rows(
+    dataset,
+    lengths,
+    *,
+    methods=("edm+gtsam", "edm+isam2"),
+    seed: int = 0,
+    progress: Progress | None = None,
+    on_row: Callable[[list[dict]], None] | None = None,
+):
     """Cost against trajectory length: each EDM pipeline on the first n poses, n in ``lengths``
-    (None or 0: all of them)."""
+    (None or 0: all of them). ``progress`` and ``on_row`` as in :func:`method_rows`."""
     rows = []
     for n in lengths:
         n_poses = len(dataset.pose_time) if not n else min(int(n), len(dataset.pose_time))
@@ -173,8 +208,9 @@ def length_rows(dataset, lengths, *, methods=("edm+gtsam", "edm+isam2"), seed: i
                 row = _row(method, 0, None, dataset, str(exc).splitlines()[0])
                 row["poses"] = n_poses
                 rows.append(row)
-                continue
-            rows.append(_row(method, 0, res, dataset))
+            else:
+                rows.append(_row(method, 0, res, dataset))
+            _finished(rows, f"{method}, {n_poses} poses", progress, on_row)
     return rows
 
 

@@ -1,0 +1,127 @@
+"""Progress of a long run, on a terminal and off it.
+
+On a terminal, a tqdm bar on standard error. Off a terminal (a pipe, a CI log, a file), one line
+per finished unit of work on standard error, with the count, the elapsed time and an estimate of
+what remains::
+
+    rangeslam: fig3: 12/40 trials (sigma=0.001 done), 31 s elapsed, about 1 min 12 s left
+
+Lines are at least ``min_interval`` seconds apart except for the ones that close a named stage
+(a benchmark cell, a method), so a log of a long run stays readable. Results go to standard
+output; progress never does.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+__all__ = ["Progress", "format_seconds"]
+
+
+def format_seconds(seconds: float) -> str:
+    """``seconds`` as '8.2 s', '3 min 05 s' or '1 h 02 min'."""
+    if not seconds < float("inf"):
+        return "unknown"
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(round(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {secs:02d} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes:02d} min"
+
+
+class Progress:
+    """Counts finished units of a run of ``total`` and shows it (a context manager).
+
+    Args:
+        total: number of units (trials, methods, RIRs), >= 0.
+        label: what runs, as the line's prefix ('fig3', 'Plaza1 methods').
+        unit: the units' name, plural ('trials').
+        stream: where to write; default standard error.
+        tty: draw a tqdm bar (True) or print lines (False); default: whether ``stream`` is a
+            terminal.
+        min_interval: least seconds between two lines off a terminal, except lines that close
+            a stage; 0 prints every unit.
+        enabled: False shows nothing (a quiet run, tests).
+    """
+
+    def __init__(
+        self,
+        total: int,
+        label: str,
+        *,
+        unit: str = "trials",
+        stream: TextIO | None = None,
+        tty: bool | None = None,
+        min_interval: float = 2.0,
+        enabled: bool = True,
+    ) -> None:
+        self.total = int(total)
+        self.label = label
+        self.unit = unit
+        self.stream = sys.stderr if stream is None else stream
+        if tty is None:
+            isatty = getattr(self.stream, "isatty", None)
+            tty = bool(isatty and isatty())
+        self.min_interval = float(min_interval)
+        self.enabled = enabled
+        self.done = 0
+        self.started = time.perf_counter()
+        self.last_line = -float("inf")
+        self.bar = None
+        if enabled and tty:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, desc=label, unit=unit[:-1] or unit, file=self.stream)
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    @property
+    def elapsed(self) -> float:
+        """Seconds since the run started."""
+        return time.perf_counter() - self.started
+
+    def remaining(self) -> float:
+        """Estimated seconds left: the mean time per finished unit times the units left."""
+        if self.done == 0:
+            return float("inf")
+        return self.elapsed / self.done * max(self.total - self.done, 0)
+
+    def update(self, n: int = 1, *, stage: str | None = None) -> None:
+        """``n`` more units finished; ``stage`` names what they closed (a cell, a method)."""
+        self.done += n
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            if stage:
+                self.bar.set_postfix_str(stage, refresh=False)
+            self.bar.update(n)
+            return
+        now = time.perf_counter()
+        last = self.done >= self.total
+        if stage is None and not last and now - self.last_line < self.min_interval:
+            return
+        self.last_line = now
+        print(self.line(stage), file=self.stream, flush=True)
+
+    def line(self, stage: str | None = None) -> str:
+        """The line shown off a terminal."""
+        what = f" ({stage} done)" if stage else ""
+        left = "" if self.done >= self.total else f", about {format_seconds(self.remaining())} left"
+        return (
+            f"rangeslam: {self.label}: {self.done}/{self.total} {self.unit}{what}, "
+            f"{format_seconds(self.elapsed)} elapsed{left}"
+        )
+
+    def close(self) -> None:
+        """Close the bar (the lines need no closing)."""
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
