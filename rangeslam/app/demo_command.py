@@ -98,8 +98,8 @@ def _demo_rooms(args: argparse.Namespace) -> list[DemoRoom]:
             true_sources=exp.sources,
             estimated_sources=res.sources,
             image_sources=res.image_sources,
-            title=f"{name}: reconstruction from echoes ({args.mics} mics)"
-            + ("" if res.converged else f", not converged ({res.status.name.lower()})"),
+            title=f"{name}: reconstruction from echoes ({args.mics} mics)",
+            converged=res.converged,
         )
     return summaries
 

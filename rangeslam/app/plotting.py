@@ -12,6 +12,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from rangeslam.app.plaza_plot import plot_plaza
+from rangeslam.app.plot_style import (
+    MARKERS,
+    clip_to_box,
+    legend_below,
+    plain_log_axis,
+    plot_bound,
+    save_figure,
+    verdict_title,
+)
 from rangeslam.geometry.room import Room
 
 __all__ = [
@@ -25,7 +35,29 @@ __all__ = [
     "plot_walk_estimate",
 ]
 
-_VIEWS = (("top view", (0, 1), ("x [m]", "y [m]")), ("side view", (0, 2), ("x [m]", "z [m]")))
+_TOP = ("top view", (0, 1), ("x [m]", "y [m]"))
+_SIDES = (("side view", (0, 2), ("x [m]", "z [m]")), ("side view", (1, 2), ("y [m]", "z [m]")))
+_VIEWS = (_TOP, _SIDES[0])
+
+
+def room_views(rooms: list[Room | None], *, normals: np.ndarray | None = None) -> tuple:
+    """The views of a 3-D figure: the top view and the side view in which the most tilted wall
+    (normal farthest from the coordinate axes, e.g. a sloping ceiling) is seen edge-on: x-z when
+    that normal leans along x, y-z when it leans along y. The walls are those of ``rooms`` and
+    the extra unit ``normals`` (W, 3). 2-D rooms: the top view alone."""
+    rooms = [r for r in rooms if r is not None]
+    if rooms and rooms[0].dim == 2:
+        return (_TOP,)
+    sets = [r.normals for r in rooms] + ([normals] if normals is not None else [])
+    normals = np.vstack(sets) if sets else np.zeros((0, 3))
+    normals = normals[np.all(np.isfinite(normals), axis=1)]
+    if not len(normals):
+        return _VIEWS
+    tilt = np.minimum(np.abs(normals[:, 2]), np.linalg.norm(normals[:, :2], axis=1))
+    if tilt.max() < 0.05:
+        return _VIEWS
+    n = normals[int(np.argmax(tilt))]
+    return (_TOP, _SIDES[0] if abs(n[0]) >= abs(n[1]) else _SIDES[1])
 
 
 def _outline(ax, room: Room, axes: tuple[int, int], **style) -> None:
@@ -34,6 +66,25 @@ def _outline(ax, room: Room, axes: tuple[int, int], **style) -> None:
     hull = ConvexHull(pts)
     loop = np.append(hull.vertices, hull.vertices[0])
     ax.plot(pts[loop, 0], pts[loop, 1], **style)
+
+
+def room_window(core: list, extra: list) -> tuple[np.ndarray, np.ndarray]:
+    """Axis limits (lo, hi), each (d,), set by the room: the box around the ``core`` points (the
+    rooms' corners, microphones, loudspeaker; arrays (N, d) or None), grown to take in the
+    ``extra`` points (image sources) lying within one room extent of it, plus a 10% margin.
+    Points farther out are not in the window (draw them clipped at its edge)."""
+    pts = np.vstack([np.reshape(p, (-1, np.shape(p)[-1])) for p in core if p is not None])
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    size = float(np.max(hi - lo))
+    near = [np.reshape(p, (-1, len(lo))) for p in extra if p is not None and np.size(p)]
+    if near:
+        e = np.vstack(near)
+        e = e[np.all(np.isfinite(e) & (e >= lo - size) & (e <= hi + size), axis=1)]
+        if len(e):
+            lo, hi = np.minimum(lo, e.min(axis=0)), np.maximum(hi, e.max(axis=0))
+    pad = 0.1 * float(np.max(hi - lo)) + 0.1
+    return lo - pad, hi + pad
 
 
 def plot_room_reconstruction(
@@ -46,135 +97,213 @@ def plot_room_reconstruction(
     estimated_sources: np.ndarray,
     image_sources: np.ndarray | None = None,
     title: str = "",
+    converged: bool | None = None,
 ) -> Path:
     """Write a figure of the true and reconstructed rooms (outlines), microphones and sources.
 
-    3-D rooms are shown in a top and a side projection, 2-D rooms once. Returns the path written.
+    3-D rooms are shown in a top view and the side view that shows the most tilted wall edge-on
+    (:func:`room_views`), 2-D rooms once. The limits are set by the true room (plus the image
+    sources near it); estimates beyond are drawn at the edge and counted in a note. ``converged``
+    False puts 'not converged' in the title. Returns the path written.
     """
     d = true_room.dim
-    views = _VIEWS if d == 3 else _VIEWS[:1]
-    fig, axs = plt.subplots(1, len(views), figsize=(6.0 * len(views), 5.0), squeeze=False)
+    views = room_views([true_room, estimated_room])
+    lo, hi = room_window([true_room.vertices, mics, true_sources], [image_sources])
+    fig, axs = plt.subplots(1, len(views), figsize=(6.0 * len(views), 5.6), squeeze=False)
     for ax, (name, axes, labels) in zip(axs[0], views, strict=True):
         _outline(ax, true_room, axes, color="0.3", lw=2.0, label="true room")
         if estimated_room is not None:
             _outline(
                 ax, estimated_room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed"
             )
-        _scatter_room_points(ax, axes, mics, image_sources, true_sources, estimated_sources)
-        ax.set_xlabel(labels[0])
-        ax.set_ylabel(labels[1])
-        ax.set_title(name)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(alpha=0.3)
-    axs[0][0].legend(loc="best", fontsize=7)
-    if title:
-        fig.suptitle(title)
-    return _save(fig, path)
+        pts = (mics, image_sources, true_sources, estimated_sources)
+        _scatter_room_points(ax, axes, *pts, box=(lo, hi))
+        _view_axes(ax, axes, labels, name, (lo, hi))
+    if estimated_room is None:
+        title = f"{title}: no room reconstructed" if title else "no room reconstructed"
+    fig.suptitle(verdict_title(title, converged))
+    _note_far(fig, (lo, hi), image_sources, estimated_sources, d=d)
+    legend_below(fig, axs, ncol=4)
+    return save_figure(fig, path, legend_space=True)
 
 
-def _scatter_room_points(ax, axes, mics, image_sources, true_sources, estimated_sources) -> None:
+def _view_axes(ax, axes, labels, name: str, box) -> None:
+    """Labels, title, limits from ``box`` ((d,) lo, (d,) hi), equal aspect, grid of one view."""
+    lo, hi = box
+    ax.set_xlim(lo[axes[0]], hi[axes[0]])
+    ax.set_ylim(lo[axes[1]], hi[axes[1]])
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(name)
+    ax.set_aspect("equal", adjustable="box")
+    ax.grid(alpha=0.3)
+
+
+def _note_far(fig, box, *point_sets, d: int) -> None:
+    """A note at the figure's bottom-left counting the points of ``point_sets`` (arrays (N, d)
+    or None) outside ``box`` and the farthest one's distance from the box's centre."""
+    lo, hi = box
+    pts = [np.reshape(p, (-1, d)) for p in point_sets if p is not None and np.size(p)]
+    if not pts:
+        return
+    pts = np.vstack(pts)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    _, outside = clip_to_box(pts, lo, hi)
+    if outside.any():
+        far = float(np.max(np.linalg.norm(pts[outside] - (lo + hi) / 2, axis=1)))
+        fig.text(
+            0.01,
+            0.99,
+            f"{int(outside.sum())} estimated point(s) beyond the plot, drawn at its edge "
+            f"(farthest {far:.1f} m from the room's centre)",
+            fontsize=8,
+            va="top",
+            color="tab:red",
+        )
+
+
+def _scatter_room_points(
+    ax, axes, mics, image_sources, true_sources, estimated_sources, *, box=None
+) -> None:
     """Microphones, image sources and the loudspeaker (true and estimated) in one view; any of
-    the last three may be None. Points as rows, one point as (d,)."""
+    the last three may be None. Points as rows, one point as (d,). With ``box`` (lo, hi), the
+    estimated points outside it are drawn on its edge as hollow triangles."""
     d = mics.shape[1]
     if image_sources is not None and len(image_sources):
         ims = image_sources.reshape(-1, d)
-        ax.scatter(
-            ims[:, axes[0]],
-            ims[:, axes[1]],
-            marker="*",
-            s=40,
-            c="tab:orange",
-            label="image sources (est.)",
+        ims = ims[np.all(np.isfinite(ims), axis=1)]
+        _scatter_clipped(
+            ax, ims, axes, box, marker="*", s=40, c="tab:orange", label="image sources (est.)"
         )
     ax.scatter(
         mics[:, axes[0]], mics[:, axes[1]], marker="o", s=18, c="tab:blue", label="microphones"
     )
-    for pts, label, style in (
-        (
-            true_sources,
-            "loudspeaker (true)",
-            {"marker": "s", "s": 60, "facecolors": "none", "edgecolors": "k"},
-        ),
-        (estimated_sources, "loudspeaker (est.)", {"marker": "x", "s": 50, "c": "tab:red"}),
-    ):
-        if pts is not None:
-            pts = np.reshape(pts, (-1, d))
-            ax.scatter(pts[:, axes[0]], pts[:, axes[1]], label=label, **style)
+    if true_sources is not None:
+        pts = np.reshape(true_sources, (-1, d))
+        style = {"marker": "s", "s": 60, "facecolors": "none", "edgecolors": "k"}
+        ax.scatter(pts[:, axes[0]], pts[:, axes[1]], label="loudspeaker (true)", **style)
+    if estimated_sources is not None:
+        pts = np.reshape(estimated_sources, (-1, d))
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        style = {"marker": "x", "s": 50, "c": "tab:red"}
+        _scatter_clipped(ax, pts, axes, box, label="loudspeaker (est.)", **style)
 
 
-def _save(fig, path: str | Path) -> Path:
-    """Write ``fig`` to ``path`` (120 dpi), close it, return the path."""
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+def _scatter_clipped(ax, pts, axes, box, *, label: str, **style) -> None:
+    """Scatter ``pts`` (N, d) in the view ``axes``; those outside ``box`` go on its edge as
+    hollow triangles labelled 'beyond the plot'."""
+    if box is None:
+        inside, out = pts, pts[:0]
+    else:
+        clipped, far = clip_to_box(pts, *box)
+        inside, out = pts[~far], clipped[far]
+    ax.scatter(inside[:, axes[0]], inside[:, axes[1]], label=label, **style)
+    if len(out):
+        colour = style.get("c", "tab:red")
+        ax.scatter(
+            out[:, axes[0]],
+            out[:, axes[1]],
+            marker="^",
+            s=50,
+            facecolors="none",
+            edgecolors=colour,
+            clip_on=False,
+            label=f"{label}, beyond the plot",
+        )
 
 
 def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
     """The Fig. 3 analogue: microphone error after alignment against the range noise, every trial
-    as a dot, the median as a line, and the median CRLB (``rows`` of a ``bench fig3`` run)."""
+    as a dot, the median as a line, and the median CRLB (``rows`` of a ``bench fig3`` run; keys
+    status, sigma [m], mic_error_m, crlb_m), on log axes labelled at the noise levels used. The
+    bound is drawn where finite and marked at the top edge where infinite."""
     ok = [r for r in rows if r["status"] == "ok" and r["sigma"] > 0]
     sigmas = sorted({r["sigma"] for r in ok})
-    fig, ax = plt.subplots(figsize=(6.0, 4.5))
+    fig, ax = plt.subplots(figsize=(6.4, 5.2))
     if sigmas:
         x = np.array([r["sigma"] for r in ok]) * 1e3
-        jitter = np.exp(np.random.default_rng(0).uniform(-0.08, 0.08, len(x)))
-        ax.scatter(x * jitter, [r["mic_error_m"] * 1e3 for r in ok], s=6, alpha=0.3, c="tab:blue")
+        jitter = np.exp(np.random.default_rng(0).uniform(-0.06, 0.06, len(x)))
+        ax.scatter(
+            x * jitter,
+            [r["mic_error_m"] * 1e3 for r in ok],
+            s=10,
+            marker="o",
+            alpha=0.35,
+            c="tab:blue",
+            label="one trial",
+        )
         med = [np.median([r["mic_error_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
         crlb = [np.median([r["crlb_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
         s_mm = np.array(sigmas) * 1e3
-        ax.plot(s_mm, med, "o-", c="tab:blue", label="median error (calibrate)")
-        ax.plot(s_mm, crlb, "k--", label="median CRLB")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.plot(s_mm, med, "o-", c="tab:blue", ms=7, label="median error (calibrate)")
+        plot_bound(ax, s_mm, crlb, label="median CRLB")
+        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(crlb).any() else 0.0)
+        plain_log_axis(ax, "x", ticks=s_mm)
     ax.set_xlabel("range noise sigma [mm]")
     ax.set_ylabel("microphone RMS error after alignment [mm]")
     ax.set_title("Fig. 3: zero-knowledge array calibration")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    ax.grid(alpha=0.3, which="major")
+    legend_below(fig, [ax], ncol=2)
+    return save_figure(fig, path, legend_space=True)
 
 
 def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Path:
     """The Fig. 5 analogue: trajectory error against the number of steps, with and without step
-    bounds (columns) and per noise level (rows); median per method, inter-quartile band."""
+    bounds (columns) and per noise level (rows); median per method with markers, inter-quartile
+    band, the median CRLB where finite (marked where infinite); one legend below the panels."""
     rows = [r for r in rows if r["status"] == "ok"]
     sigmas = sorted({r["sigma"] for r in rows})
     bounds = sorted({r["bounds"] for r in rows}, reverse=True)
     fig, axs = plt.subplots(
-        len(sigmas), len(bounds), figsize=(5.5 * len(bounds), 4.0 * len(sigmas)), squeeze=False
+        max(len(sigmas), 1),
+        max(len(bounds), 1),
+        figsize=(5.5 * max(len(bounds), 1), 4.0 * max(len(sigmas), 1) + 1.2),
+        squeeze=False,
     )
     for i, sigma in enumerate(sigmas):
         for j, b in enumerate(bounds):
-            ax = axs[i][j]
             cell = [r for r in rows if r["sigma"] == sigma and r["bounds"] == b]
-            steps = sorted({r["m"] for r in cell})
-            for key, name in methods.items():
-                per_m = [
-                    np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m]) * 100
-                    for m in steps
-                ]
-                if not any(np.isfinite(v).any() for v in per_m):
-                    continue
-                q = np.array([np.nanpercentile(v, [25, 50, 75]) for v in per_m])
-                ax.plot(steps, q[:, 1], "o-", label=name)
-                ax.fill_between(steps, q[:, 0], q[:, 2], alpha=0.15)
-            crlb = [np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100 for m in steps]
-            ax.plot(steps, crlb, "k--", label="CRLB (ranges alone)")
-            ax.set_yscale("log")
-            ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
-            ax.set_xlabel("number of steps M")
-            ax.set_ylabel("trajectory RMS error [cm]")
+            _fig5_panel(axs[i][j], cell, methods)
+            ax = axs[i][j]
             ax.set_title(
                 f"sigma = {sigma * 1e3:g} mm, " + ("+-20% step bounds" if b else "no bounds")
             )
-            ax.grid(alpha=0.3, which="both")
-    axs[0][0].legend(fontsize=7)
     fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (median, 25-75%)")
-    return _save(fig, path)
+    legend_below(fig, axs, ncol=4)
+    return save_figure(fig, path, legend_space=True)
+
+
+def _fig5_panel(ax, cell: list[dict], methods: dict[str, str]) -> None:
+    """One Fig. 5 panel: the rows of one (sigma, bounds) cell against M (integer ticks at the
+    numbers of steps used), errors in cm on a log axis with plain labels."""
+    steps = sorted({r["m"] for r in cell})
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (key, name) in enumerate(methods.items()):
+        per_m = [
+            np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m], float) * 100
+            for m in steps
+        ]
+        if not any(np.isfinite(v).any() for v in per_m):
+            continue
+        q = np.array(
+            [
+                np.nanpercentile(v, [25, 50, 75]) if np.isfinite(v).any() else [np.nan] * 3
+                for v in per_m
+            ]
+        )
+        colour = colours[k % len(colours)]
+        ax.plot(steps, q[:, 1], ls="-", marker=MARKERS[k % len(MARKERS)], c=colour, label=name)
+        ax.fill_between(steps, q[:, 0], q[:, 2], alpha=0.12, color=colour, lw=0)
+    if steps:
+        crlb = [np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100 for m in steps]
+        plot_bound(ax, steps, crlb, label="median CRLB (ranges alone)")
+        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(crlb).any() else 0.0)
+        ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(steps))
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%d"))
+        ax.set_xlim(steps[0] - 0.5, steps[-1] + 0.5)
+    ax.set_xlabel("number of steps M")
+    ax.set_ylabel("trajectory RMS error [cm]")
+    ax.grid(alpha=0.3, which="major")
 
 
 def _top_view_axes(ax) -> None:
@@ -183,7 +312,6 @@ def _top_view_axes(ax) -> None:
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
 
 
 def _ellipse(ax, centre, cov2, nsig: float = 2.0, **style) -> None:
@@ -223,60 +351,103 @@ def plot_slam_estimate(
     ):
         style = "o-" if name == "trajectory" else "s"
         ax.plot(true[:, 0], true[:, 1], style, c="k", mfc="none", ms=5, label=f"{name} (true)")
-        ax.plot(est[:, 0], est[:, 1], style.replace("s", "x"), c="tab:red", ms=5, label="estimate")
+        ax.plot(
+            est[:, 0], est[:, 1], style.replace("s", "x"), c="tab:red", ms=5, label=f"{name} (est.)"
+        )
         for p, c in zip(est, cov, strict=True):
             _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
         _top_view_axes(ax)
         ax.set_title(f"{name}, top view, 2-sigma ellipses (GTSAM)")
     if title:
         fig.suptitle(title)
-    return _save(fig, path)
+    legend_below(fig, axs, ncol=4)
+    return save_figure(fig, path, legend_space=True)
 
 
 def plot_rir_matrix(
-    path: str | Path, rirs: np.ndarray, fs: float, title: str = "", *, xlabel: str = "step"
+    path: str | Path,
+    rirs: np.ndarray,
+    fs: float,
+    title: str = "",
+    *,
+    xlabel: str = "step",
+    detections=None,
+    keyframes: np.ndarray | None = None,
+    dynamic_range_db: float = 50.0,
 ) -> Path:
-    """The "RIR matrix" of Fig. 4C: steps (or microphones: ``xlabel``) along x, time along y,
-    magnitude in dB as colour."""
-    mag = 20 * np.log10(np.abs(rirs) / np.max(np.abs(rirs)) + 1e-6)
-    fig, ax = plt.subplots(figsize=(7.0, 5.0))
+    """The "RIR matrix" of Fig. 4C: one RIR per column (``rirs`` (M, L), index 0..M-1 along x,
+    named by ``xlabel``), time in ms along y, |rir| in dB relative to each RIR's own peak and
+    clipped at -``dynamic_range_db`` as colour, one cell per sample (no interpolation).
+
+    ``detections``: M echo detections (with ``found`` and ``times`` in seconds, e.g.
+    :class:`rangeslam.acoustics.echoes.EchoDetection`) drawn over their columns. ``keyframes``:
+    indices of the RIRs that are steps, marked at the top when there are more RIRs than steps
+    (then the x axis is 'RIR (frame)'). Returns the path written.
+    """
+    rirs = np.asarray(rirs, dtype=float)
+    m, length = rirs.shape
+    peak = np.max(np.abs(rirs), axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mag = 20 * np.log10(np.abs(rirs) / np.where(peak > 0, peak, 1.0))
+    mag = np.clip(np.nan_to_num(mag, nan=-np.inf), -dynamic_range_db, 0.0)
+    fig, ax = plt.subplots(figsize=(8.0, 6.0))
+    t_end = length / fs * 1e3
     im = ax.imshow(
         mag.T,
         aspect="auto",
         origin="lower",
-        extent=(0.5, len(rirs) + 0.5, 0, rirs.shape[1] / fs * 1e3),
-        vmin=-60,
+        interpolation="nearest",
+        extent=(-0.5, m - 0.5, 0, t_end),
+        vmin=-dynamic_range_db,
         vmax=0,
         cmap="magma",
     )
-    fig.colorbar(im, ax=ax, label="magnitude [dB]")
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("time [ms]")
-    ax.set_title(title or "RIR at each step of the walk (Fig. 4C)")
-    return _save(fig, path)
-
-
-def plot_plaza(path: str | Path, dataset, results: dict, evaluations: dict) -> Path:
-    """Trajectories and beacons of each method on a Plaza data set, rigidly aligned onto the
-    ground truth (as evaluated), with the ground truth and the surveyed beacons."""
-    fig, ax = plt.subplots(figsize=(8, 8))
-    truth = dataset.truth_at(dataset.pose_time)
-    ax.plot(truth[:, 0], truth[:, 1], color="0.6", lw=2.5, label="ground truth", zorder=1)
-    ax.scatter(*dataset.beacons.T, marker="*", s=250, color="k", label="surveyed beacons", zorder=4)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, (name, ev) in enumerate(evaluations.items()):
-        colour = colours[k % len(colours)]
+    fig.colorbar(im, ax=ax, label="|RIR| relative to its peak [dB]")
+    if detections is not None:
+        _overlay_detections(ax, detections, t_end)
+    frames = keyframes is not None and len(keyframes) < m
+    if frames:
         ax.plot(
-            *ev.aligned.T, lw=0.8, color=colour, label=f"{name} ({np.nanmean(ev.errors):.2f} m)"
+            np.asarray(keyframes),
+            np.full(len(keyframes), 1.0),
+            ls="none",
+            marker="v",
+            ms=7,
+            color="tab:cyan",
+            transform=ax.get_xaxis_transform(),
+            clip_on=False,
+            label="keyframe (SLAM step)",
         )
-        ok = np.all(np.isfinite(ev.aligned_beacons), axis=1)
-        ax.scatter(*ev.aligned_beacons[ok].T, marker="x", s=80, color=colour, zorder=5)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(f"{dataset.name}: trajectories and beacons after rigid alignment (mean APE)")
-    ax.legend(fontsize=8, loc="best")
-    return _save(fig, path)
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+    ax.set_xlabel("RIR (frame)" if frames else f"{xlabel} (RIR index)")
+    ax.set_ylabel("time [ms]")
+    ax.set_title(title or "RIR at each step of the walk (Fig. 4C)", pad=12)
+    legend_below(fig, [ax], ncol=2)
+    return save_figure(fig, path, legend_space=True)
+
+
+def _overlay_detections(ax, detections, t_end: float) -> None:
+    """Detected echo times (ms) as hollow circles over their RIR's column, those within the
+    plotted time span (0..``t_end`` ms)."""
+    xs, ts = [], []
+    for i, det in enumerate(detections):
+        if det is not None and det.found:
+            t = np.asarray(det.times, dtype=float) * 1e3
+            t = t[(t >= 0) & (t <= t_end)]
+            xs.append(np.full(len(t), i))
+            ts.append(t)
+    if xs:
+        ax.plot(
+            np.concatenate(xs),
+            np.concatenate(ts),
+            ls="none",
+            marker="o",
+            ms=5,
+            mfc="none",
+            mec="tab:cyan",
+            mew=1.0,
+            label="detected echoes",
+        )
 
 
 def _wall_trace(ax, normal, offset, axes, at, extent, **style) -> bool:
@@ -309,62 +480,51 @@ def plot_room_estimate(
     true_room: Room | None = None,
     true_source: np.ndarray | None = None,
     title: str = "",
+    converged: bool | None = None,
 ) -> Path:
     """A room estimated from RIRs (``rangeslam run``), top and side views, with or without truth.
 
     The estimated room's outline when the walls bound one (``room``); otherwise each wall as the
     line where it cuts the view plane through the loudspeaker (walls nearly parallel to the view
     are left out of it). Microphones, loudspeaker, image sources; the true room and loudspeaker
-    when given. Returns the path written.
+    when given. The limits are set by the rooms, microphones and loudspeaker (plus the image
+    sources within one room extent); farther estimates are drawn at the edge and counted in a
+    note. ``converged`` False puts 'not converged' in the title. Returns the path written.
     """
-    centre = source if source is not None else mics.mean(axis=0)
-    pts = [mics, centre[None]]
-    if image_sources is not None and len(image_sources):
-        pts.append(image_sources.reshape(-1, 3))
-    if true_room is not None:
-        pts.append(true_room.vertices)
-    if room is not None:
-        pts.append(room.vertices)
+    centre = source if source is not None and np.all(np.isfinite(source)) else mics.mean(axis=0)
+    core = [mics, centre[None], true_source]
+    core += [r.vertices for r in (true_room, room) if r is not None]
+    feet = None
     if wall_normals is not None and wall_offsets is not None:  # foot of the loudspeaker on each
-        foot = centre + (wall_offsets - wall_normals @ centre)[:, None] * wall_normals
-        pts.append(foot)
-    allpts = np.vstack(pts)
-    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
-    pad = 0.08 * np.max(hi - lo) + 0.1
-    lo, hi = lo - pad, hi + pad
-    fig, axs = plt.subplots(1, 2, figsize=(12.0, 5.6), squeeze=False)
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, (name, axes, labels) in zip(axs[0], _VIEWS, strict=True):
+        feet = centre + (wall_offsets - wall_normals @ centre)[:, None] * wall_normals
+    lo, hi = room_window(core, [image_sources, feet])
+    views = room_views([true_room, room], normals=wall_normals)
+    fig, axs = plt.subplots(1, len(views), figsize=(6.0 * len(views), 5.8), squeeze=False)
+    for ax, (name, axes, labels) in zip(axs[0], views, strict=True):
         if true_room is not None:
             _outline(ax, true_room, axes, color="0.3", lw=2.0, label="true room")
         if room is not None:
             _outline(ax, room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed")
         elif wall_normals is not None and wall_offsets is not None:
-            for k, (n, o) in enumerate(zip(wall_normals, wall_offsets, strict=True)):
-                _wall_trace(
-                    ax,
-                    n,
-                    o,
-                    axes,
-                    centre,
-                    np.array([lo[list(axes)], hi[list(axes)]]),
-                    color=colours[k % len(colours)],
-                    lw=1.2,
-                    ls="--",
-                    label=f"wall {k}",
-                )
-        _scatter_room_points(ax, axes, mics, image_sources, true_source, source)
-        ax.set_xlim(lo[axes[0]], hi[axes[0]])
-        ax.set_ylim(lo[axes[1]], hi[axes[1]])
-        ax.set_xlabel(labels[0])
-        ax.set_ylabel(labels[1])
-        ax.set_title(name + ("" if room is not None else " (walls cut through the loudspeaker)"))
-        ax.set_aspect("equal", adjustable="box")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=7)
-    if title:
-        fig.suptitle(title)
-    return _save(fig, path)
+            _wall_traces(ax, wall_normals, wall_offsets, axes, centre, (lo, hi))
+        _scatter_room_points(ax, axes, mics, image_sources, true_source, source, box=(lo, hi))
+        _view_axes(ax, axes, labels, name, (lo, hi))
+        if room is None:
+            ax.set_title(name + " (walls cut through the loudspeaker)", fontsize=10)
+    fig.suptitle(verdict_title(title or "room from RIRs", converged))
+    _note_far(fig, (lo, hi), image_sources, source, d=mics.shape[1])
+    legend_below(fig, axs, ncol=4)
+    return save_figure(fig, path, legend_space=True)
+
+
+def _wall_traces(ax, normals, offsets, axes, centre, box) -> None:
+    """Each estimated wall as its trace in the view through ``centre`` (see _wall_trace)."""
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    lo, hi = box
+    extent = np.array([lo[list(axes)], hi[list(axes)]])
+    for k, (n, o) in enumerate(zip(normals, offsets, strict=True)):
+        style = {"color": colours[k % len(colours)], "lw": 1.2, "ls": "--"}
+        _wall_trace(ax, n, o, axes, centre, extent, label=f"wall {k}", **style)
 
 
 def plot_walk_estimate(
@@ -378,44 +538,61 @@ def plot_walk_estimate(
     rotation: np.ndarray | None = None,
     translation: np.ndarray | None = None,
     title: str = "",
+    true_landmarks: np.ndarray | None = None,
+    true_room: Room | None = None,
+    converged: bool | None = None,
 ) -> Path:
     """Top view of a trajectory and its landmarks estimated from RIRs (``rangeslam run``), with
     2-sigma ellipses when covariances are given. With ``true_trajectory`` the estimate is mapped
     onto it by (``rotation``, ``translation``), e.g. from :func:`rangeslam.align`; otherwise it
-    is drawn in its own frame. Returns the path written."""
+    is drawn in its own frame. ``true_landmarks`` (K, d) and ``true_room`` (in the frame of the
+    true trajectory) are drawn when given. The limits are set by the truth when there is one
+    (estimates beyond are drawn at the edge). Returns the path written."""
     d = receivers.shape[1]
     rot = np.eye(d) if rotation is None else rotation
     shift = np.zeros(d) if translation is None else translation
     rec = receivers @ rot.T + shift
     src = sources @ rot.T + shift
     rot_cov = lambda c: None if c is None else np.einsum("ij,njk,lk->nil", rot, c, rot)  # noqa: E731
-    fig, axs = plt.subplots(1, 2, figsize=(12.0, 5.0))
+    truth = [true_trajectory, true_landmarks, None if true_room is None else true_room.vertices]
+    has_truth = any(t is not None for t in truth)
+    core = truth if has_truth else [rec, src]
+    lo, hi = room_window(core, [src] if has_truth else [])
+    fig, axs = plt.subplots(1, 2, figsize=(12.0, 6.0))
     for ax, est, cov, name in (
         (axs[0], rec, rot_cov(receiver_cov), "trajectory"),
         (axs[1], src, rot_cov(source_cov), "landmarks"),
     ):
-        if name == "trajectory" and true_trajectory is not None:
-            ax.plot(
-                true_trajectory[:, 0],
-                true_trajectory[:, 1],
-                "o-",
-                c="k",
-                mfc="none",
-                ms=5,
-                label="trajectory (true)",
-            )
-        if name == "landmarks":  # the walk, for scale
-            ax.plot(rec[:, 0], rec[:, 1], "-", c="0.6", lw=1.0, label="trajectory (est.)")
-        style = "x-" if name == "trajectory" else "x"
-        ax.plot(est[:, 0], est[:, 1], style, c="tab:red", ms=6, label=f"{name} (est.)")
-        if name == "trajectory" and len(est):
-            ax.plot(est[0, 0], est[0, 1], "o", c="tab:red", ms=8, mfc="none", label="first step")
-        if cov is not None:
-            for p, c in zip(est, cov, strict=True):
-                _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
-        _top_view_axes(ax)
+        if true_room is not None:
+            _outline(ax, true_room, (0, 1), color="0.3", lw=1.5, label="true room")
+        true_pts = true_trajectory if name == "trajectory" else true_landmarks
+        if true_pts is not None:
+            style = "o-" if name == "trajectory" else "s"
+            ax.plot(*true_pts[:, :2].T, style, c="k", mfc="none", ms=6, label=f"{name} (true)")
+        _walk_estimate(ax, est, rec, cov, name, (lo, hi) if has_truth else None)
+        _view_axes(ax, (0, 1), ("x [m]", "y [m]"), name, (lo, hi))
         frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
         ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
-    if title:
-        fig.suptitle(title)
-    return _save(fig, path)
+    fig.suptitle(verdict_title(title or "walk from RIRs", converged))
+    _note_far(fig, (lo, hi), rec, src, d=d)
+    legend_below(fig, axs, ncol=4)
+    return save_figure(fig, path, legend_space=True)
+
+
+def _walk_estimate(ax, est, rec, cov, name: str, box) -> None:
+    """The estimated trajectory (line with markers, first step circled) or landmarks (crosses;
+    with the estimated walk in grey for scale), 2-sigma ellipses, clipped to ``box``."""
+    if name == "landmarks":
+        ax.plot(rec[:, 0], rec[:, 1], ".-", c="0.6", lw=1.0, ms=3, label="_walk for scale")
+    if name == "trajectory":
+        shown = est if box is None else clip_to_box(est, *box)[0]
+        ax.plot(*shown[:, :2].T, "x-", c="tab:red", ms=6, label="trajectory (est.)")
+        if len(est):
+            ax.plot(*shown[0, :2], "o", c="tab:red", ms=9, mfc="none", label="first step")
+    else:
+        _scatter_clipped(
+            ax, est, (0, 1), box, marker="x", s=40, c="tab:red", label=f"{name} (est.)"
+        )
+    if cov is not None:
+        for p, c in zip(est, cov, strict=True):
+            _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)

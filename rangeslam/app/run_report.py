@@ -99,9 +99,10 @@ def array_report(out: Path, res, errs, loaded, lines: list[str], record: dict) -
     lines.append(_wall_table(wall_rows))
     record["walls"] = wall_rows
     if errs.wall_errors is not None:
-        lines += _shoebox_lines(errs.wall_errors)
+        names = getattr(errs, "wall_names", ()) or SHOEBOX_WALLS
+        lines += _shoebox_lines(errs.wall_errors, names)
         record["wall_errors_m"] = dict(
-            zip(SHOEBOX_WALLS, (float(e) for e in errs.wall_errors), strict=True)
+            zip(names, (float(e) for e in errs.wall_errors), strict=True)
         )
     return [write_csv(out / "run_walls.csv", wall_rows)] if wall_rows else []
 
@@ -139,17 +140,27 @@ def _wall_table(wall_rows: list[dict]) -> str:
     )
 
 
-def _shoebox_lines(wall_errors) -> list[str]:
-    """The error of each true shoebox wall (mm), as Markdown lines."""
+def _shoebox_lines(wall_errors, names=SHOEBOX_WALLS) -> list[str]:
+    """The error of each true wall (mm; the shoebox's six, or any room's ``names``), as Markdown
+    lines."""
+    room = "shoebox" if tuple(names) == SHOEBOX_WALLS else "room"
+    found = np.isfinite(wall_errors)
+    worst = (
+        f"; worst {fmt(float(np.max(wall_errors[found])), 1e3, 1)} mm, "
+        f"{int(found.sum())} of {len(found)} found"
+        if found.any()
+        else ""
+    )
     return [
         "",
-        "Against the true shoebox (nearest estimated wall within 25 degrees):",
+        f"Against the true {room} (distance from the centre of each true wall to the estimated "
+        f"plane with the nearest normal, within 25 degrees{worst}):",
         "",
         markdown(
             ["true wall", "error [mm]"],
             [
                 [name, fmt(float(e), 1e3, 1) if np.isfinite(e) else "no wall found"]
-                for name, e in zip(SHOEBOX_WALLS, wall_errors, strict=True)
+                for name, e in zip(names, wall_errors, strict=True)
             ],
         ),
     ]
@@ -174,6 +185,7 @@ def walk_report(out: Path, res, errs, lines: list[str], record: dict) -> list[Pa
                 if errs.trajectory_rmse is not None and np.isfinite(errs.trajectory_rmse)
                 else ""
             ),
+            *_landmark_lines(errs),
             "",
             f"{len(marks)} landmarks (loudspeaker and image sources), SLAM frame:",
             "",
@@ -190,7 +202,26 @@ def walk_report(out: Path, res, errs, lines: list[str], record: dict) -> list[Pa
     else:
         lines.append("no trajectory: the tracking gave SLAM nothing to work on")
     record["trajectory_rmse_m"] = errs.trajectory_rmse
+    land = getattr(errs, "landmark_errors", None)
+    record["landmark_errors_m"] = None if land is None else [float(e) for e in land]
+    record["source_error_m"] = errs.source_error
     return written
+
+
+def _landmark_lines(errs) -> list[str]:
+    """The loudspeaker's and the landmarks' errors against the truth (after the trajectory's
+    alignment, each up to its mirror image in a planar walk's plane), when there is a truth."""
+    land = getattr(errs, "landmark_errors", None)
+    lines = []
+    if errs.source_error is not None:
+        lines.append(f"loudspeaker (landmark 0): error {errs.source_error * 100:.2f} cm")
+    if land is not None and len(land):
+        lines.append(
+            f"landmarks: each to the nearest true image source, RMS {np.sqrt(np.mean(land**2)) * 100:.2f} "
+            f"cm, median {np.median(land) * 100:.2f} cm, worst {np.max(land) * 100:.2f} cm "
+            "(after the trajectory's alignment)"
+        )
+    return ["", *lines] if lines else []
 
 
 def _point_rows(key: str, points: np.ndarray) -> list[dict]:
@@ -203,64 +234,100 @@ def _point_rows(key: str, points: np.ndarray) -> list[dict]:
 
 
 def run_plots(args: argparse.Namespace, loaded, res) -> list[Path]:
-    """The RIR matrix, and the room (array) or the trajectory (walk)."""
-    from rangeslam.app.plotting import plot_rir_matrix, plot_room_estimate, plot_walk_estimate
-    from rangeslam.geometry.alignment import align
-    from rangeslam.geometry.room import Room
+    """The RIR matrix (dB, detected echoes overlaid, keyframes marked), and the room (array) or
+    the trajectory with the true landmarks and room when the file holds them (walk)."""
+    from rangeslam.app.plotting import plot_rir_matrix
 
     out = args.out
     fs = loaded.fs
     latest = max((float(d.times[-1]) for d in res.detections if d.found), default=0.0)
     n = min(loaded.rirs.shape[1], max(int(1.25 * latest * fs) + 1, 64))
+    verdict = "converged" if res.converged else "not converged"
     written = [
         plot_rir_matrix(
             out / "run_rir_matrix.png",
             loaded.rirs[:, :n],
             fs,
-            title=f"{loaded.n_rirs} RIRs ({'microphones' if res.mode == 'array' else 'steps'})",
+            title=f"{loaded.n_rirs} RIRs ({'microphones' if res.mode == 'array' else 'walk'}), "
+            f"detected echoes overlaid: {verdict}",
             xlabel="microphone" if res.mode == "array" else "step",
+            detections=res.detections,
+            keyframes=loaded.keyframes,
         )
     ]
     if res.mode == "array":
-        rec = res.result.reconstruction
-        true_room = Room.shoebox(loaded.room_size) if loaded.room_size is not None else None
-        written.append(
-            plot_room_estimate(
-                out / "run_room.png",
-                wall_normals=res.wall_normals,
-                wall_offsets=res.wall_offsets,
-                mics=res.mics,
-                source=res.source,
-                image_sources=res.image_sources,
-                room=None if rec is None else rec.room,
-                true_room=true_room,
-                true_source=loaded.source,
-                title=f"room from {loaded.n_rirs} RIRs: "
-                + ("converged" if res.converged else "not converged"),
-            )
-        )
+        written.append(_room_plot(out, loaded, res, verdict))
     elif res.trajectory is not None:
-        s = res.result.slam
-        rot = shift = None
-        truth = loaded.trajectory
-        finite = np.all(np.isfinite(res.trajectory))
-        if truth is not None and truth.shape == res.trajectory.shape and finite:
-            a = align(res.trajectory, truth, reflection=True)
-            rot, shift = a.rotation, a.translation
-        else:
-            truth = None
-        written.append(
-            plot_walk_estimate(
-                out / "run_trajectory.png",
-                receivers=res.trajectory,
-                sources=res.landmarks,
-                receiver_cov=getattr(s, "receiver_cov", None),
-                source_cov=getattr(s, "source_cov", None),
-                true_trajectory=truth,
-                rotation=rot,
-                translation=shift,
-                title=f"walk from {loaded.n_rirs} RIRs: "
-                + ("converged" if res.converged else "not converged"),
-            )
-        )
+        written.append(_walk_plot(out, loaded, res, verdict))
     return written
+
+
+def true_room_of(loaded):
+    """The true room a loaded file describes (:class:`~rangeslam.geometry.room.Room`): from its
+    wall normals and offsets, else its shoebox size; None when it has neither (or they do not
+    bound a room)."""
+    from rangeslam.errors import RangeSlamError
+    from rangeslam.geometry.room import Room
+
+    try:
+        if loaded.wall_normals is not None and loaded.wall_offsets is not None:
+            return Room(loaded.wall_normals, loaded.wall_offsets)
+        if loaded.room_size is not None:
+            return Room.shoebox(loaded.room_size)
+    except (RangeSlamError, ValueError):
+        return None
+    return None
+
+
+def _room_plot(out: Path, loaded, res, verdict: str) -> Path:
+    """run_room.png: the estimated room against the true one when the file has it."""
+    from rangeslam.app.plotting import plot_room_estimate
+
+    rec = res.result.reconstruction
+    return plot_room_estimate(
+        out / "run_room.png",
+        wall_normals=res.wall_normals,
+        wall_offsets=res.wall_offsets,
+        mics=res.mics,
+        source=res.source,
+        image_sources=res.image_sources,
+        room=None if rec is None else rec.room,
+        true_room=true_room_of(loaded),
+        true_source=loaded.source,
+        title=f"room from {loaded.n_rirs} RIRs: {verdict}",
+        converged=bool(res.converged),
+    )
+
+
+def _walk_plot(out: Path, loaded, res, verdict: str) -> Path:
+    """run_trajectory.png: the estimated walk, aligned onto the true one when the file has it
+    (at every RIR: taken at the keyframes), with the true landmarks and room."""
+    from rangeslam.app.plotting import plot_walk_estimate
+    from rangeslam.geometry.alignment import align
+
+    s = res.result.slam
+    rot = shift = None
+    truth = loaded.trajectory
+    if truth is not None and loaded.keyframes is not None and len(truth) == loaded.n_rirs:
+        truth = truth[np.asarray(loaded.keyframes)]
+    finite = np.all(np.isfinite(res.trajectory))
+    if truth is not None and truth.shape == res.trajectory.shape and finite:
+        a = align(res.trajectory, truth, reflection=True)
+        rot, shift = a.rotation, a.translation
+        true_marks, room = loaded.landmarks, true_room_of(loaded)
+    else:  # no truth in the estimate's frame: the true landmarks and room cannot be placed
+        truth = true_marks = room = None
+    return plot_walk_estimate(
+        out / "run_trajectory.png",
+        receivers=res.trajectory,
+        sources=res.landmarks,
+        receiver_cov=getattr(s, "receiver_cov", None),
+        source_cov=getattr(s, "source_cov", None),
+        true_trajectory=truth,
+        rotation=rot,
+        translation=shift,
+        title=f"walk from {loaded.n_rirs} RIRs: {verdict}",
+        true_landmarks=true_marks,
+        true_room=room,
+        converged=bool(res.converged),
+    )

@@ -377,7 +377,7 @@ def _event_result(prob: EventProblem, last: EventFit, c) -> UnknownEmissionRoom:
         message += f"room reconstruction: {room.message}; "
     b = float(fit.offset * scale)
     if status is Status.CONVERGED:
-        message = f"converged: offset {b:.4g} m; {room.message}"
+        message = f"offset {b:.4g} m; {room.message}"
     return UnknownEmissionRoom(
         offset=b,
         offset_time=float("nan") if c is None else b / float(c),

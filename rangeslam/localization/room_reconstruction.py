@@ -632,7 +632,7 @@ def _room_result(prob: RoomProblem, fit: JointFit, problems, rms_s: float, hint:
         )
     if status is Status.CONVERGED:
         message += (
-            f"converged: {int(fit.use.sum())} of {int(prob.observed.sum())} ranges used, "
+            f"{int(fit.use.sum())} of {int(prob.observed.sum())} ranges used, "
             f"RMS residual {rms_s * scale:.3g} m"
         )
     return RoomReconstruction(

@@ -1,0 +1,167 @@
+"""Shared pieces of the figures (matplotlib; imported lazily by the CLI): readable log axes,
+bounds drawn only where finite, legends outside the data, limits set by the room with far points
+marked at the edge, saving at a readable size."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import matplotlib.ticker as mticker
+import numpy as np
+
+__all__ = [
+    "DPI",
+    "MARKERS",
+    "clip_to_box",
+    "legend_below",
+    "log_ticks",
+    "plain_log_axis",
+    "plot_bound",
+    "save_figure",
+    "verdict_title",
+]
+
+#: Resolution of every figure written, dots per inch.
+DPI = 130
+#: One marker per curve, in the order curves are drawn.
+MARKERS = ("o", "s", "^", "v", "D", "P", "X", "<", ">", "h")
+
+
+def log_ticks(lo: float, hi: float, *, max_ticks: int = 9) -> np.ndarray:
+    """Tick values 1, 2, 5 x 10^k covering [lo, hi] (both > 0), thinned to 1 x 10^k (then every
+    other decade) when more than ``max_ticks`` would be needed; at least two ticks."""
+    lo, hi = float(min(lo, hi)), float(max(lo, hi))
+    k0, k1 = int(np.floor(np.log10(lo))), int(np.ceil(np.log10(hi)))
+    for mantissas in ((1.0, 2.0, 5.0), (1.0, 3.0), (1.0,)):
+        vals = np.array([m * 10.0**k for k in range(k0, k1 + 1) for m in mantissas])
+        inside = vals[(vals >= lo * 0.999) & (vals <= hi * 1.001)]
+        if len(inside) <= max_ticks:
+            break
+    if len(inside) > max_ticks:
+        inside = inside[:: int(np.ceil(len(inside) / max_ticks))]
+    if len(inside) < 2:  # a narrow range: the neighbouring 1-2-5 values outside it
+        below, above = vals[vals < lo], vals[vals > hi]
+        inside = np.concatenate([below[-1:], inside, above[:1]])
+    return inside
+
+
+def _plain(value: float, _pos=None) -> str:
+    """A tick label as a plain number: '0.5', '2', '10', '200' (no powers of ten)."""
+    return f"{value:.10g}" if 1e-4 <= abs(value) < 1e6 else f"{value:.0e}"
+
+
+def plain_log_axis(
+    ax, which: str, *, ticks: Sequence[float] | None = None, headroom: float = 0.0
+) -> None:
+    """Make ``which`` ('x' or 'y') of ``ax`` a log axis with plain labels at ``ticks`` (the values
+    used, e.g. the noise levels), or at 1-2-5 values covering the current data limits; no minor
+    labels. ``headroom``: fraction of the (log) range added above the data, free for marks at
+    the top edge. Call once, after the data are drawn."""
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    (ax.set_xscale if which == "x" else ax.set_yscale)("log")
+    lim = ax.get_xlim() if which == "x" else ax.get_ylim()
+    if headroom > 0:
+        lim = (lim[0], lim[1] * (lim[1] / lim[0]) ** headroom)
+    if ticks is None:
+        ticks = log_ticks(*lim)
+    ticks = np.asarray(sorted(set(float(t) for t in ticks if t > 0)))
+    axis.set_major_locator(mticker.FixedLocator(ticks))
+    axis.set_major_formatter(mticker.FuncFormatter(_plain))
+    axis.set_minor_formatter(mticker.NullFormatter())
+    if len(ticks):  # keep every tick inside the limits
+        lo, hi = min(lim[0], ticks[0] / 1.15), max(lim[1], ticks[-1] * 1.15)
+        (ax.set_xlim if which == "x" else ax.set_ylim)(lo, hi)
+
+
+def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D") -> None:
+    """Draw a lower bound against ``x`` where it is finite (dashed, with markers, so isolated
+    points show) and mark with a triangle at the top edge, labelled 'bound infinite', each x
+    where it is infinite (not identifiable). NaN (no data) is left out."""
+    x, bound = np.asarray(x, dtype=float), np.asarray(bound, dtype=float)
+    finite = np.isfinite(bound) & (bound > 0)
+    if finite.any():
+        ax.plot(x[finite], bound[finite], ls="--", marker=marker, color=color, ms=5, label=label)
+    inf = np.isinf(bound)
+    if inf.any():
+        edge = ax.get_xaxis_transform()  # x in data, y in axes fraction
+        ax.plot(
+            x[inf],
+            np.full(inf.sum(), 0.97),
+            ls="none",
+            marker="^",
+            color=color,
+            mfc="none",
+            ms=7,
+            transform=edge,
+            clip_on=False,
+            label=f"{label}: infinite",
+        )
+        for xi in x[inf]:
+            ax.annotate(
+                "bound\ninfinite",
+                (xi, 0.93),
+                xycoords=edge,
+                ha="center",
+                va="top",
+                fontsize=6,
+                color=color,
+            )
+
+
+def legend_below(fig, axes, *, ncol: int = 3, fontsize: float = 8) -> None:
+    """One legend for the figure below the axes (outside the data), from the labelled artists
+    of ``axes`` (duplicates by label dropped). Leaves room for it under the plots."""
+    handles, labels = [], []
+    for ax in np.ravel(axes):
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            if lab not in labels and not lab.startswith("_"):
+                handles.append(h)
+                labels.append(lab)
+    if not handles:
+        return
+    rows = int(np.ceil(len(labels) / ncol))
+    fig.legend(
+        handles,
+        labels,
+        loc="lower center",
+        ncol=min(ncol, len(labels)),
+        fontsize=fontsize,
+        frameon=False,
+        bbox_to_anchor=(0.5, 0.0),
+    )
+    height = fig.get_figheight()
+    fig.tight_layout(rect=(0, min(0.45, (0.25 * rows + 0.1) / height), 1, 1))
+
+
+def verdict_title(title: str, converged: bool | None) -> str:
+    """``title`` with the run's verdict: ' (NOT CONVERGED)' appended when ``converged`` is False
+    and the title does not already say 'not converged'."""
+    if converged is False and "not converged" not in title.lower():
+        return f"{title} -- not converged" if title else "not converged"
+    return title
+
+
+def clip_to_box(
+    points: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, d) pulled onto the box [lo, hi] (d,) and a (N,) mask of those that were
+    outside it (to be drawn as 'beyond the plot' at the edge)."""
+    points = np.asarray(points, dtype=float)
+    outside = np.any((points < lo) | (points > hi), axis=1)
+    return np.clip(points, lo, hi), outside
+
+
+def save_figure(fig, path: str | Path, *, legend_space: bool = False) -> Path:
+    """Write ``fig`` to ``path`` at :data:`DPI` after a tight layout (kept when the layout was
+    made for a legend below the axes: ``legend_space``), close it, return the path."""
+    if not legend_space:
+        fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=DPI)
+    plt.close(fig)
+    return out
