@@ -595,7 +595,11 @@ def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise
     msg = why
     if not start.converged:
         msg += f"the EDM start did not converge ({start.message}); "
-        if status is Status.CONVERGED:
+        # The start only initialises the final fit: its solver running out of iterations is
+        # overruled by a final fit that converged and passed the tests; a start that was not
+        # identifiable or inconsistent is not.
+        start_overruled = start.status is Status.SOLVER_FAILED and fit.converged
+        if status is Status.CONVERGED and not start_overruled:
             status = start.status
     if not fit.converged:
         msg += f"GTSAM: {fit.message}; "

@@ -6,7 +6,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["fraction", "int_in", "non_negative", "positive_float", "positive_int", "writable_dir"]
+__all__ = [
+    "fraction",
+    "int_in",
+    "non_negative",
+    "npz_file",
+    "positive_float",
+    "positive_int",
+    "writable_dir",
+]
 
 
 def writable_dir(text: str) -> Path:
@@ -75,3 +83,12 @@ def int_in(low: int, high: int):
 
     parse.__name__ = "integer"
     return parse
+
+
+def npz_file(text: str) -> Path:
+    """An output .npz path whose folder is created if need be and can be written to (--out)."""
+    path = Path(text)
+    if path.suffix.lower() != ".npz":
+        raise argparse.ArgumentTypeError(f"must name an .npz file; got {text}")
+    writable_dir(str(path.parent))
+    return path

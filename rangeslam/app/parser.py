@@ -10,6 +10,7 @@ from rangeslam.app.bench_command import bench as bench_command
 from rangeslam.app.benchmarking import FIG3_SIGMAS, FIG5_SIGMAS, FIG5_STEPS
 from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
+from rangeslam.app.simulate_command import add_simulate_parser
 
 __all__ = ["CliParser", "DefaultsHelpFormatter", "build_parser"]
 
@@ -46,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_demo(sub)
     _add_bench(sub)
-    # add_simulate_parser(sub)
+    add_simulate_parser(sub)
     _add_run(sub)
     return parser
 

@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunInputs", "read_matrix", "run", "run_inputs"]
+from rangeslam.app.progress import format_seconds
+
+__all__ = ["RunInputs", "TruthErrors", "errors_against_truth", "read_matrix", "run", "run_inputs"]
 
 
 @dataclass(frozen=True)
@@ -170,6 +173,21 @@ def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
     )
 
 
+def _announce(loaded, inputs: RunInputs) -> float:
+    """Say on standard error what the run is about to do (a walk takes about a minute); returns
+    the start time (``time.perf_counter``)."""
+    if inputs.mics is not None:
+        what = "detecting echoes, labelling them, reconstructing the room"
+    else:
+        what = "detecting and tracking echoes, then SLAM (EDM start, GTSAM); about a minute"
+    print(
+        f"rangeslam: run: {loaded.n_rirs} RIRs read ({loaded.fs:g} Hz); {what} ...",
+        file=sys.stderr,
+        flush=True,
+    )
+    return time.perf_counter()
+
+
 def _attempt(args: argparse.Namespace) -> RunAttempt:
     """Load the RIRs, read what is known, run the pipeline; bad input and warnings recorded."""
     import warnings
@@ -183,6 +201,7 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
         try:
             loaded = load_rirs(args.rirs[0] if len(args.rirs) == 1 else args.rirs, fs=args.fs)
             inputs = run_inputs(args, loaded)
+            started = _announce(loaded, inputs)
             res = run_rirs(
                 loaded.rirs,
                 loaded.fs,
@@ -193,6 +212,11 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
                 rng=args.seed,
                 clipped="use" if args.use_clipped else "mask",
                 **inputs.options,
+            )
+            print(
+                f"rangeslam: run: finished in {format_seconds(time.perf_counter() - started)}",
+                file=sys.stderr,
+                flush=True,
             )
         except (InvalidInputError, DegenerateGeometryError) as exc:
             error = exc
@@ -205,19 +229,98 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
     return RunAttempt(loaded=loaded, inputs=inputs, result=res, warnings=caught, error=error)
 
 
-def _errors_against_truth(res, loaded):
-    """:func:`evaluate_run` against the file's ground truth; a truth that cannot be compared is
-    a warning (the answer stands) and no errors."""
-    from rangeslam.acoustics.pipeline import RunErrors, evaluate_run
+@dataclass(frozen=True, eq=False)
+class TruthErrors:
+    """Errors of a run against the ground truth its file holds (None where there was none).
+
+    Attributes:
+        source_error: metres, estimated to true loudspeaker (array mode; walk mode: landmark 0,
+            after the trajectory's alignment, up to its mirror image in a planar walk's plane).
+        wall_errors: (W,) metres, centre of each true wall to the estimated plane with the nearest
+            normal (inf: not found); the shoebox's six walls (``room_size``) or any convex room's
+            (``wall_normals`` and ``wall_offsets``).
+        wall_names: (W,) the true walls' names, for the report.
+        trajectory_rmse: metres, RMS error of the trajectory after the best rigid motion with
+            reflection (walk mode).
+        landmark_errors: (K,) metres, each estimated landmark (after the trajectory's alignment)
+            to the nearest true one, up to its mirror image in a planar walk's plane (walk mode,
+            with the file's ``landmarks``).
+    """
+
+    source_error: float | None = None
+    wall_errors: Any = None
+    wall_names: tuple[str, ...] = ()
+    trajectory_rmse: float | None = None
+    landmark_errors: Any = None
+
+
+def _wall_truth(res, loaded) -> tuple[Any, tuple[str, ...]]:
+    """(W,) wall errors and names against the file's shoebox or convex room, or (None, ())."""
+    import numpy as np
+
+    from rangeslam.evaluation.metrics import SHOEBOX_WALLS
+    from rangeslam.evaluation.truth import matched_wall_errors
+    from rangeslam.geometry.room import Room
+
+    if res.mode != "array" or (loaded.room_size is None and loaded.wall_normals is None):
+        return None, ()
+    if loaded.room_size is not None:
+        room, names = Room.shoebox(loaded.room_size), SHOEBOX_WALLS
+    else:
+        room = Room(loaded.wall_normals, loaded.wall_offsets)
+        names = tuple(
+            f"wall {k} ({', '.join(f'{v:+.2f}' for v in n)})" for k, n in enumerate(room.normals)
+        )
+    if res.wall_normals is None or len(res.wall_normals) == 0:
+        return np.full(room.n_walls, np.inf), tuple(names)
+    return matched_wall_errors(res.wall_normals, res.wall_offsets, room), tuple(names)
+
+
+def _landmark_truth(res, loaded) -> tuple[Any, float | None]:
+    """((K,) landmark errors or None, the loudspeaker's error or None) of a walk."""
+    import numpy as np
+
+    from rangeslam.evaluation.truth import landmark_errors, walk_plane
+    from rangeslam.geometry.alignment import align
+
+    truth, marks = loaded.trajectory, res.landmarks
+    if res.mode != "walk" or truth is None or res.trajectory is None or marks is None:
+        return None, None
+    if len(truth) == res.n_rirs and res.keyframes is not None:
+        truth = truth[res.keyframes]
+    if truth.shape != res.trajectory.shape or not np.all(np.isfinite(marks)):
+        return None, None
+    a = align(res.trajectory, truth, reflection=True)
+    plane = walk_plane(truth)
+    errs = src = None
+    if loaded.landmarks is not None and loaded.landmarks.shape[1] == marks.shape[1]:
+        errs = landmark_errors(marks, loaded.landmarks, a, plane=plane)
+    if loaded.source is not None and loaded.source.shape == (marks.shape[1],):
+        src = float(landmark_errors(marks[:1], loaded.source[None], a, plane=plane)[0])
+    return errs, src
+
+
+def errors_against_truth(res, loaded) -> TruthErrors:
+    """The run ``res`` against the ground truth of ``loaded`` (source, room_size or
+    wall_normals/wall_offsets, trajectory, landmarks); a truth that cannot be compared is a
+    warning (the answer stands) and no errors."""
+    from rangeslam.acoustics.pipeline import evaluate_run
     from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
     try:
-        return evaluate_run(
-            res, source=loaded.source, room_size=loaded.room_size, trajectory=loaded.trajectory
-        )
+        base = evaluate_run(res, source=loaded.source, trajectory=loaded.trajectory)
+        walls, names = _wall_truth(res, loaded)
+        marks, walk_source = _landmark_truth(res, loaded)
     except (InvalidInputError, DegenerateGeometryError) as exc:  # the answer stands; the truth not
         print(f"rangeslam: warning: ground truth not compared: {exc}", file=sys.stderr)
-        return RunErrors()
+        return TruthErrors()
+    return TruthErrors(
+        source_error=base.source_error if res.mode == "array" else walk_source,
+        wall_errors=walls,
+        wall_names=names,
+        trajectory_rmse=base.trajectory_rmse,
+        landmark_errors=marks,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -238,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"rangeslam: error: {attempt.error}", file=sys.stderr)
         return 2
     res, loaded = attempt.result, attempt.loaded
-    errs = _errors_against_truth(res, loaded)
+    errs = errors_against_truth(res, loaded)
     lines = report_header(args, attempt)
     record = run_record(args, attempt)
     if res.mode == "array":

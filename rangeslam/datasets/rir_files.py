@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import re
 import warnings
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,7 +137,7 @@ def load_rirs(
             if not paths:
                 npz = sorted(q.name for q in p.glob("*.npz"))
                 hint = f"; it holds {', '.join(npz[:3])}: pass that file" if npz else ""
-                raise InvalidInputError(f"path_or_paths: no .wav files in the directory {p}{hint}")
+                raise InvalidInputError(f"no .wav files in the directory {p}{hint}")
         else:
             paths = [p]
     elif isinstance(path_or_paths, Sequence):
@@ -149,7 +150,8 @@ def load_rirs(
         )
     for q in paths:
         if not q.is_file():
-            raise InvalidInputError(f"path_or_paths: {q} is not a file")
+            what = "is a directory, not a file" if q.is_dir() else "does not exist"
+            raise InvalidInputError(f"RIR file {q} {what}")
     suffixes = {q.suffix.lower() for q in paths}
     if ".npz" in suffixes:
         if len(paths) != 1:
@@ -188,10 +190,15 @@ def _npz_array(raw: dict, keys: tuple[str, ...], p: Path, shape: tuple[int | Non
 
 def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     """The RIRs and whatever else the npz ``p`` holds, each array checked."""
+    if not zipfile.is_zipfile(p):
+        raise DataFormatError(
+            f"{p}: not an npz file (an npz is a zip archive of .npy arrays, as numpy.savez "
+            "writes it)"
+        )
     try:
         with np.load(p, allow_pickle=False) as data:
             raw = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
     if "rirs" not in raw:
         raise DataFormatError(f"{p}: no 'rirs' array (M, L); it holds {sorted(raw)}")

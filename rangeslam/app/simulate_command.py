@@ -1,0 +1,292 @@
+"""``rangeslam simulate room|walk``: write an .npz of simulated RIRs with their ground truth, the
+file ``rangeslam run`` reads, so the path from recordings to a map can be tried in two commands.
+
+The recordings come from :mod:`rangeslam.sim.recordings`; this module reads the flags, writes
+the file, and prints what it wrote and the ``rangeslam run`` command to try next. Exit 0 written,
+2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from rangeslam.app import arg_types
+
+__all__ = ["add_simulate_parser", "simulate_room", "simulate_walk"]
+
+#: ``--room`` choices: the rooms of ``rangeslam demo`` (:func:`rangeslam.app.experiments.demo_rooms`).
+ROOMS = {"shoebox": "shoebox", "cut-corner": "cut corner"}
+
+
+def _at_least(minimum: int, what: str):
+    """An argument type: an integer >= ``minimum`` (``what`` says why, in the user's terms)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be an integer; got {text}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum} ({what}); got {text}")
+        return value
+
+    return parse
+
+
+def _absorption(text: str) -> float:
+    """A float in (0, 1]."""
+    value = arg_types.fraction(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1]; got {text}")
+    return value
+
+
+def _bound(text: str) -> float:
+    """A float in [0, 1)."""
+    value = arg_types.fraction(text)
+    if value >= 1:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1); got {text}")
+    return value
+
+
+def add_simulate_parser(sub) -> None:
+    """Add ``simulate`` with its subcommands ``room`` and ``walk`` to the subparsers ``sub`` of
+    the ``rangeslam`` parser; each sets ``func`` (args -> exit code)."""
+    from rangeslam.app.parser import DefaultsHelpFormatter
+
+    simulate = sub.add_parser(
+        "simulate",
+        help="write an .npz of simulated RIRs with their ground truth, for `rangeslam run`",
+        description="Simulated RIRs (pyroomacoustics, image source method) with the geometry as "
+        "ground truth, in the .npz `rangeslam run` reads; it prints the command to run next.",
+    )
+    kinds = simulate.add_subparsers(
+        dest="what", required=True, parser_class=type(simulate), metavar="KIND"
+    )
+    room = kinds.add_parser(
+        "room",
+        formatter_class=DefaultsHelpFormatter,
+        help="one loudspeaker heard by M fixed microphones (then: run --mics-from-npz)",
+        description="RIRs of one loudspeaker at M microphones placed at random in a room, and the "
+        "truth: microphones, loudspeaker, walls (room_size for a shoebox, wall_normals and "
+        "wall_offsets for any room).",
+    )
+    room.add_argument(
+        "--out", type=arg_types.npz_file, default="rangeslam-room.npz", help="output file"
+    )
+    which = room.add_mutually_exclusive_group()
+    which.add_argument("--room", choices=tuple(ROOMS), default="shoebox", help="the demo's rooms")
+    which.add_argument(
+        "--size",
+        type=arg_types.positive_float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="a shoebox of this size, metres (instead of --room)",
+    )
+    room.add_argument(
+        "--mics", type=_at_least(4, "a room in 3-D"), default=8, metavar="M", help="microphones"
+    )
+    _add_common(room, fs=48000)
+    room.set_defaults(func=simulate_room)
+    walk = kinds.add_parser(
+        "walk",
+        formatter_class=DefaultsHelpFormatter,
+        help="a microphone walking in a room, several RIRs a step (then: run --step-bounds-from-npz)",
+        description="The paper's Fig. 5 walk as RIRs: a microphone on the lemniscate of eq. (12) "
+        "(steps of about 33 cm) in a shoebox, recording a loudspeaker several times a step (echoes "
+        "are followed from RIR to RIR; one RIR a step is too few), the steps' bounds, and the "
+        "truth: trajectory at every RIR, landmarks (the loudspeaker and its image sources), walls.",
+    )
+    walk.add_argument(
+        "--out", type=arg_types.npz_file, default="rangeslam-walk.npz", help="output file"
+    )
+    walk.add_argument(
+        "--size",
+        type=arg_types.positive_float,
+        nargs=3,
+        default=[5.0, 4.0, 2.6],
+        metavar=("X", "Y", "Z"),
+        help="the shoebox, metres (the paper's Fig. 5 room)",
+    )
+    walk.add_argument(
+        "--steps", type=_at_least(3, "SLAM needs 3 steps"), default=15, metavar="M", help="steps"
+    )
+    walk.add_argument(
+        "--rirs-per-step",
+        type=arg_types.positive_int,
+        default=8,
+        metavar="K",
+        help="RIRs recorded each step (the steps are every K-th RIR)",
+    )
+    walk.add_argument(
+        "--bounds", type=_bound, default=0.2, help="step bounds: true step times 1 -+ this"
+    )
+    _add_common(walk, fs=16000)
+    walk.set_defaults(func=simulate_walk)
+
+
+def _add_common(p: argparse.ArgumentParser, *, fs: int) -> None:
+    """The options of both kinds: loudspeaker, seed, sampling rate, room acoustics, noise."""
+    p.add_argument(
+        "--source",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="loudspeaker position, metres (default: at random, 0.5 m from the walls)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--fs", type=arg_types.positive_int, default=fs, help="sampling rate, Hz")
+    p.add_argument("--absorption", type=_absorption, default=0.2, help="energy absorbed by a wall")
+    p.add_argument(
+        "--order", type=arg_types.positive_int, default=3, help="highest reflection order simulated"
+    )
+    p.add_argument(
+        "--noise",
+        type=arg_types.non_negative,
+        default=0.0,
+        help="std of white noise added to every sample, as a fraction of the largest sample",
+    )
+
+
+def _refuse(option: str, message: str) -> int:
+    """Print ``rangeslam: error: option: message`` and return 2 (bad input)."""
+    print(f"rangeslam: error: {option}: {message}", file=sys.stderr)
+    return 2
+
+
+def _source_outside(room, args: argparse.Namespace) -> str | None:
+    """Why ``--source`` is not in ``room``, or None when it is (or was not given)."""
+    import numpy as np
+
+    if args.source is None:
+        return None
+    src = np.asarray(args.source, dtype=float)
+    if room.contains(src[None])[0]:
+        return None
+    lo, hi = room.vertices.min(axis=0), room.vertices.max(axis=0)
+    box = " x ".join(f"[{a:g}, {b:g}]" for a, b in zip(lo, hi, strict=True))
+    return f"{' '.join(f'{v:g}' for v in src)} is outside the room (within {box} m)"
+
+
+def _next_command(path: Path, flag: str) -> str:
+    """The ``rangeslam run`` command line for ``path``."""
+    return f"rangeslam run {shlex.quote(str(path))} {flag}"
+
+
+def simulate_room(args: argparse.Namespace) -> int:
+    """``rangeslam simulate room``: the RIRs of a loudspeaker at M microphones, and the truth."""
+    import numpy as np
+
+    from rangeslam.app.experiments import demo_rooms
+    from rangeslam.errors import InvalidInputError
+    from rangeslam.geometry.room import Room
+    from rangeslam.sim.recordings import room_recording
+
+    room = Room.shoebox(args.size) if args.size else demo_rooms()[ROOMS[args.room]]
+    outside = _source_outside(room, args)
+    if outside is not None:
+        return _refuse("--source", outside)
+    try:
+        rec = room_recording(
+            room,
+            n_mics=args.mics,
+            source=args.source,
+            fs=args.fs,
+            absorption=args.absorption,
+            max_order=args.order,
+            noise=args.noise,
+            rng=args.seed,
+        )
+    except InvalidInputError as exc:
+        return _refuse("--size" if args.size else "--room", str(exc))
+    truth = {"room_size": rec.room_size} if rec.room_size is not None else {}
+    np.savez(
+        args.out,
+        rirs=rec.rirs,
+        fs=rec.fs,
+        c=rec.c,
+        mics=rec.mics,
+        source=rec.source,
+        wall_normals=room.normals,
+        wall_offsets=room.offsets,
+        absorption=args.absorption,
+        max_order=args.order,
+        noise=args.noise,
+        seed=args.seed,
+        **truth,
+    )
+    what = (
+        " x ".join(f"{v:g}" for v in rec.room_size) + " m shoebox" if truth else f"{args.room} room"
+    )
+    m, length = rec.rirs.shape
+    print(
+        f"wrote {args.out}: {m} RIRs ({rec.fs:g} Hz, {length / rec.fs:.3f} s) of a loudspeaker "
+        f"at ({', '.join(f'{v:.2f}' for v in rec.source)}) m, microphones at random in the "
+        f"{what} ({room.n_walls} walls, reflection order {args.order}); ground truth: "
+        "mics, source, " + ("room_size, " if truth else "") + "wall_normals, wall_offsets"
+    )
+    print(f"next: {_next_command(args.out, '--mics-from-npz')}")
+    return 0
+
+
+def simulate_walk(args: argparse.Namespace) -> int:
+    """``rangeslam simulate walk``: RIRs along a walk, its step bounds, and the truth."""
+    import numpy as np
+
+    from rangeslam.errors import InvalidInputError
+    from rangeslam.geometry.room import Room
+    from rangeslam.sim.recordings import walk_recording
+    from rangeslam.sim.trajectories import step_lengths
+
+    outside = _source_outside(Room.shoebox(args.size), args)
+    if outside is not None:
+        return _refuse("--source", outside)
+    try:
+        rec = walk_recording(
+            args.size,
+            n_steps=args.steps,
+            rirs_per_step=args.rirs_per_step,
+            bound=args.bounds,
+            source=args.source,
+            fs=args.fs,
+            absorption=args.absorption,
+            max_order=args.order,
+            noise=args.noise,
+            rng=args.seed,
+        )
+    except InvalidInputError as exc:
+        return _refuse("--size", str(exc))
+    np.savez(
+        args.out,
+        rirs=rec.rirs,
+        fs=rec.fs,
+        c=rec.c,
+        keyframes=rec.keyframes,
+        step_bounds=rec.step_bounds,
+        trajectory=rec.frames,
+        landmarks=rec.landmarks,
+        source=rec.source,
+        room_size=rec.room_size,
+        wall_normals=rec.room.normals,
+        wall_offsets=rec.room.offsets,
+        absorption=args.absorption,
+        max_order=args.order,
+        noise=args.noise,
+        seed=args.seed,
+    )
+    f, length = rec.rirs.shape
+    steps = step_lengths(rec.trajectory)
+    print(
+        f"wrote {args.out}: {f} RIRs ({rec.fs:g} Hz, {length / rec.fs:.3f} s) along a walk of "
+        f"{args.steps} steps ({args.rirs_per_step} RIRs a step, steps {steps.min():.2f}-"
+        f"{steps.max():.2f} m, bounds +-{args.bounds:.0%}) in the "
+        f"{' x '.join(f'{v:g}' for v in rec.room_size)} m shoebox, loudspeaker at "
+        f"({', '.join(f'{v:.2f}' for v in rec.source)}) m; ground truth: trajectory (every RIR), "
+        f"{len(rec.landmarks)} landmarks (loudspeaker and image sources up to order "
+        f"{args.order}), source, room_size, wall_normals, wall_offsets"
+    )
+    print(f"next: {_next_command(args.out, '--step-bounds-from-npz')}")
+    return 0
