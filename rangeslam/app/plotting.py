@@ -554,14 +554,17 @@ def plot_walk_estimate(
     rec = receivers @ rot.T + shift
     src = sources @ rot.T + shift
     rot_cov = lambda c: None if c is None else np.einsum("ij,njk,lk->nil", rot, c, rot)  # noqa: E731
-    truth = [true_trajectory, true_landmarks, None if true_room is None else true_room.vertices]
+    corners = None if true_room is None else true_room.vertices
+    truth = [true_trajectory, true_landmarks, corners]
     has_truth = any(t is not None for t in truth)
-    core = truth if has_truth else [rec, src]
-    lo, hi = room_window(core, [src] if has_truth else [])
+    land_window = room_window(truth if has_truth else [rec, src], [src] if has_truth else [])
+    # the trajectory's panel is set by the room and the walk, not by far image sources
+    walk_core = [true_trajectory, corners] if true_trajectory is not None else [rec, corners]
+    walk_window = room_window(walk_core, [])
     fig, axs = plt.subplots(1, 2, figsize=(12.0, 6.0))
-    for ax, est, cov, name in (
-        (axs[0], rec, rot_cov(receiver_cov), "trajectory"),
-        (axs[1], src, rot_cov(source_cov), "landmarks"),
+    for ax, est, cov, name, (lo, hi) in (
+        (axs[0], rec, rot_cov(receiver_cov), "trajectory", walk_window),
+        (axs[1], src, rot_cov(source_cov), "landmarks", land_window),
     ):
         if true_room is not None:
             _outline(ax, true_room, (0, 1), color="0.3", lw=1.5, label="true room")
@@ -574,7 +577,7 @@ def plot_walk_estimate(
         frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
         ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
     fig.suptitle(verdict_title(title or "walk from RIRs", converged))
-    _note_far(fig, (lo, hi), rec, src, d=d)
+    _note_far(fig, land_window, rec, src, d=d)
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
