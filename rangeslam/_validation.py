@@ -13,10 +13,15 @@ from numpy.typing import ArrayLike
 from rangeslam.errors import InvalidInputError
 
 __all__ = [
+    "as_dim",
+    "as_flag",
     "as_mask",
     "as_points",
     "as_ranges",
+    "as_rng",
+    "as_scalar",
     "check_int",
+    "check_option_keys",
     "check_positive",
     "frozen",
     "shape_str",
@@ -120,7 +125,12 @@ def as_mask(value: ArrayLike | None, name: str, *, shape: tuple[int, ...]) -> np
     """
     if value is None:
         return np.ones(shape, dtype=bool)
-    arr = np.array(value, copy=True)
+    try:
+        arr = np.array(value, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            f"{name} must be a boolean array (True where observed); got {value!r:.80}"
+        ) from exc
     if arr.dtype != bool:
         raise InvalidInputError(
             f"{name} must be a boolean array (True where observed); got dtype {arr.dtype}"
@@ -152,3 +162,130 @@ def check_positive(value, name: str) -> float:
     if not (np.isfinite(value) and value > 0):
         raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
     return float(value)
+
+
+RNG_FORMS = "None, a non-negative integer, a numpy SeedSequence, BitGenerator or Generator (SPEC 7)"
+
+
+def as_rng(rng, name: str = "rng") -> np.random.Generator:
+    """``rng`` in any SPEC 7 form as a Generator, exactly as ``np.random.default_rng`` makes it.
+
+    Accepted: None (fresh entropy), a non-negative Python or numpy integer, a
+    ``np.random.SeedSequence``, a ``np.random.BitGenerator`` or a ``np.random.Generator`` (returned
+    as is, so the caller's stream is advanced). Anything else (strings, floats, bools, negative
+    integers, arrays) raises InvalidInputError naming ``name``.
+    """
+    if isinstance(rng, np.random.Generator):
+        return rng
+    ok = rng is None or isinstance(rng, np.random.SeedSequence | np.random.BitGenerator)
+    if isinstance(rng, int | np.integer) and not isinstance(rng, bool | np.bool_):
+        ok = rng >= 0
+    if not ok:
+        raise InvalidInputError(f"{name} must be {RNG_FORMS}; got {rng!r:.80}")
+    return np.random.default_rng(rng)
+
+
+def real_scalar(value, name: str, what: str):
+    """``value`` (a Python or numpy real number, or a 0-d or one-element real array; not a bool)
+    as a Python float or int, else InvalidInputError naming ``name``."""
+    if isinstance(value, bool | np.bool_ | str | bytes) or value is None:
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+    if isinstance(value, int | np.integer):
+        if abs(int(value)) > 2**1000:  # beyond any float: refused rather than OverflowError later
+            raise InvalidInputError(
+                f"{name} must be {what}; got an integer of {len(str(value))} digits"
+            )
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value)
+    arr = value if isinstance(value, np.ndarray) else None
+    if arr is None or arr.size != 1 or arr.dtype.kind not in "iuf":
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+    item = arr.reshape(()).item()
+    return int(item) if arr.dtype.kind in "iu" else float(item)
+
+
+def as_scalar(
+    value,
+    name: str,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    high_open: bool = False,
+    allow_none: bool = False,
+    integer: bool = False,
+    expected: str | None = None,
+):
+    """A scalar option checked at the door: a float (an int with ``integer``), or None.
+
+    Accepts Python and numpy real scalars and 0-d (or one-element) real arrays; refuses strings,
+    bools, complex numbers, arrays of size > 1, NaN and infinities, non-integers with ``integer``,
+    and values outside [low, high] (``low_open``/``high_open`` exclude the ends), with an
+    InvalidInputError naming ``name``, what was expected (``expected`` words it instead of the
+    generated "a finite real number >= low") and what arrived. None passes only with
+    ``allow_none``.
+    """
+    if value is None and allow_none:
+        return None
+    lo = "" if low is None else (f" > {low}" if low_open else f" >= {low}")
+    hi = "" if high is None else (f" < {high}" if high_open else f" <= {high}")
+    what = ("an integer" if integer else "a finite real number") + lo + ("," if lo and hi else "")
+    what += hi + (" or None" if allow_none else "")
+    what = what if expected is None else expected
+    x = real_scalar(value, name, what)
+    if integer and not isinstance(x, int):
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+    if isinstance(x, float) and not np.isfinite(x):
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+    too_low = low is not None and (x <= low if low_open else x < low)
+    too_high = high is not None and (x >= high if high_open else x > high)
+    if too_low or too_high:
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+    return x if integer else float(x)
+
+
+def as_speed(c, name: str = "c"):
+    """An optional speed of sound in m/s: None, or a finite real number > 0."""
+    if c is None:
+        return None
+    value = real_scalar(c, name, "a positive speed of sound in m/s or None")
+    if not (value > 0 and (isinstance(value, int) or np.isfinite(value))):
+        raise InvalidInputError(f"{name} must be a positive speed of sound in m/s; got {c!r:.80}")
+    return float(value)
+
+
+def as_dim(value, name: str = "dim") -> int:
+    """The spatial dimension, 2 or 3 (an integer, not a bool), else InvalidInputError."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise InvalidInputError(f"{name} must be 2 or 3; got {value!r:.80}")
+    if value not in (2, 3):
+        raise InvalidInputError(f"{name} must be 2 or 3; got {value!r:.80}")
+    return int(value)
+
+
+def as_flag(value, name: str) -> bool:
+    """A switch: a Python or numpy bool (or a 0-d bool array), else InvalidInputError."""
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, np.ndarray) and value.shape == () and value.dtype == bool:
+        return bool(value)
+    raise InvalidInputError(f"{name} must be True or False; got {value!r:.80}")
+
+
+def check_option_keys(options, name: str, accepted) -> dict:
+    """An options dict (None for none) whose keys are all in ``accepted``, as a new dict.
+
+    Raises InvalidInputError naming the dict, the unknown key and the accepted keys.
+    """
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise InvalidInputError(f"{name} must be a dict or None; got {options!r:.80}")
+    accepted = sorted(accepted)
+    for key in options:
+        if key not in accepted:
+            raise InvalidInputError(
+                f"{name} has an unknown key {key!r:.40}; accepted keys: {', '.join(accepted)}"
+            )
+    return dict(options)

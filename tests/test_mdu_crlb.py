@@ -73,3 +73,49 @@ def test_bad_input(rng):
         mdu_crlb(x, np.vstack([s[:-1], x[:1]]), 0.01)
     with pytest.raises(InvalidInputError, match="boolean"):
         mdu_crlb(x, s, 0.01, mask=np.ones((8, 8), dtype=int))
+
+
+def test_ill_conditioned_bound_is_finite(rng):
+    """Nearly coplanar points in 3-D (z spread 1e-4 m): the information is regular but its
+    smallest gauge-free eigenvalue is under 1e-9 of the largest (the old fixed cut called the
+    bound infinite). The bound is finite and equals sigma^2 pinv(J) pinv(J)^T computed directly
+    (rigid motions cut by pinv's rcond), within 1e-6 relative."""
+    x, s = _scene(rng, 3)
+    x[:, 2] = 1e-4 * rng.standard_normal(len(x))
+    s[:, 2] = 1e-4 * rng.standard_normal(len(s))
+    sigma = 1e-6
+    bound = mdu_crlb(x, s, sigma, gauge="all")
+    assert np.isfinite(bound.receiver_rmse) and bound.null_dimension == 6
+    pts = np.vstack([x, s])
+    m, k = len(x), len(s)
+    jac = np.zeros((m * k, (m + k) * 3))
+    for row, (i, j) in enumerate(np.ndindex(m, k)):
+        u = (pts[i] - pts[m + j]) / np.linalg.norm(pts[i] - pts[m + j])
+        jac[row, 3 * i : 3 * i + 3] = u
+        jac[row, 3 * (m + j) : 3 * (m + j) + 3] = -u
+    fisher = jac.T @ jac
+    eig = np.linalg.eigvalsh(fisher)
+    assert eig[6] < 1e-9 * eig[-1]  # the case the fixed cut refused
+    pinv = np.linalg.pinv(jac, rcond=1e-12)
+    cov = sigma**2 * pinv @ pinv.T
+    rmse = np.sqrt(np.trace(cov[: 3 * m, : 3 * m]) / m)
+    np.testing.assert_allclose(bound.receiver_rmse, rmse, rtol=1e-6)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_flexible_configuration_still_singular(rng, dim):
+    """A receiver heard by d - 1 sources can swing about them: one direction beyond the rigid
+    motions is unobservable, and the bound is refused (not a huge finite number)."""
+    x, s = _scene(rng, dim)
+    mask = np.ones((len(x), len(s)), dtype=bool)
+    mask[0, dim - 1 :] = False
+    with pytest.raises(DegenerateGeometryError, match="unobservable directions"):
+        mdu_crlb(x, s, 0.01, mask=mask)
+
+
+@pytest.mark.parametrize("bad", ["x", np.array([0.1, 0.2]), np.nan, True, 1j, None])
+def test_sigma_refused_at_the_door(rng, bad):
+    """A string, an array, NaN, a bool, a complex or None as sigma: InvalidInputError naming it."""
+    x, s = _scene(rng, 3)
+    with pytest.raises(InvalidInputError, match="sigma"):
+        mdu_crlb(x, s, bad)

@@ -154,3 +154,42 @@ def test_gtsam_style_start_ignores_unobserved_ranges(rng):
     assert np.all(np.isfinite(x0)) and np.all(np.isfinite(s0))
     np.testing.assert_allclose(step_lengths(x0), steps)
     assert np.abs(s0).max() <= np.nanmax(r)
+
+
+@pytest.mark.parametrize("step_prior", ["uniform", "dead_zone"])
+def test_known_step_lengths(rng, step_prior):
+    """lower = upper (known step lengths) once raised gtsam's bare RuntimeError (a dead zone of
+    width 0): it now means a known step length. Exact ranges: converged, trajectory within 1e-6 m
+    of the truth after alignment."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    out = slam(
+        range_matrix(traj, landmarks), step_bounds=(steps, steps), step_prior=step_prior, rng=rng
+    )
+    assert out.converged, out.message
+    assert align(out.receivers, traj, reflection=True).rmse < 1e-6
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"rng": "seed"}, "rng must be"),
+        ({"rng": -1}, "rng must be"),
+        ({"noise_std": "0.01"}, "noise_std"),
+        ({"noise_std": np.array([0.1, 0.2])}, "noise_std"),
+        ({"robust": "l1"}, "robust must be"),
+        ({"robust": np.array([1, 2])}, "robust must be"),
+        ({"step_prior": np.array(["a", "b"])}, "step_prior must be"),
+        ({"step_sigma": np.nan}, "step_sigma"),
+        ({"refine": np.array([True, False])}, "refine must be"),
+        ({"dim": np.array([2, 3])}, "dim must be 2 or 3"),
+        ({"fit_weight": "10"}, "fit_weight"),
+        ({"max_iterations": 2.5}, "max_iterations"),
+    ],
+)
+def test_bad_options_refused_at_the_door(rng, kwargs, match):
+    """Strings, arrays, NaN and non-integers as options: InvalidInputError naming the option
+    (before: TypeError or ValueError from numpy, or gtsam)."""
+    traj, landmarks = _scene(rng, 8)
+    with pytest.raises(InvalidInputError, match=match):
+        slam(range_matrix(traj, landmarks), **kwargs)

@@ -86,3 +86,14 @@ def test_parse_accepts_exactly_the_ordered_non_negative_pairs(pairs):
     else:
         with pytest.raises(InvalidInputError):
             StepBounds.parse((lower, upper), len(pairs))
+
+
+def test_widened_keeps_wide_and_opens_known_steps():
+    """widened(w): intervals narrower than w (lower = upper, a known step) become w wide about
+    their midpoint, clipped at 0; wider ones are kept exactly; nothing to widen returns self."""
+    b = StepBounds(lower=np.array([1.0, 0.0, 0.5]), upper=np.array([1.0, 0.0, 2.0]))
+    w = b.widened(1e-3)
+    np.testing.assert_allclose(w.lower, [1.0 - 5e-4, 0.0, 0.5])
+    np.testing.assert_allclose(w.upper, [1.0 + 5e-4, 1e-3, 2.0])
+    wide = StepBounds(lower=np.array([0.5]), upper=np.array([2.0]))
+    assert wide.widened(1e-3) is wide

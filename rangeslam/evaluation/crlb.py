@@ -12,17 +12,26 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_mask, as_point, as_points, shape_str
+from rangeslam._validation import (
+    as_float_array,
+    as_mask,
+    as_point,
+    as_points,
+    real_scalar,
+    shape_str,
+)
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
-from rangeslam.geometry.rigid_motion import receiver_gauge_projection
+from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 
 __all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "wall_crlb"]
 
 
-def _check_sigma(sigma: float) -> None:
+def _check_sigma(sigma: float) -> float:
     """A range noise standard deviation must be positive (at 0 the information is infinite)."""
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise InvalidInputError(f"sigma must be positive and finite; got {sigma}")
+    value = real_scalar(sigma, "sigma", "a positive number of metres")
+    if not (value > 0 and (isinstance(value, int) or np.isfinite(value))):
+        raise InvalidInputError(f"sigma must be positive and finite; got {sigma!r}")
+    return float(value)
 
 
 def multilateration_crlb(
@@ -41,11 +50,8 @@ def multilateration_crlb(
     m, d = a.shape
     x = as_point(point, "point", dim=d)
     observed = as_mask(mask, "mask", shape=(m,))
-    s = (
-        np.broadcast_to(np.asarray(sigma, dtype=float), (m,))
-        if np.ndim(sigma) == 0
-        else np.asarray(sigma, float)
-    )
+    s = as_float_array(sigma, "sigma")
+    s = np.broadcast_to(s, (m,)) if s.ndim == 0 else s
     if s.shape != (m,):
         raise InvalidInputError(
             f"sigma must be a scalar or have shape ({m},); got {shape_str(s.shape)}"
@@ -98,11 +104,13 @@ def wall_crlb(
     d = m.shape[1]
     s = as_points(sources, "sources", dim=d)
     n = as_points(normals, "normals", dim=d)
-    o = np.asarray(offsets, dtype=float)
+    o = as_float_array(offsets, "offsets")
     k_n, j_n = len(n), len(s)
     if o.shape != (k_n,):
         raise InvalidInputError(f"offsets must have shape ({k_n},); got {shape_str(o.shape)}")
-    _check_sigma(sigma)
+    if not np.all(np.isfinite(o)):
+        raise InvalidInputError(f"offsets must be finite; got {o}")
+    sigma = _check_sigma(sigma)
     if points is None:
         p = s[0] + (o - n @ s[0])[:, None] * n
     else:
@@ -137,6 +145,33 @@ def wall_crlb(
         offset_std[k] = np.sqrt(grad @ cw @ grad)
         normal_std[k] = np.sqrt(np.trace(proj @ cw @ proj)) / rho
     return offset_std, normal_std
+
+
+def _gauge_free_covariance(jac: np.ndarray, basis: np.ndarray, sigma: float):
+    """F^+ of F = J^T J / sigma^2 (J (R, n)) whose null space holds the rigid motions ``basis``
+    (n, r), and the null space's dimension.
+
+    The gauge is removed analytically: J is restricted to the orthogonal complement Q of the
+    rigid motions, and the rank of J Q is judged from its own singular values (numpy's
+    ``matrix_rank`` tolerance, max(shape) eps s_max, relative to J's spectrum; singular values,
+    not the eigenvalues of J^T J, so a well-posed but ill-conditioned problem keeps its finite
+    bound). Then F^+ = Q V diag(sigma^2 / s^2) V^T Q^T. Raises DegenerateGeometryError when
+    more than the rigid motions are unobservable.
+    """
+    n_rigid = basis.shape[1]
+    full, _, _ = np.linalg.svd(basis, full_matrices=True)
+    q = full[:, n_rigid:]
+    _, sv, vt = np.linalg.svd(jac @ q, full_matrices=False)
+    tol = (max(jac.shape[0], q.shape[1]) * np.finfo(float).eps * sv[0]) if sv.size else 0.0
+    rank = int(np.sum(sv > tol))
+    null_dim = n_rigid + q.shape[1] - rank
+    if null_dim > n_rigid:
+        raise DegenerateGeometryError(
+            f"{null_dim} unobservable directions, more than the {n_rigid} rigid motions: "
+            "too few ranges (or a degenerate configuration) for unique unfolding"
+        )
+    half = q @ (vt.T / sv) * sigma  # no explicit inverse: F^+ = half half^T
+    return half @ half.T, null_dim
 
 
 @dataclass(frozen=True)
@@ -187,9 +222,9 @@ def mdu_crlb(
     s = as_points(sources, "sources", dim=d)
     m, k = len(x), len(s)
     observed = as_mask(mask, "mask", shape=(m, k))
-    if gauge not in ("receivers", "all"):
+    if not isinstance(gauge, str) or gauge not in ("receivers", "all"):
         raise InvalidInputError(f"gauge must be 'receivers' or 'all'; got {gauge!r}")
-    _check_sigma(sigma)
+    sigma = _check_sigma(sigma)
     pairs = np.argwhere(observed)
     diff = x[pairs[:, 0]] - s[pairs[:, 1]]
     dist = np.linalg.norm(diff, axis=1)
@@ -202,16 +237,7 @@ def mdu_crlb(
     for row, ((i, j), uu) in enumerate(zip(pairs, u, strict=True)):
         jac[row, i * d : (i + 1) * d] = uu
         jac[row, (m + j) * d : (m + j + 1) * d] = -uu
-    fisher = jac.T @ jac / sigma**2
-    eig, vec = np.linalg.eigh(fisher)
-    n_rigid = d * (d + 1) // 2
-    null = eig <= 1e-9 * eig[-1]
-    if null.sum() > n_rigid:
-        raise DegenerateGeometryError(
-            f"{int(null.sum())} unobservable directions, more than the {n_rigid} rigid motions: "
-            "too few ranges (or a degenerate configuration) for unique unfolding"
-        )
-    cov = (vec[:, ~null] / eig[~null]) @ vec[:, ~null].T  # F^+ (eigh, no explicit inverse)
+    cov, null_dim = _gauge_free_covariance(jac, rigid_motion_basis(np.vstack([x, s])), sigma)
     if gauge == "receivers":
         proj = receiver_gauge_projection(x, s)
         cov = proj @ cov @ proj.T
@@ -223,5 +249,5 @@ def mdu_crlb(
         receiver_rmse=float(np.sqrt(np.mean(np.trace(rec, axis1=1, axis2=2)))),
         source_rmse=float(np.sqrt(np.mean(np.trace(src, axis1=1, axis2=2)))),
         gauge=gauge,
-        null_dimension=int(null.sum()),
+        null_dimension=null_dim,
     )

@@ -62,8 +62,12 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from rangeslam._validation import (
+    as_flag,
+    as_float_array,
     as_mask,
     as_points,
+    as_rng,
+    as_speed,
     frozen,
     shape_str,
 )
@@ -75,6 +79,7 @@ from rangeslam.localization.pseudorange import (
     multilaterate_with_offset,
     pseudoranges,
 )
+from rangeslam.localization.robust_start import check_robust_options
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
 
@@ -318,15 +323,14 @@ def _parse_event(mics, ranges, mask, c) -> EventProblem:
             f"emission time; got {shape_str(m_pts.shape)}"
         )
     check_spanning(m_pts, d, "mics", "the image sources are ambiguous")
-    shape = np.shape(ranges)
+    shape = as_float_array(ranges, "ranges").shape
     if len(shape) != 2 or shape[0] != m_n or shape[1] < 2:
         raise InvalidInputError(
             f"ranges must have shape ({m_n}, 1+K) with K >= 1 echo columns; got {shape_str(shape)}"
         )
     observed = as_mask(mask, "mask", shape=shape)
     r = pseudoranges(ranges, "ranges", shape, observed)
-    if c is not None and not (np.isfinite(c) and c > 0):
-        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
+    c = as_speed(c)
     # Centre on the microphones and scale to unit size (b scales with the ranges).
     centre = m_pts.mean(axis=0)
     scale = float(np.sqrt(np.mean(np.sum((m_pts - centre) ** 2, axis=1))))
@@ -422,7 +426,9 @@ def reconstruct_room_unknown_emission(
         :func:`rangeslam.reconstruct_room` on the ranges minus b (the joint ML of b and the room,
         see the module docstring).
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
+    robust = as_flag(robust, "robust")
+    inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_event(mics, ranges, mask, c)
     thr_s = None if inlier_threshold is None else inlier_threshold / prob.scale
     b_s, pts = _offset_start(

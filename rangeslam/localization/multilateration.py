@@ -30,7 +30,16 @@ from numpy.typing import ArrayLike
 from scipy.linalg import eigh
 from scipy.optimize import brentq
 
-from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_str
+from rangeslam._validation import (
+    as_flag,
+    as_float_array,
+    as_mask,
+    as_points,
+    as_ranges,
+    as_rng,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.localization.robust_start import (
     INLIER_K,
@@ -106,7 +115,7 @@ def _resolve_weights(weights: WeightSpec, ranges: np.ndarray, scale: float) -> n
         # The squared-range residual ||x-a||^2 - r^2 ~ 2 r e for range noise e, so 1/r^2 whitens
         # it (Beck et al., sec. II); ranges near zero are floored to keep the weights finite.
         return 1.0 / np.maximum(ranges, 1e-6 * scale) ** 2
-    w = np.array(weights, dtype=float, copy=True)
+    w = as_float_array(weights, "weights")
     if w.shape != (n,):
         raise InvalidInputError(f"weights must have shape ({n},); got {shape_str(w.shape)}")
     if not np.all(np.isfinite(w)) or np.any(w < 0):
@@ -394,7 +403,9 @@ def multilaterate(
     Returns:
         :class:`MultilaterationResult`.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
+    robust = as_flag(robust, "robust")
+    inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_obs = prob.dim, prob.n_observed
     if robust and n_obs > d + 1:

@@ -26,7 +26,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
-from rangeslam._validation import as_float_array, as_mask, as_points, as_ranges, frozen, shape_str
+from rangeslam._validation import (
+    as_flag,
+    as_float_array,
+    as_mask,
+    as_points,
+    as_ranges,
+    as_rng,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.localization.multilateration import affine_rank, check_spanning
 from rangeslam.localization.robust_start import (
@@ -382,7 +391,9 @@ def multilaterate_with_offset(
         not span R^d or the fit's Jacobian is rank-deficient (b cannot be told from the distance:
         anchors on a cone around the point).
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
+    robust = as_flag(robust, "robust")
+    inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_offset_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_use = prob.dim, prob.n_use
     if robust and n_use >= d + 3:

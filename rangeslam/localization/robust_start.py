@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam.errors import InvalidInputError
+from rangeslam._validation import as_scalar
 
 __all__ = [
     "INLIER_K",
@@ -213,15 +213,12 @@ def refine_inliers(
     return InlierSearch(z, fit, inliers, None, threshold, settled=False)
 
 
-def check_robust_options(inlier_threshold: float | None, max_hypotheses: int) -> None:
-    """Raise InvalidInputError unless the threshold (metres) is positive and the count an int."""
-    if inlier_threshold is not None and not (
-        np.isfinite(inlier_threshold) and inlier_threshold > 0
-    ):
-        raise InvalidInputError(
-            f"inlier_threshold must be a positive number of metres; got {inlier_threshold}"
-        )
-    if not isinstance(max_hypotheses, int | np.integer) or max_hypotheses < 1:
-        raise InvalidInputError(
-            f"max_hypotheses must be a positive integer; got {max_hypotheses!r}"
-        )
+def check_robust_options(inlier_threshold, max_hypotheses) -> tuple[float | None, int]:
+    """The robust options checked at the door: (threshold in metres > 0 or None, count >= 1).
+
+    Raises InvalidInputError naming the option (strings, bools, arrays, NaN or inf refused).
+    """
+    threshold = as_scalar(
+        inlier_threshold, "inlier_threshold", low=0.0, low_open=True, allow_none=True
+    )
+    return threshold, as_scalar(max_hypotheses, "max_hypotheses", low=1, integer=True)

@@ -41,11 +41,20 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
-from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_str
+from rangeslam._validation import (
+    as_flag,
+    as_float_array,
+    as_mask,
+    as_points,
+    as_ranges,
+    as_rng,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.room import Room
 from rangeslam.localization.multilateration import affine_rank, check_spanning, multilaterate
-from rangeslam.localization.robust_start import minimal_subset_points
+from rangeslam.localization.robust_start import check_robust_options, minimal_subset_points
 from rangeslam.status import HasStatus, Status
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
@@ -108,11 +117,14 @@ class RoomReconstruction(HasStatus):
 
 def _as_list(value, name: str) -> tuple[list, bool]:
     """A single (M, 1+K) matrix or a sequence of them -> list, and whether it was a sequence."""
-    if isinstance(value, np.ndarray) or (
-        isinstance(value, Sequence) and len(value) > 0 and np.ndim(value[0]) < 2
-    ):
+    if isinstance(value, np.ndarray):
         return [value], False
-    if isinstance(value, Sequence) and len(value) > 0:
+    if isinstance(value, Sequence) and not isinstance(value, str) and len(value) > 0:
+        first = value[0]
+        if isinstance(first, str) or not isinstance(first, Sequence | np.ndarray):
+            return [value], False  # one matrix given as nested lists (or a bad scalar row)
+        if np.ndim(as_float_array(first, f"{name}[0]")) < 2:
+            return [value], False
         return list(value), True
     raise InvalidInputError(f"{name} must be an (M, 1+K) array or a non-empty list of them")
 
@@ -407,7 +419,7 @@ def _parse_room_problem(mics, ranges, mask) -> RoomProblem:
             raise InvalidInputError(
                 f"mask must give one mask per range matrix; got {len(mask_list)} for {len(range_list)}"
             )
-    first = np.asarray(range_list[0])
+    first = as_float_array(range_list[0], "ranges" if len(range_list) == 1 else "ranges[0]")
     if first.ndim != 2 or first.shape[1] < 2:
         raise InvalidInputError(
             f"ranges must have shape (M, 1+K) with K >= 1 echo columns; got {shape_str(first.shape)}"
@@ -683,7 +695,9 @@ def reconstruct_room(
     Returns:
         :class:`RoomReconstruction`; ``sources`` is (J, d) even for one loudspeaker.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
+    robust = as_flag(robust, "robust")
+    inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_room_problem(mics, ranges, mask)
     start = _locate_columns(prob, robust, rng)
     sources0 = _consensus_sources(prob, start, max_hypotheses, rng) if robust else start.sources

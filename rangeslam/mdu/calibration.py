@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
-from rangeslam._validation import check_int, frozen
+from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -33,6 +33,7 @@ from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
     check_determined,
+    checked_options,
     convex_iteration_runs,
     mdu_edm,
     mdu_mask,
@@ -294,17 +295,15 @@ def parse_calibration(
         ("random_starts", random_starts, 0),
     ):
         check_int(value, name, low)
+    refine, robust = as_flag(refine, "refine"), as_flag(robust, "robust")
     if robust and not refine:
         raise InvalidInputError(
             "robust=True needs refine=True (wrong picks are found by refitting)"
         )
-    fit_weight, gap_tol = options.fit_weight, options.gap_tol
-    if not (np.isfinite(fit_weight) and fit_weight > 0):
-        raise InvalidInputError(f"fit_weight must be positive and finite; got {fit_weight!r}")
-    if not (np.isfinite(gap_tol) and 0 < gap_tol < 1):
-        raise InvalidInputError(f"gap_tol must be in (0, 1); got {gap_tol!r}")
+    options = checked_options(options)
+    noise_std = None if noise_std is None else float(noise_std)
     return CalibrationProblem(
-        r, observed, scale, dim, noise_std, bool(refine), bool(robust), random_starts, options
+        r, observed, scale, int(dim), noise_std, refine, robust, int(random_starts), options
     )
 
 
@@ -540,7 +539,7 @@ def calibrate(
     problem = parse_calibration(
         ranges, mask, dim, noise_std, refine, robust, random_starts, options
     )
-    outcome = search(problem, np.random.default_rng(rng))
+    outcome = search(problem, as_rng(rng))
     if outcome.best is None:
         failures = outcome.solver_failures
         raise SolverError(

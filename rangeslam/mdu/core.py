@@ -16,7 +16,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_float_array, as_mask, as_ranges, shape_str
+from rangeslam._validation import (
+    as_dim,
+    as_float_array,
+    as_mask,
+    as_ranges,
+    as_scalar,
+    shape_str,
+)
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.status import Status
 
@@ -119,13 +126,19 @@ def canonical_frame(receivers: np.ndarray, sources: np.ndarray):
     return (receivers - centre) @ rot, (sources - centre) @ rot, rot
 
 
+def check_noise_std(noise_std) -> float | None:
+    """The range noise standard deviation, metres: None or a finite real number >= 0."""
+    return as_scalar(
+        noise_std, "noise_std", low=0.0, allow_none=True, expected="non-negative (metres) or None"
+    )
+
+
 def validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_std):
     """Check the inputs shared by :func:`calibrate` and :func:`rangeslam.mdu.slam`.
 
     Returns (ranges (M, K) with unobserved entries 0, observed mask (M, K), median observed range).
     """
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    as_dim(dim)
     r_in = as_float_array(ranges, "ranges")
     if r_in.ndim != 2:
         raise InvalidInputError(
@@ -134,8 +147,7 @@ def validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_
     observed = as_mask(mask, "mask", shape=r_in.shape)
     r = as_ranges(r_in, "ranges", shape=(None, None), observed=observed)
     check_determined(observed, dim, "mask" if mask is not None else "ranges")
-    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
+    check_noise_std(noise_std)
     scale = float(np.median(r[observed]))
     if not scale > 0:
         raise InvalidInputError("ranges must not all be zero where observed")
@@ -281,3 +293,24 @@ def residual_status(
         status = Status.NOT_IDENTIFIABLE
         message += "no redundant ranges and no step bounds: the trajectory is not unique; "
     return status, message
+
+
+def checked_options(options: ConvexIterationOptions) -> ConvexIterationOptions:
+    """The convex-iteration settings checked at the door (InvalidInputError naming each), as
+    Python numbers."""
+    return ConvexIterationOptions(
+        max_attempts=as_scalar(options.max_attempts, "max_attempts", low=1, integer=True),
+        fit_weight=as_scalar(
+            options.fit_weight, "fit_weight", low=0.0, low_open=True, expected="positive and finite"
+        ),
+        max_iterations=as_scalar(options.max_iterations, "max_iterations", low=1, integer=True),
+        gap_tol=as_scalar(
+            options.gap_tol,
+            "gap_tol",
+            low=0.0,
+            high=1.0,
+            low_open=True,
+            high_open=True,
+            expected="in (0, 1)",
+        ),
+    )

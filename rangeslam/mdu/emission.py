@@ -19,8 +19,11 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from rangeslam._validation import (
+    as_dim,
     as_float_array,
     as_mask,
+    as_rng,
+    as_speed,
     check_int,
     frozen,
     shape_str,
@@ -35,6 +38,8 @@ from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
     check_determined,
+    check_noise_std,
+    checked_options,
     convex_iteration_runs,
     mdu_edm,
     mdu_mask,
@@ -336,9 +341,8 @@ def parse_emission(
     ranges, groups, dim, mask, noise_std, c, random_starts, options: ConvexIterationOptions
 ) -> EmissionProblem:
     """The front door of :func:`calibrate_unknown_emission`: every input checked once."""
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    shape = np.shape(ranges)
+    dim = as_dim(dim)
+    shape = as_float_array(ranges, "ranges").shape
     if len(shape) != 2:
         raise InvalidInputError(f"ranges must be an (M, K) array; got {shape_str(shape)}")
     observed = as_mask(mask, "mask", shape=shape)
@@ -353,16 +357,9 @@ def parse_emission(
             f"{int(observed.sum())} observed ranges for {need} unknowns ({m} receivers and {k} "
             f"sources in {dim}-D up to a rigid motion, and {n_groups} offsets)"
         )
-    if noise_std is not None and not (np.isfinite(noise_std) and noise_std >= 0):
-        raise InvalidInputError(f"noise_std must be non-negative or None; got {noise_std!r}")
-    if c is not None and not (np.isfinite(c) and c > 0):
-        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
-    for name, value, low in (
-        ("max_attempts", options.max_attempts, 1),
-        ("max_iterations", options.max_iterations, 1),
-        ("random_starts", random_starts, 0),
-    ):
-        check_int(value, name, low)
+    noise_std, c = check_noise_std(noise_std), as_speed(c)
+    options = checked_options(options)
+    random_starts = check_int(random_starts, "random_starts", 0)
     return EmissionProblem(r, observed, g, dim, noise_std, c, random_starts, options)
 
 
@@ -600,7 +597,7 @@ def calibrate_unknown_emission(
     otherwise), and the Jacobian must have that rank at the answer (generic configurations do,
     even for one offset shared by all ranges; the far field does not).
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
     problem = parse_emission(ranges, groups, dim, mask, noise_std, c, random_starts, options)
     scaled = scaled_unfolding(problem, starting_offsets(problem, offsets0))

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam._validation import frozen
+from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import (
@@ -25,6 +25,7 @@ from rangeslam.mdu.core import (
     SIGMA_FLOOR,
     ConvexIterationOptions,
     canonical_frame,
+    checked_options,
     convex_iteration_runs,
     least_steps,
     mdu_edm,
@@ -36,6 +37,7 @@ from rangeslam.mdu.core import (
     validated_ranges,
 )
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
+from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import HasStatus, Status
 
@@ -201,6 +203,11 @@ class EdmSearch:
     sigma_ref: float | None
 
 
+#: Width, relative to the median range, given to step bounds with lower = upper (a known step
+#: length): the SDP's eq. (11) constraints and GTSAM's step prior then pin the step to it.
+KNOWN_STEP_WIDTH = 1e-9
+
+
 def parse_slam(
     ranges, step_bounds, mask, dim, refine, noise_std, robust, step_sigma, step_prior,
     extra_starts, options: ConvexIterationOptions,
@@ -212,13 +219,23 @@ def parse_slam(
     bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
     if bounds is not None:
         _check_bounds_against_ranges(bounds, r, observed, noise_std)
-    if step_prior not in STEP_PRIORS:
+        # lower = upper is a known step length: an interval KNOWN_STEP_WIDTH of the scale wide
+        # (the GTSAM dead zone needs a positive width; the step factor's sigma holds it there).
+        bounds = bounds.widened(KNOWN_STEP_WIDTH * scale)
+    if not isinstance(step_prior, str) or step_prior not in STEP_PRIORS:
         raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
-    if not (isinstance(extra_starts, int | np.integer) and extra_starts >= 0):
-        raise InvalidInputError(f"extra_starts must be an integer >= 0; got {extra_starts!r}")
-    max_attempts = options.max_attempts
-    if not (isinstance(max_attempts, int | np.integer) and max_attempts >= 1):
-        raise InvalidInputError(f"max_attempts must be a positive integer; got {max_attempts!r}")
+    extra_starts = as_scalar(extra_starts, "extra_starts", low=0, integer=True)
+    options = checked_options(options)
+    refine = as_flag(refine, "refine")
+    if robust is not None and (not isinstance(robust, str) or robust not in ROBUST_KERNELS):
+        raise InvalidInputError(
+            f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r:.80}"
+        )
+    step_sigma = as_scalar(
+        step_sigma, "step_sigma", low=0.0, low_open=True, allow_none=True,
+        expected="a positive number of metres or None",
+    )  # fmt: skip
+    noise_std = None if noise_std is None else float(noise_std)
     return SlamProblem(
         r, observed, scale, dim, bounds, noise_std, robust, step_sigma, step_prior, refine,
         extra_starts, options,
@@ -497,7 +514,7 @@ def slam(
         ranges, step_bounds, mask, dim, refine, noise_std, robust, step_sigma, step_prior,
         extra_starts, options,
     )  # fmt: skip
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     found = search_edm_runs(problem, rng)
     if found.best is None:
         raise SolverError(

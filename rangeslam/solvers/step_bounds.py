@@ -75,6 +75,19 @@ class StepBounds:
         """(M - 1,) (lower + upper) / 2, metres."""
         return 0.5 * (self.lower + self.upper)
 
+    def widened(self, min_width: float) -> StepBounds:
+        """Bounds whose every interval is at least ``min_width`` metres wide: a narrower one
+        (lower = upper is a known step length) is widened about its midpoint, lower clipped at 0.
+        Solvers whose step prior needs a positive width (GTSAM's dead zone) take these; wider
+        intervals are kept exactly. Returns ``self`` when nothing needs widening."""
+        narrow = self.upper - self.lower < min_width
+        if not narrow.any():
+            return self
+        mid = self.midpoints
+        lower = np.where(narrow, np.maximum(mid - 0.5 * min_width, 0.0), self.lower)
+        upper = np.where(narrow, lower + min_width, self.upper)
+        return StepBounds(lower=lower, upper=upper)
+
     def __iter__(self):
         """Yield lower, then upper."""
         yield self.lower
