@@ -72,9 +72,12 @@ def room_window(core: list, extra: list) -> tuple[np.ndarray, np.ndarray]:
     """Axis limits (lo, hi), each (d,), set by the room: the box around the ``core`` points (the
     rooms' corners, microphones, loudspeaker; arrays (N, d) or None), grown to take in the
     ``extra`` points (image sources) lying within one room extent of it, plus a 10% margin.
-    Points farther out are not in the window (draw them clipped at its edge)."""
+    Points farther out are not in the window (draw them clipped at its edge). With no finite
+    core point, the window is [-1, 1] on every axis."""
     pts = np.vstack([np.reshape(p, (-1, np.shape(p)[-1])) for p in core if p is not None])
     pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:  # nothing finite to frame (a failed run without truth): a unit window
+        return -np.ones(np.shape(pts)[1]), np.ones(np.shape(pts)[1])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     size = float(np.max(hi - lo))
     near = [np.reshape(p, (-1, len(lo))) for p in extra if p is not None and np.size(p)]
