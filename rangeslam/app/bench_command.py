@@ -85,15 +85,7 @@ def run_bench(
     written.append(_plot_bench(out, which, rows))
     if tum:
         written.append(_write_bench_tum(out, which, outcomes))
-    failed = [r for r in rows if r["status"] != "ok"]
-    print(
-        f"\n{len(rows)} trials ({len(failed)} failed) in {wall:.1f} s; seed {seed}; written: "
-        + ", ".join(str(p) for p in written)
-    )
-    if len(failed) == len(rows):
-        print(f"rangeslam: every trial failed; the first: {failed[0]['status']}", file=sys.stderr)
-        return 1
-    return 0
+    return _finish("trials", rows, wall=wall, seed=seed, written=written)
 
 
 def _write_bench_summary(out: Path, which: str, outcomes, *, wall: float, seed: int, **run):
@@ -192,13 +184,22 @@ def run_plaza_bench(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     written = [out / f"{stem}_methods.csv"] + ([out / f"{stem}_lengths.csv"] if lengths else [])
     written += _write_plaza_outputs(args, dataset, rows, length_rows, kept, wall)
+    return _finish("runs", rows, wall=wall, seed=args.seed, written=written)
+
+
+def _finish(unit: str, rows: list[dict], *, wall: float, seed: int, written: list[Path]) -> int:
+    """The run's last line (counts, time, seed, files written); 1 with the first reason on
+    standard error when every trial or run failed, else 0."""
     failed = [r for r in rows if r["status"] != "ok"]
     print(
-        f"\n{len(rows)} runs ({len(failed)} failed) in {wall:.1f} s; seed {args.seed}; written: "
+        f"\n{len(rows)} {unit} ({len(failed)} failed) in {wall:.1f} s; seed {seed}; written: "
         + ", ".join(str(p) for p in written)
     )
     if len(failed) == len(rows):
-        print(f"rangeslam: every run failed; the first: {failed[0]['status']}", file=sys.stderr)
+        print(
+            f"rangeslam: every {unit[:-1]} failed; the first: {failed[0]['status']}",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

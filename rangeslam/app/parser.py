@@ -160,10 +160,9 @@ def _add_bench(sub) -> None:
 
 
 def _bench_common() -> argparse.ArgumentParser:
-    """Options every simulated benchmark takes: trials, seed, parallelism, output."""
+    """Options every simulated benchmark takes: trials, parallelism, and the run options."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--trials", type=arg_types.positive_int, default=50, help="trials per cell")
-    common.add_argument("--seed", type=int, default=0, help="random seed")
     common.add_argument(
         "--jobs", type=arg_types.positive_int, default=1, help="trials in parallel processes"
     )
@@ -172,14 +171,20 @@ def _bench_common() -> argparse.ArgumentParser:
         metavar="ADDRESS",
         help="submit the trials to this Dask distributed scheduler (needs rangeslam[dask])",
     )
-    common.add_argument(
+    _add_bench_run_options(common)
+    return common
+
+
+def _add_bench_run_options(bench: argparse.ArgumentParser) -> None:
+    """What every benchmark takes, simulated or Plaza: seed, output folder, TUM files."""
+    bench.add_argument("--seed", type=int, default=0, help="random seed")
+    bench.add_argument(
         "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
     )
-    common.add_argument(
+    bench.add_argument(
         "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
     )
-    common.set_defaults(func=bench_command)
-    return common
+    bench.set_defaults(func=bench_command)
 
 
 def _add_slam_bench_options(slam: argparse.ArgumentParser) -> None:
@@ -243,14 +248,7 @@ def _add_plaza_options(plaza: argparse.ArgumentParser) -> None:
         metavar="N",
         help="also run the EDM pipelines on the first N poses (0: all); none to skip",
     )
-    plaza.add_argument("--seed", type=int, default=0, help="random seed")
-    plaza.add_argument(
-        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
-    )
-    plaza.add_argument(
-        "--tum", action="store_true", help="also write every trajectory in the TUM format (evo)"
-    )
-    plaza.set_defaults(func=bench_command)
+    _add_bench_run_options(plaza)
 
 
 def _add_run(sub) -> None:
