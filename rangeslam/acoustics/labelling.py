@@ -78,7 +78,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam._validation import as_points, check_int, check_positive, frozen, shape_str
+from rangeslam._validation import as_points, as_rng, check_int, check_positive, frozen, shape_str
 from rangeslam.acoustics.echoes import EchoDetection, detect_echoes_many
 from rangeslam.acoustics.label_audit import ambiguous, classify, normal_std, wall_of
 from rangeslam.acoustics.label_search import (
@@ -234,7 +234,7 @@ def label_echoes(
     Returns:
         An :class:`EchoLabelling`. Echoes not found are masked (NaN in ``ranges``), never zeros.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     prob = _parse_labelling(
         detections,
         mics,
@@ -681,7 +681,7 @@ def room_from_rirs(
         ``reconstruction`` is None and ``converged`` False, with the reason in ``message``; when
         the walls found do not bound a room, ``converged`` is False as well.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     opts = dict(detect_options or {})
     shift = 0.0
     if direct_template is not None:

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_float_array, as_points, frozen, shape_str
+from rangeslam._validation import as_float_array, as_points, as_rng, frozen, shape_str
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
 from rangeslam.datasets.rir_files import (
     LoadedRirs,
@@ -263,7 +263,7 @@ def run_rirs(
         both or neither of ``mics`` and ``step_bounds``; ``mics`` not (M, 3) or ``step_bounds``
         not M - 1 steps; options of the other mode. DegenerateGeometryError: coplanar microphones.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     x = _as_rirs(rirs)
     fs = check_fs(fs)
     c = _check_c(c)

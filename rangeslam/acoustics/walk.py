@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from rangeslam._robust import mad_sigma
-from rangeslam._validation import frozen
+from rangeslam._validation import as_rng, frozen
 from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection, detect_echoes_many
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
@@ -283,7 +283,7 @@ def walk_from_rirs(
         A :class:`WalkFromRirs`; ``converged`` False, with the reason, when too few echoes were
         tracked, the SDP failed, or the answer failed its residual test.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     dets = tuple(detect_echoes_many(rirs, fs, **(detect_options or {})))
     prob = _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
     topts = dict(track_options or {})

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rangeslam._validation import as_rng
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.evaluation.crlb import mdu_crlb
 from rangeslam.evaluation.metrics import (
@@ -84,7 +85,7 @@ def room_experiment(
 ) -> RoomExperiment:
     """Draw microphones and loudspeakers uniformly in ``room`` (``margin`` m from the walls), simulate
     first-order echo ranges with N(0, sigma^2) noise and a fraction of wrong picks, reconstruct."""
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     mics = random_points_in_room(room, n_mics, margin=margin, rng=rng)
     sources = random_points_in_room(room, n_sources, margin=margin, rng=rng)
     ranges, outliers = [], []

@@ -82,7 +82,7 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from rangeslam._validation import frozen
+from rangeslam._validation import as_rng, frozen
 from rangeslam.baselines.odometry_only import resolve_start_pose
 from rangeslam.beacons.options import RANGE_CALIBRATIONS
 from rangeslam.beacons.result import BeaconSlamResult
@@ -277,7 +277,7 @@ def ekf_range_odometry(
         calibration_sigma=calibration_sigma,
         n_starts=n_starts,
     )
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     st = _EkfState(start, len(data.beacon_ids), len(data.ranges))
     poses = _run_filter(st, data, opts, rng)
     return _verdict(st, data, opts, poses, time.perf_counter() - t0)

@@ -81,7 +81,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 
-from rangeslam._validation import frozen
+from rangeslam._validation import as_rng, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -310,7 +310,7 @@ def ekf_slam(
     bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
     options = EkfOptions(smooth, motion, turn_std, init_tol, init_steps, n_starts)
     check_ekf_options(options, m)
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     steps = step_model(bounds, r, observed, scale)
     sigma = max(noise_std, SIGMA_FLOOR * scale) if noise_std is not None else None
     window = _initial_window(

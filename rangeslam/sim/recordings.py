@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import frozen
+from rangeslam._validation import as_rng, frozen
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.room import Room
 from rangeslam.sim.rir import room_rirs
@@ -116,7 +116,7 @@ def room_recording(
     """Microphones uniform in ``room`` (3-D), ``margin`` m from the walls, and a loudspeaker
     (uniform likewise, or ``source`` (3,)); their RIRs (image source method, ``max_order``, one
     ``absorption`` for every wall) with white noise of std ``noise`` times the largest sample."""
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     if not isinstance(room, Room) or room.dim != 3:
         raise InvalidInputError(f"room must be a 3-D rangeslam Room; got {room!r:.80}")
     if isinstance(n_mics, bool) or not isinstance(n_mics, int | np.integer) or n_mics < 4:
@@ -174,7 +174,7 @@ def walk_recording(
     about 33 cm) with ``rirs_per_step`` RIRs a step; step bounds +-``bound`` of each true step,
     centred (the paper's +-20 %). The loudspeaker is ``source`` or uniform in the room, 0.5 m from
     the walls and ``clearance`` m from the walk (a loudspeaker on the path would be walked into)."""
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     for name, value, low in (("n_steps", n_steps, 3), ("rirs_per_step", rirs_per_step, 1)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
             raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")

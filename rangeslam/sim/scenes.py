@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_mask, as_points, as_ranges
+from rangeslam._validation import as_mask, as_points, as_ranges, as_rng
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.room import Room
@@ -61,7 +61,7 @@ def add_range_noise(ranges: ArrayLike, sigma: float, *, rng=None) -> np.ndarray:
     A noisy range below zero is folded back (|r + e|): distances cannot be negative. This only
     happens for ranges within a few sigma of zero.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges))
     sigma = _check_sigma(sigma)
     return np.abs(r + sigma * rng.standard_normal(r.shape))
@@ -69,7 +69,7 @@ def add_range_noise(ranges: ArrayLike, sigma: float, *, rng=None) -> np.ndarray:
 
 def random_mask(shape: tuple[int, ...], missing_fraction: float, *, rng=None) -> np.ndarray:
     """Boolean mask of the given shape, True where observed, each entry missing with the given probability."""
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     p = _check_fraction(missing_fraction, "missing_fraction")
     return rng.random(shape) >= p
 
@@ -88,7 +88,7 @@ def add_outliers(
     Each chosen range moves by a random sign times a uniform error in [min_error, max_error] metres
     (a shortening that would go below zero becomes a lengthening). Returns ``(corrupted, is_outlier)``, both of the shape of ``ranges``.
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     observed = as_mask(mask, "mask", shape=np.shape(ranges))
     r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges), observed=observed)
     p = _check_fraction(fraction, "fraction")
@@ -107,7 +107,7 @@ def random_points_in_room(
     room: Room, n: int, *, margin: float = 0.0, rng=None, max_tries: int = 10_000
 ) -> np.ndarray:
     """(n, d) points uniform in the room, at least ``margin`` metres from every wall (rejection sampling)."""
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     if not isinstance(n, int | np.integer) or n < 0:
         raise InvalidInputError(f"n must be a non-negative integer; got {n!r}")
     lo, hi = room.vertices.min(axis=0), room.vertices.max(axis=0)
@@ -160,7 +160,7 @@ def random_convex_room(
     """
     from rangeslam.errors import DegenerateGeometryError
 
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     if dim not in (2, 3):
         raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
     if not isinstance(n_walls, int | np.integer) or n_walls < dim + 1:

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
-from rangeslam._validation import as_points
+from rangeslam._validation import as_points, as_rng
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.room import Room
 
@@ -120,7 +120,7 @@ def random_walk(
     direction). With a ``room`` the walk stays ``margin`` metres inside it: a step that would leave is
     re-drawn with a new random heading (up to 1000 times, then an error).
     """
-    rng = np.random.default_rng(rng)
+    rng = as_rng(rng)
     n_steps = _check_count(n_steps, "n_steps")
     step_length = _check_positive(step_length, "step_length")
     start_pt = as_points(np.atleast_2d(np.asarray(start, dtype=float)), "start", min_points=1)[0]
