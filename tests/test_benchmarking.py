@@ -37,7 +37,22 @@ def test_bench_compare_end_to_end(tmp_path, capsys):
     summary = json.loads((tmp_path / "compare_summary.json").read_text())
     assert summary["seed"] == 4 and summary["failed_trials"] == 0
     assert {"numpy", "cvxpy", "clarabel", "gtsam", "filterpy"} <= set(summary["versions"])
-    assert summary["cells"][0]["m"] == 7 and summary["cells"][0]["trials"] == 2
+    cell = summary["cells"][0]
+    assert cell["m"] == 7 and cell["trials"] == 2
+    # the yardstick: RMS error against the RMS of the per-trial bounds with the step prior
+    crlb = np.array([float(r["crlb_m"]) for r in rows])
+    assert np.all(crlb <= np.array([float(r["crlb_ranges_m"]) for r in rows]) * (1 + 1e-4))
+    np.testing.assert_allclose(
+        cell["rms_crlb_m"], np.sqrt(np.mean(crlb**2)), rtol=1e-4
+    )  # the CSV rounds
+    err = np.array([float(r["edm_gtsam_error_m"]) for r in rows])
+    np.testing.assert_allclose(
+        cell["edm_gtsam"]["rms_error_m"], np.sqrt(np.mean(err**2)), rtol=1e-4
+    )
+    np.testing.assert_allclose(
+        cell["edm_gtsam"]["ratio"], cell["edm_gtsam"]["rms_error_m"] / cell["rms_crlb_m"]
+    )
+    assert cell["edm_gtsam"]["regime"] in ("attains", "beats", "misses")
     assert (tmp_path / "compare_summary.md").read_text().startswith("| sigma (mm) |")
     assert (tmp_path / "compare.png").read_bytes()[:4] == b"\x89PNG"
     tum = sorted((tmp_path / "tum").glob("*.tum"))
@@ -55,6 +70,15 @@ def test_bench_fig3_end_to_end(tmp_path):
     rows = _csv(tmp_path / "fig3_trials.csv")
     assert [r["sigma"] for r in rows] == ["0", "0", "0.001", "0.001"]
     assert all(float(r["mic_error_m"]) < 1e-3 for r in rows if r["sigma"] == "0")
+    cells = json.loads((tmp_path / "fig3_summary.json").read_text())["cells"]
+    assert cells[0]["regime"] == "no bound"  # sigma = 0: no bound to compare with
+    err = np.array([float(r["mic_error_m"]) for r in rows if r["sigma"] == "0.001"])
+    crlb = np.array([float(r["crlb_m"]) for r in rows if r["sigma"] == "0.001"])
+    finite = np.isfinite(crlb)
+    assert cells[1]["unidentifiable"] == int(np.sum(~finite))
+    if finite.any():
+        rms = np.sqrt(np.mean(err[finite] ** 2)) / np.sqrt(np.mean(crlb[finite] ** 2))
+        np.testing.assert_allclose(cells[1]["ratio"], rms, rtol=1e-4)  # the CSV rounds
     assert (tmp_path / "fig3.png").stat().st_size > 10_000
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rangeslam.app.experiments import mean_nees, slam_experiment
+from rangeslam.evaluation import rms_against_bound
 
 STEPS = (5, 6, 8, 10, 15, 20)
 TRIALS = 8
@@ -44,13 +45,25 @@ def test_covariances_are_honest_from_ten_steps(bounded_1cm):
     assert lo <= mean <= hi, f"mean NEES / dof {mean:.3f} outside [{lo:.3f}, {hi:.3f}]"
 
 
-def test_1mm_twenty_steps_within_1_3_crlb(rng):
-    """sigma = 1 mm, M = 20, bounds: median trajectory error within 1.3x the median CRLB of the
-    ranges alone (the step prior can only add information)."""
-    # 30 walks: over 30 the ratio was 0.98-1.07 on the seeds tried (0.77 over the benchmark's
-    # 50); over 10 the median moves by a factor of 2 between seeds.
+def test_1mm_twenty_steps_rms_within_1_3_rms_crlb(rng):
+    """sigma = 1 mm, M = 20, bounds: the RMS trajectory error over the walks within 1.6x the RMS
+    of the per-trial CRLBs with the step prior slam uses (both finite in every walk), and the
+    prior's bound no larger than the ranges-only one in any walk."""
+    # 30 walks: the RMS ratio measured 1.37 (default seed), 1.18 and 1.16 (seeds 1, 2): a few
+    # walks end 2-3x their own bound off (the median ratio is 0.77-1.0), so the RMS misses the
+    # bound by up to 40%; 1.6 leaves margin for the scatter of 30 walks. (The old median test
+    # passed at 1.3 because the median hides those walks.)
     runs = [slam_experiment(20, 0.001, True, rng, baseline=False) for _ in range(30)]
-    error = np.median([r.error for r in runs])
-    bound = np.median([r.crlb for r in runs])
-    assert np.isfinite(bound)
-    assert error <= 1.3 * bound, f"median error {error:.5f} m, CRLB {bound:.5f} m"
+    cmp = rms_against_bound([r.error for r in runs], [r.crlb for r in runs])
+    assert cmp.trials == 30 and cmp.unidentifiable == 0
+    assert cmp.ratio <= 1.6, f"RMS error {cmp.rms_error:.5f} m, RMS CRLB {cmp.rms_bound:.5f} m"
+    assert all(r.crlb <= r.crlb_ranges * (1 + 1e-9) for r in runs)
+
+
+def test_prior_makes_few_steps_identifiable(rng):
+    """M = 5 with bounds: the ranges alone leave the walk flexible (bound inf), the step prior
+    gives a finite bound; without bounds the two bounds are the same number."""
+    with_bounds = slam_experiment(5, 0.01, True, rng, baseline=False)
+    assert np.isinf(with_bounds.crlb_ranges) and np.isfinite(with_bounds.crlb)
+    without = slam_experiment(10, 0.01, False, rng, baseline=False)
+    assert without.crlb == without.crlb_ranges

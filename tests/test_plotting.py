@@ -106,6 +106,31 @@ def test_fig5_integer_step_axis_and_infinite_bound(rng, tmp_path, keep_figure):
         assert ax.get_legend() is None
 
 
+def test_fig3_draws_rms_error_against_rms_bound(rng, tmp_path, keep_figure):
+    """The Fig. 3 curves are the RMS error over trials and the RMS of the per-trial bounds (not
+    medians), read back from the drawn lines."""
+    rows = _fig3_rows(rng)
+    rows[0]["mic_error_m"] = 0.05  # one bad trial: moves the RMS, not the median
+    _written(plotting.plot_fig3(tmp_path / "fig3.png", rows))
+    ax = keep_figure[-1].axes[0]
+    err = {line.get_label(): line.get_ydata() for line in ax.get_lines()}
+    first = [r["mic_error_m"] for r in rows if r["sigma"] == 0.001]
+    np.testing.assert_allclose(
+        err["RMS error (calibrate)"][0], np.sqrt(np.mean(np.square(first))) * 1e3, rtol=1e-12
+    )
+    np.testing.assert_allclose(err["RMS of the CRLBs"], [0.8, 1.6, 4.0, 8.0], rtol=1e-12)
+
+
+def test_rms_and_bound_leaves_out_unidentifiable_trials():
+    """A cell's RMS error and bound are over the trials with a finite bound; with none finite the
+    bound is inf (not identifiable) or NaN (no bound) and the error the RMS of all trials."""
+    rms, bound = plotting.rms_and_bound([3.0, 4.0, 100.0], [3.0, 4.0, np.inf])
+    np.testing.assert_allclose([rms, bound], [np.sqrt(12.5), np.sqrt(12.5)], rtol=1e-15)
+    rms, bound = plotting.rms_and_bound([3.0, 4.0], [np.inf, np.inf])
+    assert np.isinf(bound) and rms == pytest.approx(np.sqrt(12.5))
+    assert np.isnan(plotting.rms_and_bound([0.0], [np.nan])[1])
+
+
 def test_room_reconstruction_not_converged_far_image_and_sloped_side_view(
     rng, tmp_path, keep_figure
 ):

@@ -21,7 +21,12 @@ import numpy as np
 from rangeslam.app.progress import Progress
 from rangeslam.app.reports import markdown, versions, write_csv, write_summary, write_tum
 from rangeslam.errors import InvalidInputError
-from rangeslam.evaluation.metrics import mean_nees, trajectory_rmse
+from rangeslam.evaluation.metrics import (
+    BoundComparison,
+    mean_nees,
+    rms_against_bound,
+    trajectory_rmse,
+)
 
 __all__ = [
     "BENCHES",
@@ -165,6 +170,7 @@ def _slam_trial(
     outcome.seconds["edm_gtsam"] = e.seconds
     outcome.row.update(
         crlb_m=e.crlb,
+        crlb_ranges_m=e.crlb_ranges,
         edm_error_m=e.edm_error,
         edm_gtsam_error_m=e.error,
         gtsam_error_m=e.baseline_error,
@@ -350,18 +356,23 @@ def _summary_header(bench: str) -> list[str]:
             "sigma (mm)",
             "trials",
             "failed",
+            "not identifiable",
+            "RMS error (mm)",
+            "RMS CRLB (mm)",
+            "RMS error / RMS CRLB",
+            "regime",
             "median error (mm)",
-            "median CRLB (mm)",
-            "error / CRLB",
             "< 3x CRLB",
             "converged",
             "time median (s)",
         ]
     methods = bench_methods(bench)
-    header = ["sigma (mm)", "bounds", "M", "trials", "failed"]
-    header += [f"{METHOD_NAMES[m]} mean / median (cm), < 10 cm" for m in methods]
+    header = ["sigma (mm)", "bounds", "M", "trials", "failed", "not identifiable"]
+    header += ["RMS CRLB (cm), with the step prior", "RMS CRLB (cm), ranges only"]
     header += [
-        "CRLB median (cm)",
+        f"{METHOD_NAMES[m]}: RMS (cm), / CRLB, regime; median (cm), < 10 cm" for m in methods
+    ]
+    header += [
         "NEES / dof",
         "EDM start kept",
         "time median (s): "
@@ -370,31 +381,48 @@ def _summary_header(bench: str) -> list[str]:
     return header
 
 
+def _ratio_text(c: BoundComparison) -> str:
+    """'0.93x attains' (or the regime alone when there is no ratio)."""
+    return c.regime if not np.isfinite(c.ratio) else f"{c.ratio:.2f}x {c.regime}"
+
+
 def _fig3_cell(cell_rows: list[dict], ok: list[dict], rec: dict, times: dict) -> list[str]:
-    """One Fig. 3 cell: median error against median CRLB (mm), success and convergence rates,
-    median time; fills ``rec`` with the same figures and returns the Markdown row."""
+    """One Fig. 3 cell: RMS error against the RMS of the per-trial CRLBs (mm), their ratio and
+    regime, the median error, success and convergence rates, median time; fills ``rec`` with the
+    same figures and returns the Markdown row."""
     first, n, failed = cell_rows[0], rec["trials"], rec["failed"]
     err, crlb = _column(ok, "mic_error_m"), _column(ok, "crlb_m")
-    med_e, med_c = np.median(err) if ok else np.nan, np.median(crlb) if ok else np.nan
+    cmp = rms_against_bound(err, crlb)
+    med_e = float(np.median(err)) if ok else np.nan
     success = (
         float(np.sum(err < 3 * crlb)) / n if first["sigma"] > 0 else float(np.sum(err < 1e-3)) / n
     )
     conv = float(np.sum(_column(ok, "converged"))) / n
     _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
     rec.update(
+        rms_error_m=cmp.rms_error,
+        rms_crlb_m=cmp.rms_bound,
+        ratio=cmp.ratio,
+        regime=cmp.regime,
+        unidentifiable=cmp.unidentifiable,
         median_error_m=med_e,
-        median_crlb_m=med_c,
         success=success,
         converged=conv,
         median_seconds=t,
     )
+    # at zero noise there is no bound: the RMS error over every trial, for the exact recovery
+    rms_all = float(np.sqrt(np.nanmean(err**2))) if ok else np.nan
+    rms_e = cmp.rms_error if cmp.trials else rms_all
     return [
         f"{first['sigma'] * 1e3:g}",
         str(n),
         str(failed),
+        str(cmp.unidentifiable),
+        f"{rms_e * 1e3:.3g}",
+        f"{cmp.rms_bound * 1e3:.3g}" if cmp.trials else "-",
+        f"{cmp.ratio:.2f}" if np.isfinite(cmp.ratio) else "-",
+        cmp.regime,
         f"{med_e * 1e3:.3g}",
-        f"{med_c * 1e3:.3g}",
-        f"{med_e / med_c:.2f}" if med_c > 0 else "-",
         f"{success * 100:.0f}%",
         f"{conv * 100:.0f}%",
         f"{t:.2f}",
@@ -404,10 +432,13 @@ def _fig3_cell(cell_rows: list[dict], ok: list[dict], rec: dict, times: dict) ->
 def _slam_cell(
     cell_rows: list[dict], ok: list[dict], rec: dict, times: dict, methods: list[str]
 ) -> list[str]:
-    """One Fig. 5 / compare cell: each method's mean / median error (cm) and success rate, the
-    CRLB, the mean NEES per dof, how often the EDM start was kept, median times; fills ``rec``
-    with the same figures and returns the Markdown row."""
+    """One Fig. 5 / compare cell: the RMS of the per-trial CRLBs (with the step prior where the
+    methods use one, and of the ranges alone), each method's RMS error against it, ratio and
+    regime, median error and success rate, the mean NEES per dof, how often the EDM start was
+    kept, median times; fills ``rec`` with the same figures and returns the Markdown row."""
     first, n = cell_rows[0], rec["trials"]
+    crlb, crlb_ranges = _column(ok, "crlb_m"), _column(ok, "crlb_ranges_m")
+    free = rms_against_bound(crlb_ranges, crlb_ranges)
     cells = [
         f"{first['sigma'] * 1e3:g}",
         "+-20%" if first["bounds"] else "none",
@@ -415,16 +446,41 @@ def _slam_cell(
         str(n),
         str(rec["failed"]),
     ]
+    comparisons = {}
     for m in methods:
         e = _column(ok, f"{m}_error_m")
-        mean, med = _stats(e)
+        cmp = comparisons[m] = rms_against_bound(e, crlb)
+        _, med = _stats(e)
         success = float(np.sum(e < SUCCESS_M)) / n
-        rec[m] = {"mean_error_m": mean, "median_error_m": med, "success": success}
-        cells.append(f"{mean * 100:.2f} / {med * 100:.2f}, {success * 100:.0f}%")
-    crlb = float(np.median(_column(ok, "crlb_m"))) if ok else float("nan")  # inf: not identifiable
+        rec[m] = {
+            "rms_error_m": cmp.rms_error,
+            "ratio": cmp.ratio,
+            "regime": cmp.regime,
+            "median_error_m": med,
+            "success": success,
+        }
+        # with no finite bound (not identifiable), the RMS over every trial, without a ratio
+        rms_all = (
+            float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2))) if np.isfinite(e).any() else np.nan
+        )
+        rms = f"{(cmp.rms_error if cmp.trials else rms_all) * 100:.2f}"
+        cells.append(f"{rms}, {_ratio_text(cmp)}; {med * 100:.2f}, {success * 100:.0f}%")
+    ref = comparisons[methods[0]]
+    cells[5:5] = [
+        str(ref.unidentifiable),
+        f"{ref.rms_bound * 100:.2f}" if ref.trials else "inf",
+        f"{free.rms_bound * 100:.2f}" if free.trials else "inf",
+    ]
     ratio, _, _ = mean_nees(_column(ok, "nees"), _column(ok, "nees_dof"))
     kept = float(np.mean(_column(ok, "edm_start_kept"))) if ok else float("nan")
-    rec.update(median_crlb_m=crlb, nees_over_dof=ratio, edm_start_kept=kept)
+    rec.update(
+        rms_crlb_m=ref.rms_bound,
+        rms_crlb_ranges_m=free.rms_bound,
+        unidentifiable=ref.unidentifiable,
+        unidentifiable_ranges=free.unidentifiable,
+        nees_over_dof=ratio,
+        edm_start_kept=kept,
+    )
     t = {
         m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
         for m in ("edm_gtsam", "ekf")
@@ -433,7 +489,6 @@ def _slam_cell(
     rec["median_seconds"] = t
     return [
         *cells,
-        f"{crlb * 100:.2f}",
         f"{ratio:.2f}",
         f"{kept * 100:.0f}%",
         ", ".join(f"{v:.2f}" for v in t.values()),
@@ -443,8 +498,11 @@ def _slam_cell(
 def summary_table(
     bench: str, rows: Sequence[dict], seconds: Sequence[dict]
 ) -> tuple[list[str], list[list[str]], list[dict]]:
-    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. Errors in
-    cm; a failed trial counts as a failure of every method and is left out of the means."""
+    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. The
+    yardstick is the RMS error over trials against the RMS of the per-trial CRLBs (with the step
+    prior where the methods use one), with their ratio and regime (``rms_against_bound``); trials
+    whose bound is inf are counted as not identifiable and left out of both. Errors in cm (mm in
+    fig3); a failed trial counts as a failure of every method and is left out of the RMS."""
     times = {id(r): s for r, s in zip(rows, seconds, strict=True)}
     table, records = [], []
     for cell_rows in _cells(rows).values():

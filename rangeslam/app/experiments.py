@@ -37,6 +37,7 @@ __all__ = [
     "demo_rooms",
     "fig3_scene",
     "mean_nees",
+    "receiver_crlb",
     "room_experiment",
     "slam_experiment",
     "wall_errors",
@@ -208,17 +209,18 @@ def calibration_experiment(
     calibrate_options.setdefault("rng", rng)
     result = calibrate(ranges, **calibrate_options)
     error = align(result.receivers, scene.mics, reflection=True).rmse
-    bound = _receiver_crlb(scene.mics, scene.sources, sigma)
+    bound = receiver_crlb(scene.mics, scene.sources, sigma)
     return CalibrationExperiment(scene, ranges, sigma, result, error, bound)
 
 
-def _receiver_crlb(receivers: np.ndarray, sources: np.ndarray, sigma: float) -> float:
-    """Receiver-gauge CRLB of the RMS receiver error: NaN at sigma = 0, inf when the configuration
-    is flexible to first order (the ranges alone do not determine it)."""
+def receiver_crlb(receivers: np.ndarray, sources: np.ndarray, sigma: float, **priors) -> float:
+    """Receiver-gauge CRLB of the RMS receiver error, metres, from the ranges and the ``priors``
+    of :func:`rangeslam.evaluation.mdu_crlb` (step_bounds, step_prior, odometry_sigma): NaN at
+    sigma = 0, inf when the configuration is flexible to first order (not identifiable)."""
     if sigma <= 0:
         return float("nan")
     try:
-        return mdu_crlb(receivers, sources, sigma).receiver_rmse
+        return mdu_crlb(receivers, sources, sigma, **priors).receiver_rmse
     except DegenerateGeometryError:
         return float("inf")
 
@@ -241,8 +243,10 @@ class SlamExperiment(HasStatus):
             reflection), metres.
         source_error: landmark RMS error of EDM + GTSAM after the trajectory's alignment, each
             landmark taken up to its mirror image in the trajectory's plane (eq. 12 is planar).
-        crlb: receiver-gauge CRLB of the trajectory error from the ranges alone (inf when the
-            ranges alone do not determine it).
+        crlb: receiver-gauge CRLB of the trajectory error with the information the method
+            uses: the ranges and, with step bounds, the step prior ``slam`` reads them as
+            (:func:`rangeslam.evaluation.mdu_crlb`); inf when not identifiable, NaN at sigma = 0.
+        crlb_ranges: the same from the ranges alone (equal to ``crlb`` without bounds).
         nees: normalised estimation error squared of the whole trajectory against
             ``result.trajectory_cov`` (NaN without it); nees_dof: its degrees of freedom
             (M d - 6), the mean NEES of a consistent estimator.
@@ -264,6 +268,7 @@ class SlamExperiment(HasStatus):
     baseline_error: float
     source_error: float
     crlb: float
+    crlb_ranges: float
     nees: float
     nees_dof: int
     status: Status
@@ -353,7 +358,14 @@ def slam_experiment(
         base_x, base_s = np.full_like(traj, np.nan), np.full_like(landmarks, np.nan)
     else:
         base_x, base_s = _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior)
-    bound = _receiver_crlb(traj, landmarks, sigma)
+    ranges_only = receiver_crlb(traj, landmarks, sigma)
+    bound = ranges_only
+    if step_bounds is not None:  # the prior slam (and GTSAM alone) uses: floored at its noise
+        floor = slam_options.get("step_sigma") or slam_options.get("noise_std") or sigma
+        bound = receiver_crlb(
+            traj, landmarks, sigma, step_bounds=step_bounds, step_prior=step_prior,
+            step_sigma=floor,
+        )  # fmt: skip
     nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
     return SlamExperiment(
         trajectory=traj,
@@ -370,6 +382,7 @@ def slam_experiment(
         baseline_error=align(base_x, traj, reflection=True).rmse if baseline else float("nan"),
         source_error=planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
         crlb=bound,
+        crlb_ranges=ranges_only,
         nees=nees,
         nees_dof=dof,
         status=Status(result.status),

@@ -22,6 +22,7 @@ from rangeslam.app.plot_style import (
     save_figure,
     verdict_title,
 )
+from rangeslam.evaluation.metrics import rms_against_bound
 from rangeslam.geometry.room import Room
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "plot_room_reconstruction",
     "plot_slam_estimate",
     "plot_walk_estimate",
+    "rms_and_bound",
 ]
 
 _TOP = ("top view", (0, 1), ("x [m]", "y [m]"))
@@ -215,11 +217,25 @@ def _scatter_clipped(ax, pts, axes, box, *, label: str, **style) -> None:
         )
 
 
+def rms_and_bound(errors, bounds) -> tuple[float, float]:
+    """(RMS error, RMS bound) of one cell as the comparison plots draw them: over the trials with
+    a finite bound; where every bound is inf, the RMS of all finite errors and inf (drawn as
+    'bound infinite'); where there is no bound (zero noise), that RMS and NaN."""
+    errors = np.asarray(errors, dtype=float)
+    cmp = rms_against_bound(errors, bounds)
+    if cmp.trials:
+        return cmp.rms_error, cmp.rms_bound
+    finite = errors[np.isfinite(errors)]
+    rms = float(np.sqrt(np.mean(finite**2))) if finite.size else float("nan")
+    return rms, float("inf") if cmp.unidentifiable else float("nan")
+
+
 def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
     """The Fig. 3 analogue: microphone error after alignment against the range noise, every trial
-    as a dot, the median as a line, and the median CRLB (``rows`` of a ``bench fig3`` run; keys
-    status, sigma [m], mic_error_m, crlb_m), on log axes labelled at the noise levels used. The
-    bound is drawn where finite and marked at the top edge where infinite."""
+    as a dot, the RMS error over trials as a line against the RMS of the per-trial CRLBs (the
+    bound is on the mean squared error; ``rows`` of a ``bench fig3`` run; keys status, sigma
+    [m], mic_error_m, crlb_m), on log axes labelled at the noise levels used. Trials whose bound
+    is inf are left out of both; a bound inf in every trial is marked at the top edge."""
     ok = [r for r in rows if r["status"] == "ok" and r["sigma"] > 0]
     sigmas = sorted({r["sigma"] for r in ok})
     fig, ax = plt.subplots(figsize=(6.4, 5.2))
@@ -235,25 +251,33 @@ def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
             c="tab:blue",
             label="one trial",
         )
-        med = [np.median([r["mic_error_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
-        crlb = [np.median([r["crlb_m"] for r in ok if r["sigma"] == s]) * 1e3 for s in sigmas]
+        pairs = np.array(
+            [
+                rms_and_bound(
+                    [r["mic_error_m"] for r in ok if r["sigma"] == s],
+                    [r["crlb_m"] for r in ok if r["sigma"] == s],
+                )
+                for s in sigmas
+            ]
+        )
         s_mm = np.array(sigmas) * 1e3
-        ax.plot(s_mm, med, "o-", c="tab:blue", ms=7, label="median error (calibrate)")
-        plot_bound(ax, s_mm, crlb, label="median CRLB")
-        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(crlb).any() else 0.0)
+        ax.plot(s_mm, pairs[:, 0] * 1e3, "o-", c="tab:blue", ms=7, label="RMS error (calibrate)")
+        plot_bound(ax, s_mm, pairs[:, 1] * 1e3, label="RMS of the CRLBs")
+        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(pairs[:, 1]).any() else 0.0)
         plain_log_axis(ax, "x", ticks=s_mm)
     ax.set_xlabel("range noise sigma [mm]")
     ax.set_ylabel("microphone RMS error after alignment [mm]")
-    ax.set_title("Fig. 3: zero-knowledge array calibration")
+    ax.set_title("Fig. 3: zero-knowledge array calibration (RMS over trials)")
     ax.grid(alpha=0.3, which="major")
-    legend_below(fig, [ax], ncol=2)
+    legend_below(fig, [ax], ncol=3)
     return save_figure(fig, path, legend_space=True)
 
 
 def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Path:
     """The Fig. 5 analogue: trajectory error against the number of steps, with and without step
-    bounds (columns) and per noise level (rows); median per method with markers, inter-quartile
-    band, the median CRLB where finite (marked where infinite); one legend below the panels."""
+    bounds (columns) and per noise level (rows); per method the RMS error over trials (markers)
+    and the 25-75% band, against the RMS of the per-trial CRLBs with the step prior the methods
+    use (``crlb_m``; marked where infinite); one legend below the panels."""
     rows = [r for r in rows if r["status"] == "ok"]
     sigmas = sorted({r["sigma"] for r in rows})
     bounds = sorted({r["bounds"] for r in rows}, reverse=True)
@@ -271,7 +295,7 @@ def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Pa
             ax.set_title(
                 f"sigma = {sigma * 1e3:g} mm, " + ("+-20% step bounds" if b else "no bounds")
             )
-    fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (median, 25-75%)")
+    fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (RMS over trials, band 25-75%)")
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
@@ -281,25 +305,29 @@ def _fig5_panel(ax, cell: list[dict], methods: dict[str, str]) -> None:
     numbers of steps used), errors in cm on a log axis with plain labels."""
     steps = sorted({r["m"] for r in cell})
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    bound = {m: np.array([r["crlb_m"] for r in cell if r["m"] == m], float) for m in steps}
     for k, (key, name) in enumerate(methods.items()):
         per_m = [
-            np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m], float) * 100
+            np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m], float)
             for m in steps
         ]
         if not any(np.isfinite(v).any() for v in per_m):
             continue
+        rms = [rms_and_bound(v, bound[m])[0] * 100 for v, m in zip(per_m, steps, strict=True)]
         q = np.array(
             [
-                np.nanpercentile(v, [25, 50, 75]) if np.isfinite(v).any() else [np.nan] * 3
+                np.nanpercentile(v * 100, [25, 75]) if np.isfinite(v).any() else [np.nan] * 2
                 for v in per_m
             ]
         )
         colour = colours[k % len(colours)]
-        ax.plot(steps, q[:, 1], ls="-", marker=MARKERS[k % len(MARKERS)], c=colour, label=name)
-        ax.fill_between(steps, q[:, 0], q[:, 2], alpha=0.12, color=colour, lw=0)
+        ax.plot(steps, rms, ls="-", marker=MARKERS[k % len(MARKERS)], c=colour, label=name)
+        ax.fill_between(steps, q[:, 0], q[:, 1], alpha=0.12, color=colour, lw=0)
     if steps:
-        crlb = [np.median([r["crlb_m"] for r in cell if r["m"] == m]) * 100 for m in steps]
-        plot_bound(ax, steps, crlb, label="median CRLB (ranges alone)")
+        crlb = [rms_and_bound(bound[m], bound[m])[1] * 100 for m in steps]
+        with_prior = any(r["bounds"] for r in cell)
+        label = "RMS CRLB" + (" (ranges + step prior)" if with_prior else " (ranges)")
+        plot_bound(ax, steps, crlb, label=label)
         plain_log_axis(ax, "y", headroom=0.15 if np.isinf(crlb).any() else 0.0)
         ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(steps))
         ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%d"))

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from rangeslam.evaluation.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from rangeslam.evaluation.metrics import (
+    BEATS_BOUND,
+    MISSES_BOUND,
     SHOEBOX_WALLS,
     ApeStatistics,
+    BoundComparison,
     PositionErrors,
     ape,
     ape_statistics,
     mean_nees,
     planar_source_error,
+    rms_against_bound,
     shoebox_wall_errors,
     trajectory_nees,
     trajectory_rmse,
@@ -18,8 +22,11 @@ from rangeslam.evaluation.metrics import (
 )
 
 __all__ = [
+    "BEATS_BOUND",
+    "MISSES_BOUND",
     "SHOEBOX_WALLS",
     "ApeStatistics",
+    "BoundComparison",
     "MDUBound",
     "PositionErrors",
     "ape",
@@ -28,6 +35,7 @@ __all__ = [
     "mean_nees",
     "multilateration_crlb",
     "planar_source_error",
+    "rms_against_bound",
     "shoebox_wall_errors",
     "trajectory_nees",
     "trajectory_rmse",

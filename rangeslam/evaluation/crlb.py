@@ -2,7 +2,13 @@
 
 For a point x observed through ranges r_m = ||x - a_m|| + e_m, e_m ~ N(0, sigma_m^2), the Fisher
 information is F = sum_m u_m u_m^T / sigma_m^2 with u_m = (x - a_m) / ||x - a_m||, and any
-unbiased estimator has covariance >= F^-1. The bound on the RMSE is sqrt(trace F^-1).
+unbiased estimator has covariance >= F^-1. The bound on the RMSE is sqrt(trace F^-1): compare it
+with the RMS error over trials (sqrt of the mean squared error), not with a median, and with the
+RMS of the per-trial bounds (sqrt(mean(bound^2))) when the configuration changes between trials.
+
+:func:`mdu_crlb` also takes the priors of :func:`rangeslam.mdu.slam` (step bounds, odometry step
+lengths): their information is added to J^T J / sigma^2, so that a method that uses them is
+compared with the bound it can reach, not with the ranges-only bound it may beat.
 """
 
 from __future__ import annotations
@@ -22,8 +28,12 @@ from rangeslam._validation import (
 )
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
+from rangeslam.solvers.step_bounds import StepBounds
 
-__all__ = ["MDUBound", "mdu_crlb", "multilateration_crlb", "wall_crlb"]
+#: How an estimator reads step bounds (as ``step_prior`` of :func:`rangeslam.mdu.slam`).
+STEP_PRIOR_KINDS = ("uniform", "dead_zone")
+
+__all__ = ["STEP_PRIOR_KINDS", "MDUBound", "mdu_crlb", "multilateration_crlb", "wall_crlb"]
 
 
 def _check_sigma(sigma: float) -> float:
@@ -196,6 +206,81 @@ class MDUBound:
     null_dimension: int
 
 
+def _step_prior_sigmas(step_bounds, step_prior, step_sigma, odometry_sigma, m, sigma):
+    """(M - 1,) standard deviations of the Gaussian step-length factors the estimator adds per
+    step, metres (one array per factor kind; empty list without priors), checked at the door."""
+    if not isinstance(step_prior, str) or step_prior not in STEP_PRIOR_KINDS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIOR_KINDS}; got {step_prior!r}")
+    spreads = []
+    if step_bounds is not None:
+        if m < 2:
+            raise InvalidInputError(f"step_bounds need at least 2 receivers; got {m}")
+        bounds = StepBounds.parse(step_bounds, m - 1)
+        floor = sigma if step_sigma is None else _positive(step_sigma, "step_sigma")
+        if step_prior == "uniform":
+            # the moment-matched Gaussian of U(lower, upper), never below step_sigma (as
+            # rangeslam.solvers.gtsam_graph.add_step_priors); the dead zone adds nothing inside
+            width = bounds.upper - bounds.lower
+            spreads.append(np.maximum(width / np.sqrt(12.0), floor))
+    elif step_sigma is not None:
+        raise InvalidInputError(
+            "step_sigma is only meaningful with step_bounds; got step_bounds=None"
+        )
+    if odometry_sigma is not None:
+        if m < 2:
+            raise InvalidInputError(f"odometry_sigma needs at least 2 receivers; got {m}")
+        spreads.append(np.full(m - 1, _positive(odometry_sigma, "odometry_sigma")))
+    return spreads
+
+
+def _positive(value, name: str) -> float:
+    """A positive finite number of metres, or InvalidInputError naming ``name``."""
+    x = real_scalar(value, name, "a positive number of metres")
+    if not (np.isfinite(x) and x > 0):
+        raise InvalidInputError(f"{name} must be a positive finite number of metres; got {value!r}")
+    return float(x)
+
+
+def _range_rows(first: np.ndarray, second: np.ndarray, i_idx, j_idx, n: int, what: str):
+    """Jacobian rows (R, n d) of the distances ||first_r - second_r|| of points i_idx[r] and
+    j_idx[r] of the stacked vector of n points; ``what`` names a coincident pair."""
+    d = first.shape[1]
+    diff = first - second
+    dist = np.linalg.norm(diff, axis=1)
+    if np.any(dist == 0):
+        raise DegenerateGeometryError(f"{what}: the range gradient is undefined")
+    u = diff / dist[:, None]
+    jac = np.zeros((len(u), n * d))
+    for row, (i, j, uu) in enumerate(zip(i_idx, j_idx, u, strict=True)):
+        jac[row, i * d : (i + 1) * d] = uu
+        jac[row, j * d : (j + 1) * d] = -uu
+    return jac
+
+
+def _whitened_jacobian(x, s, observed, spreads, sigma: float) -> np.ndarray:
+    """Rows (R, (M + K) d) of the ranges of receivers ``x`` (M, d) and sources ``s`` (K, d) in
+    ``observed``, then one block of step-length rows per prior in ``spreads`` (each (M - 1,),
+    metres), whitened so that F = J^T J / sigma^2."""
+    m, k = len(x), len(s)
+    pairs = np.argwhere(observed)
+    jac = _range_rows(
+        x[pairs[:, 0]],
+        s[pairs[:, 1]],
+        pairs[:, 0],
+        m + pairs[:, 1],
+        m + k,
+        "a receiver coincides with a source",
+    )
+    if spreads:
+        steps = np.arange(m - 1)
+        step_jac = _range_rows(
+            x[1:], x[:-1], steps + 1, steps, m + k, "a receiver coincides with the next one"
+        )
+        # whitened to the range noise: F = [J; W J_step]^T [J; W J_step] / sigma^2
+        jac = np.vstack([jac] + [step_jac * (sigma / sp)[:, None] for sp in spreads])
+    return jac
+
+
 def mdu_crlb(
     receivers: ArrayLike,
     sources: ArrayLike,
@@ -203,19 +288,44 @@ def mdu_crlb(
     *,
     mask: ArrayLike | None = None,
     gauge: str = "receivers",
+    step_bounds: StepBounds | tuple[ArrayLike, ArrayLike] | None = None,
+    step_prior: str = "uniform",
+    step_sigma: float | None = None,
+    odometry_sigma: float | None = None,
 ) -> MDUBound:
-    """CRLB of receivers (M, d) and sources (K, d) located from their ranges alone (eq. 9 setting).
+    """CRLB of receivers (M, d) and sources (K, d) located from their ranges (eq. 9 setting) and
+    the step priors the estimator uses (:func:`rangeslam.mdu.slam`).
 
     Ranges r_mk = ||x_m - s_k|| + N(0, sigma^2) for the pairs in ``mask`` (M, K) (True = observed).
-    The Fisher information F = J^T J / sigma^2 is singular along the rigid motions, so the bound
-    depends on how the estimate is aligned before its error is taken:
+    The Fisher information F = J^T J / sigma^2 + sum_i u_i u_i^T / spread_i^2 (on the difference
+    x_{i+1} - x_i, u_i its unit direction) is singular along the rigid motions (priors on step
+    lengths do not fix them), so the bound depends on how the estimate is aligned before its
+    error is taken:
 
     - ``gauge="all"``: errors after aligning all points: the pseudo-inverse F^+;
     - ``gauge="receivers"``: errors after aligning the receivers alone (as in Fig. 3): P F^+ P^T
       with P = I - T (T_r^T T_r)^-1 T_r^T S_r, which removes the rigid motion (basis T) fitted to
       the receiver rows (T_r, selected by S_r) of the error. This differs from F^+.
 
-    Raises DegenerateGeometryError when more than the rigid motions are unobservable.
+    The gauge is removed analytically and the rank judged relative to the information's own
+    spectrum, so the bound is finite wherever F is regular beyond the rigid motions.
+
+    Priors (the receivers are then a trajectory, consecutive rows one step apart):
+
+    - ``step_bounds`` (lower, upper), each (M - 1,), metres, read as ``step_prior`` says:
+      "uniform" (the default of :func:`rangeslam.mdu.slam`): the information of the Gaussian
+      factor the estimator adds, mean (lower + upper) / 2 and spread max((upper - lower) /
+      sqrt(12), step_sigma) (U(lower, upper)'s moments; the bound is that of the estimator that
+      uses this Gaussian, which for a step length truly uniform in the bounds is the bound of
+      the best linear use of its first two moments); "dead_zone": no information at all, since
+      the dead-zone factor is flat inside the bounds (a true step strictly inside them);
+    - ``step_sigma``: the floor of that spread, metres (default ``sigma``, as the estimator);
+    - ``odometry_sigma``: step lengths measured with N(0, odometry_sigma^2) noise (odometry range
+      factors); the information does not depend on the measured values. (Step vectors, which
+      also fix the orientation, are not covered.)
+
+    Raises InvalidInputError for bad input (naming the argument) and DegenerateGeometryError when
+    more than the rigid motions are unobservable.
     """
     x = as_points(receivers, "receivers")
     d = x.shape[1]
@@ -225,18 +335,8 @@ def mdu_crlb(
     if not isinstance(gauge, str) or gauge not in ("receivers", "all"):
         raise InvalidInputError(f"gauge must be 'receivers' or 'all'; got {gauge!r}")
     sigma = _check_sigma(sigma)
-    pairs = np.argwhere(observed)
-    diff = x[pairs[:, 0]] - s[pairs[:, 1]]
-    dist = np.linalg.norm(diff, axis=1)
-    if np.any(dist == 0):
-        raise DegenerateGeometryError(
-            "a receiver coincides with a source: the range gradient is undefined"
-        )
-    u = diff / dist[:, None]
-    jac = np.zeros((len(pairs), (m + k) * d))
-    for row, ((i, j), uu) in enumerate(zip(pairs, u, strict=True)):
-        jac[row, i * d : (i + 1) * d] = uu
-        jac[row, (m + j) * d : (m + j + 1) * d] = -uu
+    spreads = _step_prior_sigmas(step_bounds, step_prior, step_sigma, odometry_sigma, m, sigma)
+    jac = _whitened_jacobian(x, s, observed, spreads, sigma)
     cov, null_dim = _gauge_free_covariance(jac, rigid_motion_basis(np.vstack([x, s])), sigma)
     if gauge == "receivers":
         proj = receiver_gauge_projection(x, s)
