@@ -37,6 +37,7 @@ from rangeslam._validation import (
     as_points,
     as_ranges,
     as_rng,
+    as_scalar,
     frozen,
     shape_str,
 )
@@ -51,6 +52,14 @@ from rangeslam.localization.robust_start import (
     robust_start,
 )
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdicts import (
+    ambiguity_check,
+    consistency_check,
+    first_failure,
+    information_check,
+    mirror_gap,
+    noise_upper_bound,
+)
 
 __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
 
@@ -59,6 +68,9 @@ __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "mul
 log = logging.getLogger(__name__)
 
 WeightSpec = ArrayLike | Literal["uniform", "inverse_range"] | None
+
+# Exact data: RMS range residual at most this fraction of the median range (round-off only).
+EXACT_RMS = 1e-8
 
 # Relative singular-value threshold below which anchors are taken to be affinely dependent.
 _AFFINE_RTOL = 1e-8
@@ -345,6 +357,29 @@ def _robust_fit(
     return Verdict(failed, search.rejected, Status.OUTLIERS, message)
 
 
+def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> Verdict:
+    """The verdict of :mod:`rangeslam.verdicts` on a fit: determined, unambiguous, consistent."""
+    d, inl, scale = prob.dim, verdict.inliers, prob.scale
+    x = verdict.fit.x
+    a, r = prob.anchors_s[inl], prob.ranges_s[inl]
+    res = _range_residuals(x, a, r)
+    diff = x - a
+    jac = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-12)[:, None]
+    redundancy = len(r) - d
+    noise_s = noise_std / scale if noise_std is not None else None
+    sigma_s = noise_s if noise_s is not None else noise_upper_bound(float(res @ res), redundancy)
+    exact = EXACT_RMS * float(np.median(r))
+    range_scale = float(np.median(r))
+    check = first_failure(
+        consistency_check(res, jac, redundancy, noise_s, range_scale, exact),
+        information_check(jac, None, sigma_s, range_scale, "the point", dim=d),
+        ambiguity_check(mirror_gap(x, a, r), sigma_s, exact, "the point"),
+    )
+    if check.passed:
+        return verdict
+    return Verdict(verdict.fit, inl, check.status, f"{verdict.message}; {check.reason}")
+
+
 def _result(prob: ScaledProblem, verdict: Verdict, weights: WeightSpec) -> MultilaterationResult:
     """Back to the caller's units: position, residuals and the eq. (3) cost over the inliers."""
     a, r, observed, scale = prob.anchors, prob.ranges, prob.observed, prob.scale
@@ -374,6 +409,7 @@ def multilaterate(
     robust: bool = False,
     inlier_threshold: float | None = None,
     max_hypotheses: int = 2000,
+    noise_std: float | None = None,
     rng: np.random.Generator | int | None = None,
 ) -> MultilaterationResult:
     """Locate a point from its distances to known anchors: SR-LS, the exact minimiser of eq. (3).
@@ -398,13 +434,19 @@ def multilaterate(
             themselves.
         max_hypotheses: with ``robust``, the number of random anchor subsets tried when there are
             more subsets than this (otherwise all are tried).
+        noise_std: the range noise's standard deviation in metres, if known: the verdict then
+            tests the residuals against it (chi-square); without it, against their own robust scale.
         rng: random generator (or seed) for the subset draws.
 
     Returns:
-        :class:`MultilaterationResult`.
+        :class:`MultilaterationResult`. Its status is CONVERGED only when the point is determined
+        (the anchors' information has full rank and fixes it to a small fraction of the anchors'
+        spread; no mirror image through nearly coplanar anchors fits as well), the residuals fit
+        the noise, and no heavy tail of residuals is left (see :mod:`rangeslam.verdicts`).
     """
     rng = as_rng(rng)
     robust = as_flag(robust, "robust")
+    noise_std = as_scalar(noise_std, "noise_std", low=0.0, allow_none=True)
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_obs = prob.dim, prob.n_observed
@@ -424,4 +466,6 @@ def multilaterate(
             "inconsistent ranges leave a set of equally good points); one of them is returned"
         )
         verdict = Verdict(verdict.fit, verdict.inliers, Status.NOT_IDENTIFIABLE, message)
+    elif verdict.status is Status.CONVERGED:
+        verdict = _checked(prob, verdict, noise_std)
     return _result(prob, verdict, weights)

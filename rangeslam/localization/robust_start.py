@@ -218,7 +218,8 @@ def check_robust_options(inlier_threshold, max_hypotheses) -> tuple[float | None
 
     Raises InvalidInputError naming the option (strings, bools, arrays, NaN or inf refused).
     """
+    # The ceiling keeps squared thresholds finite (1e100 m is no physical threshold).
     threshold = as_scalar(
-        inlier_threshold, "inlier_threshold", low=0.0, low_open=True, allow_none=True
+        inlier_threshold, "inlier_threshold", low=0.0, low_open=True, high=1e100, allow_none=True
     )
     return threshold, as_scalar(max_hypotheses, "max_hypotheses", low=1, integer=True)

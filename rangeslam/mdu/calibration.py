@@ -15,6 +15,7 @@ the coordinate axes (signs fixed by the receivers' third moments).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -38,6 +39,7 @@ from rangeslam.mdu.core import (
     mdu_edm,
     mdu_mask,
     passes_residual_test,
+    unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
@@ -295,7 +297,10 @@ def parse_calibration(
         ("random_starts", random_starts, 0),
     ):
         check_int(value, name, low)
-    refine, robust = as_flag(refine, "refine"), as_flag(robust, "robust")
+    refine = as_flag(refine, "refine")
+    if isinstance(robust, str):
+        raise InvalidInputError(f"robust must be True, False or 'auto'; got {robust!r}")
+    robust = as_flag(robust, "robust")
     if robust and not refine:
         raise InvalidInputError(
             "robust=True needs refine=True (wrong picks are found by refitting)"
@@ -397,7 +402,39 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         all_runs = attempts + len(failures) == problem.options.max_attempts
         if problem.noise_std is None and confirmed and all_runs:
             break
+    if problem.robust and best is not None:
+        best, extra = lowest_on_inliers(best, problem, cauchy_scale, rng)
+        starts += extra
     return SearchOutcome(best, confirmed, attempts, iterations, starts, tuple(failures))
+
+
+#: Random least-squares starts on a robust answer's inliers (at most ``random_starts``).
+ROBUST_CHECK_STARTS = 30
+
+
+def lowest_on_inliers(
+    best: Candidate, problem: CalibrationProblem, cauchy_scale: float | None, rng
+) -> tuple[Candidate, int]:
+    """Whether the robust answer is the lowest configuration its own inliers allow: least squares
+    from random points on those ranges; a lower one (a wrong local minimum that dropped the
+    right ranges) is refitted robustly and kept if its Cauchy cost is lower. Returns the best
+    candidate and the number of random starts made."""
+    m, n_starts = problem.ranges.shape[0], min(ROBUST_CHECK_STARTS, problem.random_starts)
+    kept = np.where(best.inliers, problem.ranges, 0.0)
+    lowest, lowest_ssr = None, best.ssr
+    for _ in range(n_starts):
+        points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
+        fit = refine_unfolding(points[:m], points[m:], kept, best.inliers)
+        ssr = float(np.sum(fit.residuals[best.inliers] ** 2))
+        if ssr < lowest_ssr * (1 - 1e-6):
+            lowest, lowest_ssr = np.vstack([fit.receivers, fit.sources]), ssr
+    if lowest is None:
+        return best, n_starts
+    cand = fit_start(Start(lowest, None), problem, cauchy_scale, rng)
+    if cand is None or cand.key >= best.key:
+        return best, n_starts
+    note = "a random start on the robust inliers found a lower configuration; "
+    return dataclasses.replace(cand, message=cand.message + note), n_starts
 
 
 def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> tuple[Status, str]:
@@ -450,6 +487,17 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
     if (problem.refine or problem.robust) and not best.fit.converged:
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
         message += f"least squares failed: {best.fit.message}; "
+    if status is Status.CONVERGED:
+        check = unfolding_check(
+            best.fit.receivers,
+            best.fit.sources,
+            problem.ranges,
+            best.inliers,
+            noise_std,
+            problem.exact_rms,
+            what="the calibration",
+        )
+        status, message = check.status, message + check.reason
     return status, message.rstrip("; ")
 
 
@@ -491,7 +539,7 @@ def calibrate(
     mask: ArrayLike | None = None,
     noise_std: float | None = None,
     refine: bool = True,
-    robust: bool = False,
+    robust: bool | str = "auto",
     max_attempts: int = 8,
     random_starts: int = 100,
     fit_weight: float = 10.0,
@@ -519,7 +567,9 @@ def calibrate(
             fit's residuals), then ranges whose studentized residual exceeds 3 sigma (sigma =
             ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
             until the set is stable. Runs are ranked by their Cauchy cost over all ranges. No
-            random starts are made.
+            random starts are made. ``"auto"`` (the default): least squares on all ranges first,
+            and the robust fit when that ends INCONSISTENT, OUTLIERS or NO_AGREEMENT (the
+            residuals then carry a tail no noise explains); ``False``: never.
         max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
@@ -536,15 +586,35 @@ def calibrate(
     SolverError (with the statuses) when no run gives a usable answer.
     """
     options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
+    auto = isinstance(robust, str) and robust == "auto"
     problem = parse_calibration(
-        ranges, mask, dim, noise_std, refine, robust, random_starts, options
+        ranges, mask, dim, noise_std, refine, False if auto else robust, random_starts, options
     )
-    outcome = search(problem, as_rng(rng))
+    rng = as_rng(rng)
+    result = solve_calibration(problem, rng)
+    if not (auto and refine and result.status in AUTO_ROBUST_STATUSES):
+        return result
+    second = solve_calibration(dataclasses.replace(problem, robust=True), rng)
+    note = (
+        f"robust='auto': least squares on all ranges ended {result.status.name} "
+        f"({result.message.split(':')[0]}), so wrong picks were searched for; "
+    )
+    return dataclasses.replace(second, message=note + second.message)
+
+
+#: Statuses of a least-squares calibration after which robust="auto" searches for wrong picks.
+AUTO_ROBUST_STATUSES = (Status.INCONSISTENT, Status.OUTLIERS, Status.NO_AGREEMENT)
+
+
+def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> Calibration:
+    """One calibration of a parsed problem: the search over starts, the verdict, the result.
+    Raises SolverError when no start gives a usable answer."""
+    outcome = search(problem, rng)
     if outcome.best is None:
         failures = outcome.solver_failures
         raise SolverError(
             "calibration found no usable solution: every SDP run failed"
-            if len(failures) == max_attempts
+            if len(failures) == problem.options.max_attempts
             else "calibration found no usable solution: every fit diverged",
             status="; ".join(dict.fromkeys(failures)) or None,
         )

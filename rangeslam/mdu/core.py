@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.stats import f as f_dist
 
 from rangeslam._validation import (
     as_dim,
@@ -25,10 +26,27 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
+from rangeslam.solvers.least_squares import (
+    refine_unfolding,
+    unfolding_jacobian,
+    unfolding_residuals,
+)
 from rangeslam.status import Status
+from rangeslam.verdicts import (
+    PASSED,
+    Check,
+    consistency_check,
+    first_failure,
+    flatness_check,
+    information_check,
+    noise_upper_bound,
+    point_check,
+)
 
 __all__ = [
     "CHI2_LEVEL",
+    "DIMENSION_LEVEL",
     "EXACT_RTOL",
     "MAX_RELATIVE_RMS",
     "SAME_RTOL",
@@ -38,12 +56,16 @@ __all__ = [
     "canonical_frame",
     "check_determined",
     "convex_iteration_runs",
+    "dimension_check",
     "least_steps",
+    "lifted_ssr",
     "mdu_edm",
     "mdu_mask",
     "passes_residual_test",
+    "points_check",
     "residual_status",
     "rotated_covariances",
+    "unfolding_check",
     "unknowns_up_to_rigid_motion",
     "validated_ranges",
 ]
@@ -314,3 +336,163 @@ def checked_options(options: ConvexIterationOptions) -> ConvexIterationOptions:
             expected="in (0, 1)",
         ),
     )
+
+
+def unfolding_check(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    noise_std: float | None,
+    exact_rms: float,
+    *,
+    prior_jac: np.ndarray | None = None,
+    n_offsets: int = 0,
+    what: str = "the configuration",
+    judge_sources: bool = True,
+) -> Check:
+    """The verdict of :mod:`rangeslam.verdicts` on an unfolding's answer (eq. 9 model).
+
+    Args:
+        receivers, sources: (M, d), (K, d) the answer, metres.
+        ranges, observed: (M, K) the ranges the answer was fitted to and where they are observed.
+        noise_std: the range noise if known (else estimated from the residuals), metres.
+        exact_rms: RMS residual of exact data (round-off), metres.
+        prior_jac: (P, (M + K) d) extra rows of the information in range-noise units (step
+            priors: their Jacobian times noise sigma over the prior's sigma), or None.
+        n_offsets: unknown range offsets the model also fitted (they use up redundancy).
+        what: what the points are, for the reason.
+        judge_sources: whether a source that is weakly determined or has a mirror image fails
+            the check (calibration); False only notes it in the reason (SLAM, whose answer is
+            the trajectory: on a planar walk every landmark has its mirror image).
+
+    Checks in turn: the residuals against the noise, whether the points are flat, the
+    information's rank beyond the rigid motions and the receivers' precision (in the receiver
+    gauge: errors after aligning the receivers, as :func:`rangeslam.mdu_crlb` bounds them), each
+    point against its partners held fixed (its precision, and its mirror image through their
+    plane: a point heard by d partners, or by nearly coplanar ones, is fixed only up to it;
+    receivers only without priors, which tie them to each other).
+    """
+    m, d = receivers.shape
+    points = np.vstack([receivers, sources])
+    pairs = np.argwhere(observed)
+    jac = unfolding_jacobian(points, m, pairs)
+    residuals = (
+        np.linalg.norm(points[pairs[:, 0]] - points[m + pairs[:, 1]], axis=1) - ranges[observed]
+    )
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(len(points), d) - n_offsets
+    info_jac = jac if prior_jac is None else np.vstack([jac, prior_jac])
+    sigma = noise_std if noise_std else noise_upper_bound(float(residuals @ residuals), redundancy)
+    scale = float(np.median(ranges[observed]))
+    # Residuals first: a noise level estimated from residuals that do not fit means nothing.
+    consistency = first_failure(
+        consistency_check(residuals, jac, redundancy, noise_std, scale, exact_rms),
+        dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms),
+    )
+    if not consistency.passed:
+        return consistency
+    sources_note = ""
+    if not judge_sources:
+        note = points_check(receivers, sources, ranges, observed, sigma, exact_rms, False)
+        sources_note = "" if note.passed else f"not judged, {note.reason}"
+    check = first_failure(
+        flatness_check(points, sigma, scale, what),
+        information_check(
+            info_jac,
+            rigid_motion_basis(points),
+            sigma,
+            scale,
+            what,
+            dim=d,
+            rows=np.arange(m * d),
+            projection=receiver_gauge_projection(receivers, sources),
+        ),
+        points_check(receivers, sources, ranges, observed, sigma, exact_rms, prior_jac is None)
+        if judge_sources
+        else PASSED,
+    )
+    return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
+
+
+def points_check(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    sigma: float | None,
+    exact_rms: float,
+    with_receivers: bool,
+) -> Check:
+    """:func:`rangeslam.verdicts.point_check` for every source against the receivers that hear
+    it and, with ``with_receivers``, every receiver against its sources ((M, K) ``ranges`` and
+    ``observed``; metres)."""
+    scale = float(np.median(ranges[observed]))
+    for k, source in enumerate(sources):
+        obs = observed[:, k]
+        check = point_check(
+            source, receivers[obs], ranges[obs, k], sigma, exact_rms, scale, f"source {k}"
+        )
+        if not check.passed:
+            return check
+    for i, receiver in enumerate(receivers if with_receivers else ()):
+        obs = observed[i]
+        check = point_check(
+            receiver, sources[obs], ranges[i, obs], sigma, exact_rms, scale, f"receiver {i}"
+        )
+        if not check.passed:
+            return check
+    return PASSED
+
+
+def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:
+    """The least sum of squared range residuals (m^2) of 3-D least squares started from the 2-D
+    ``points`` (M + K, 2) lifted off their plane by fixed patterns (alternating and golden-angle
+    signs, 5% and 20% of the median range): a 3-D fit has local minima."""
+    n, scale = len(points), float(np.median(ranges[observed]))
+    best = float("inf")
+    for pattern in ((-1.0) ** np.arange(n), np.cos(2.39996 * np.arange(n))):
+        for lift in (0.05, 0.2):
+            lifted = np.column_stack([points, lift * scale * pattern])
+            fit = refine_unfolding(lifted[:m], lifted[m:], ranges, observed)
+            ssr = float(np.sum(fit.residuals[observed] ** 2))
+            best = min(best, ssr) if np.isfinite(ssr) else best
+    return best
+
+
+#: Significance of the F-test that finds 3-D data fitted with dim=2.
+DIMENSION_LEVEL = 0.999
+
+
+def dimension_check(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    redundancy: int,
+    exact_rms: float,
+) -> Check:
+    """INCONSISTENT when a 2-D answer's ranges are fitted significantly better in 3-D (an F-test
+    at DIMENSION_LEVEL of the residual drop against the N - 3 extra unknowns): the data are not
+    planar and dim=2 leaves a structured residual that no noise level explains. A 3-D answer
+    passes. ``receivers`` (M, d), ``sources`` (K, d), ``ranges`` and ``observed`` (M, K)."""
+    m, d = receivers.shape
+    n = m + len(sources)
+    pairs = np.argwhere(observed)
+    residuals = unfolding_residuals(np.vstack([receivers, sources]), m, ranges[observed], pairs)
+    ssr2 = float(residuals @ residuals)
+    extra = n - 3  # one coordinate per point, less the three extra rigid motions of 3-D
+    if d != 2 or redundancy - extra <= 0 or ssr2 <= exact_rms**2 * residuals.size:
+        return PASSED
+    ssr3 = lifted_ssr(np.vstack([receivers, sources]), m, ranges, observed)
+    if not np.isfinite(ssr3) or ssr3 >= ssr2:
+        return PASSED
+    dof3 = redundancy - extra
+    stat = ((ssr2 - ssr3) / extra) / max(ssr3 / dof3, 1e-300)
+    if stat > f_dist.ppf(DIMENSION_LEVEL, extra, dof3):
+        return Check(
+            Status.INCONSISTENT,
+            f"the data are not planar: fitted in 3-D the residual sum of squares drops from "
+            f"{ssr2:.3g} to {ssr3:.3g} m^2 (F = {stat:.3g} on {extra} and {dof3} degrees of "
+            "freedom); fit with dim=3",
+        )
+    return PASSED

@@ -33,6 +33,7 @@ from rangeslam.mdu.core import (
     passes_residual_test,
     residual_status,
     rotated_covariances,
+    unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
@@ -430,7 +431,68 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
     if best.fit is not None and not best.fit.converged:
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
         message += f"GTSAM: {best.fit.message}; "
+    if status is Status.CONVERGED:
+        check = trajectory_check(problem, best)
+        status, message = check.status, message + check.reason
     return status, message.rstrip("; ")
+
+
+def step_prior_rows(problem: SlamProblem, receivers: np.ndarray, sigma: float, n_points: int):
+    """(P, (M + K) d) the information rows of the step priors the graph used, in range-noise
+    units (the step-length Jacobian times sigma over the prior's sigma): with "uniform" every
+    step's moment-matched Gaussian (spread max(width / sqrt(12), step sigma)); with "dead_zone"
+    only the steps at a bound (within the step sigma), where the prior is active. None without
+    bounds or rows."""
+    if problem.bounds is None:
+        return None
+    lower, upper = problem.bounds.lower, problem.bounds.upper
+    step_sigma = problem.step_sigma or sigma
+    steps = np.linalg.norm(np.diff(receivers, axis=0), axis=1)
+    if problem.step_prior == "uniform":
+        spread = np.maximum((upper - lower) / np.sqrt(12.0), step_sigma)
+        active = np.ones(len(steps), dtype=bool)
+    else:
+        spread = np.full(len(steps), step_sigma)
+        active = (steps <= lower + step_sigma) | (steps >= upper - step_sigma)
+    index = np.flatnonzero(active)
+    if index.size == 0:
+        return None
+    d = problem.dim
+    unit = np.diff(receivers, axis=0)[index] / np.maximum(steps[index], 1e-300)[:, None]
+    jac = np.zeros((len(index), n_points * d))
+    rows = np.arange(len(index))[:, None]
+    cols = np.arange(d)[None, :]
+    jac[rows, (index[:, None] + 1) * d + cols] = unit
+    jac[rows, index[:, None] * d + cols] = -unit
+    return jac * (sigma / spread[index])[:, None]
+
+
+def trajectory_check(problem: SlamProblem, best: SlamRun):
+    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows;
+    with a robust kernel only the ranges it kept (within 4 robust standard deviations)."""
+    observed = problem.observed
+    residuals = best.residuals
+    if problem.robust:
+        res = np.abs(residuals[observed])
+        sigma = problem.noise_std or MAD_TO_STD * float(np.median(res))
+        observed = observed & (np.abs(np.nan_to_num(residuals, nan=np.inf)) <= 4 * sigma)
+    res = residuals[observed]
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(
+        sum(problem.ranges.shape), problem.dim
+    )
+    sigma = problem.noise_std or (float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0)
+    n_points = sum(problem.ranges.shape)
+    return unfolding_check(
+        best.receivers,
+        best.sources,
+        problem.ranges,
+        observed,
+        problem.noise_std,
+        EXACT_RTOL * problem.scale,
+        prior_jac=step_prior_rows(problem, best.receivers, sigma, n_points) if sigma else None,
+        what="the trajectory",
+        judge_sources=False,
+    )
 
 
 def slam_result(
