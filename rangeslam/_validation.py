@@ -7,6 +7,8 @@ expected and what arrived.
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -22,6 +24,7 @@ __all__ = [
     "as_scalar",
     "check_int",
     "check_option_keys",
+    "check_options_for",
     "check_positive",
     "frozen",
     "shape_str",
@@ -158,8 +161,10 @@ def check_int(value, name: str, low: int) -> int:
 def check_positive(value, name: str) -> float:
     """``value`` as a float, refused (naming ``name``) unless a finite number > 0 (not a bool)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    if not (np.isfinite(value) and value > 0):
+        raise InvalidInputError(f"{name} must be a positive number; got {value!r:.80}")
+    if isinstance(value, int) and abs(value) > 2**1000:  # np.isfinite cannot take it
+        raise InvalidInputError(f"{name} must be a positive number; got {len(str(value))} digits")
+    if not (np.isfinite(float(value)) and value > 0):
         raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
     return float(value)
 
@@ -289,3 +294,20 @@ def check_option_keys(options, name: str, accepted) -> dict:
                 f"{name} has an unknown key {key!r:.40}; accepted keys: {', '.join(accepted)}"
             )
     return dict(options)
+
+
+def check_options_for(options, name: str, func, *, passed=()) -> dict:
+    """An options dict (None for none) of keyword arguments for ``func``, as a new dict.
+
+    Accepted keys: the parameters of ``func`` that can be given by keyword, less ``passed`` (the
+    ones the caller sets itself: a key among them would collide). Raises InvalidInputError naming
+    the dict, the unknown key and the accepted keys (:func:`check_option_keys`), instead of the
+    TypeError ``func`` would raise later.
+    """
+    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    accepted = [
+        p.name
+        for p in inspect.signature(func).parameters.values()
+        if p.kind in kinds and p.name not in passed
+    ]
+    return check_option_keys(options, name, accepted)

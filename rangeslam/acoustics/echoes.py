@@ -70,7 +70,7 @@ from scipy.ndimage import median_filter
 from scipy.signal import fftconvolve, find_peaks, hilbert
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam._validation import as_float_array, frozen, shape_str
+from rangeslam._validation import as_flag, as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
 __all__ = [
@@ -99,6 +99,10 @@ _TAILS = 0.5
 # Half-length of the running median taken as the baseline: seconds, and at least this many pulse
 # widths.
 _BASELINE_TIME = 0.01
+#: Highest sampling rate accepted, Hz (10 MHz, far above audio and ultrasonic ranging): the
+#: baseline's running median spans _BASELINE_TIME * fs samples, which at absurd rates (fs = 1e10
+#: from a unit slip) exhausted memory instead of failing.
+MAX_FS = 1e7
 _BASELINE_WIDTHS = 16
 # Envelope half-width at half maximum of the band-limited impulse (|sinc(t / 2)|), samples: the
 # unit of pulse width, which scales the default separation, the baseline and the side-lobe test.
@@ -308,15 +312,17 @@ def _as_rir(value: ArrayLike, name: str) -> np.ndarray:
 
 
 def _as_fs(fs: object) -> float:
+    what = f"fs must be a positive number of Hz, at most {MAX_FS:g}"
     if isinstance(fs, bool) or not isinstance(fs, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"fs must be a positive number of Hz; got {fs!r}")
-    if not (math.isfinite(fs) and fs > 0):
-        raise InvalidInputError(f"fs must be a positive number of Hz; got {fs!r}")
+        raise InvalidInputError(f"{what}; got {fs!r:.80}")
+    if not (math.isfinite(fs) and 0 < fs <= MAX_FS):
+        raise InvalidInputError(f"{what}; got {fs!r:.80}")
     return float(fs)
 
 
 def _as_real(value: object, name: str, *, low: float, high: float = math.inf) -> float:
     ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    ok = ok and not (isinstance(value, int) and abs(value) > 2**1000)  # beyond any float
     if not ok or not (math.isfinite(value) and low <= value <= high):  # type: ignore[arg-type]
         span = f">= {low:g}" if high == math.inf else f"in [{low:g}, {high:g}]"
         raise InvalidInputError(f"{name} must be a finite number {span}; got {value!r}")
@@ -394,7 +400,7 @@ class _Params:
             max_sample=max_sample,
             noise_span=span,
             direct_fraction=direct_fraction,
-            baseline=bool(baseline),
+            baseline=as_flag(baseline, "baseline"),
         )
 
 

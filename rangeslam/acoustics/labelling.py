@@ -78,8 +78,17 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam._validation import as_points, as_rng, check_int, check_positive, frozen, shape_str
-from rangeslam.acoustics.echoes import EchoDetection, detect_echoes_many
+from rangeslam._validation import (
+    as_float_array,
+    as_points,
+    as_rng,
+    check_int,
+    check_options_for,
+    check_positive,
+    frozen,
+    shape_str,
+)
+from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
 from rangeslam.acoustics.label_audit import ambiguous, classify, normal_std, wall_of
 from rangeslam.acoustics.label_search import (
     Peaks,
@@ -97,6 +106,7 @@ from rangeslam.localization.room_reconstruction import RoomReconstruction, recon
 from rangeslam.status import HasStatus, Status
 
 __all__ = [
+    "MAX_HYPOTHESES",
     "EchoLabelling",
     "RoomFromRirs",
     "label_echoes",
@@ -111,6 +121,10 @@ _MIN_FIT = 0.125
 _MAX_GATE = 3.0
 # Rounds of hypotheses, each from n_triples new triples of microphones.
 _ROUNDS = 4
+#: Largest ``max_hypotheses`` accepted: ten times the default. A round holds up to n_triples times
+#: this many hypotheses, each with (M,) gates and (M, 3) offsets to the microphones in float64
+#: (at M = 30 and 8 triples about 3.5 GB at this limit), so larger values only exhaust memory.
+MAX_HYPOTHESES = 500_000
 
 # Measured on pyroomacoustics shoebox rooms (tests/test_echo_labelling.py: reflection order 3,
 # absorption 0.1-0.3, 8-12 microphones in a 0.5 m cube or spread in the room, 30 rooms each):
@@ -361,6 +375,11 @@ def _parse_labelling(
     min_mics = min(check_int(min_mics, "min_mics", 4), m_n)
     n_triples = check_int(n_triples, "n_triples", 1)
     max_hypotheses = check_int(max_hypotheses, "max_hypotheses", 1)
+    if max_hypotheses > MAX_HYPOTHESES:
+        raise InvalidInputError(
+            f"max_hypotheses must be an integer in [1, {MAX_HYPOTHESES}] (each hypothesis is "
+            f"held in memory); got {max_hypotheses}"
+        )
     tol = (
         c / min(d.fs for d in dets) if tolerance is None else check_positive(tolerance, "tolerance")
     )
@@ -682,7 +701,16 @@ def room_from_rirs(
         the walls found do not bound a room, ``converged`` is False as well.
     """
     rng = as_rng(rng)
-    opts = dict(detect_options or {})
+    c = check_positive(c, "c")
+    as_points(mics, "mics", dim=3)  # checked before the (slow) detection; label_echoes converts
+    opts = check_options_for(detect_options, "detect_options", detect_echoes, passed=("rir", "fs"))
+    lopts = check_options_for(
+        label_options, "label_options", label_echoes, passed=("detections", "mics", "c", "rng")
+    )
+    ropts = check_options_for(
+        reconstruct_options, "reconstruct_options", reconstruct_room,
+        passed=("mics", "ranges", "mask", "rng"),
+    )  # fmt: skip
     shift = 0.0
     if direct_template is not None:
         if "excitation" in opts:
@@ -691,12 +719,12 @@ def room_from_rirs(
     dets = tuple(detect_echoes_many(rirs, fs, **opts))
     if shift:  # times of the template's peak, not of its start
         dets = tuple(replace(d, times=frozen(d.times + shift)) for d in dets)
-    lab = label_echoes(dets, mics, c=c, rng=rng, **(label_options or {}))
+    lab = label_echoes(dets, mics, c=c, rng=rng, **lopts)
     if not lab.converged or lab.n_images == 0:
         status = lab.status if not lab.converged else Status.NOT_IDENTIFIABLE
         msg = f"echo labelling did not converge: {lab.message}"
         return RoomFromRirs(dets, lab, None, status, msg)
-    ropts = {"inlier_threshold": 2.0 * lab.tolerance, **(reconstruct_options or {})}
+    ropts = {"inlier_threshold": 2.0 * lab.tolerance, **ropts}
     rec = reconstruct_room(mics, lab.ranges, mask=lab.mask, rng=rng, **ropts)
     msg = f"labelling: {lab.message}; reconstruction: {rec.message}"
     if not rec.converged:
@@ -720,7 +748,7 @@ def _direct_template(rirs, fs, direct_template) -> tuple[np.ndarray, float]:
         raise InvalidInputError(
             f"direct_template must be (before, after) in seconds; got {direct_template!r}"
         ) from exc
-    x = np.asarray(rirs, dtype=float)
+    x = as_float_array(rirs, "rirs")
     if x.ndim != 2 or not np.all(np.isfinite(x)) or not np.any(x):
         raise InvalidInputError(
             f"rirs must be a finite, non-silent (M, L) array to take a direct template from; "

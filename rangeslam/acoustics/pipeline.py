@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_float_array, as_points, as_rng, frozen, shape_str
+from rangeslam._validation import as_dim, as_float_array, as_points, as_rng, frozen, shape_str
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
 from rangeslam.datasets.rir_files import (
     LoadedRirs,
@@ -267,8 +267,7 @@ def run_rirs(
     x = _as_rirs(rirs)
     fs = check_fs(fs)
     c = _check_c(c)
-    if isinstance(dim, bool) or dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
+    dim = as_dim(dim)
     options = RirRunOptions(
         direct_template=direct_template,
         detect_options=detect_options,

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
-from rangeslam._validation import check_int, check_positive, frozen
+from rangeslam._validation import as_float_array, check_int, check_positive, frozen
 from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection
 from rangeslam.errors import InvalidInputError
 
@@ -150,7 +150,12 @@ def track_echoes(
     Raises InvalidInputError for fewer than 2 detections, detections with different sampling
     rates, or bad options.
     """
-    dets = list(detections)
+    try:
+        dets = list(detections)
+    except TypeError as exc:
+        raise InvalidInputError(
+            f"detections must be a sequence of EchoDetection; got {type(detections).__name__}"
+        ) from exc
     opts = _parse_tracking(
         dets, max_step, c, tolerance, merge_distance, max_gap, confirm, min_length
     )
@@ -205,7 +210,7 @@ def _parse_tracking(dets, max_step, c, tolerance, merge_distance, max_gap, confi
             f"detections must share one sampling rate; detections[{bad}] has {dets[bad].fs} Hz, "
             f"detections[0] {fs} Hz"
         )
-    steps = np.asarray(max_step, dtype=float)
+    steps = as_float_array(max_step, "max_step")
     if steps.ndim > 1 or (steps.ndim == 1 and steps.shape != (n_frames - 1,)):
         raise InvalidInputError(
             f"max_step must be one number or ({n_frames - 1},), one per pair of frames; got "

@@ -18,8 +18,20 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from rangeslam._robust import mad_sigma
-from rangeslam._validation import as_rng, frozen
-from rangeslam.acoustics.echoes import SPEED_OF_SOUND, EchoDetection, detect_echoes_many
+from rangeslam._validation import (
+    as_dim,
+    as_rng,
+    as_scalar,
+    as_speed,
+    check_options_for,
+    frozen,
+)
+from rangeslam.acoustics.echoes import (
+    SPEED_OF_SOUND,
+    EchoDetection,
+    detect_echoes,
+    detect_echoes_many,
+)
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.mdu.core import canonical_frame, residual_status, rotated_covariances
@@ -284,9 +296,11 @@ def walk_from_rirs(
         tracked, the SDP failed, or the answer failed its residual test.
     """
     rng = as_rng(rng)
-    dets = tuple(detect_echoes_many(rirs, fs, **(detect_options or {})))
+    c, dim, isolation, dopts, topts, sopts = _check_walk_args(
+        c, dim, isolation, detect_options, track_options, slam_options
+    )
+    dets = tuple(detect_echoes_many(rirs, fs, **dopts))
     prob = _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
-    topts = dict(track_options or {})
     topts.setdefault("c", c)
     max_step = topts.pop("max_step", _frame_steps(prob.bounds.upper, prob.keys, len(dets)))
     tracks = track_echoes(dets, max_step, **topts)
@@ -295,7 +309,7 @@ def walk_from_rirs(
     mask = _isolated(prob, key)
     chosen = _choose_start(prob, key, mask)
     out = _WalkOut(prob, tracks, tuple(chosen.start_cols), dets)
-    sopts = {"robust": "huber", **(slam_options or {})}
+    sopts = {"robust": "huber", **sopts}
     first = _first_fit(prob, key.ranges, mask, chosen, sopts, rng)
     if isinstance(first, _Failure):
         return out.result(first.status, first.message)
@@ -395,6 +409,22 @@ class _WalkOut:
             status=Status(status),
             message=msg,
         )
+
+
+def _check_walk_args(c, dim, isolation, detect_options, track_options, slam_options):
+    """The scalars and option dicts of :func:`walk_from_rirs`, checked before the (slow)
+    detection: (c, dim, isolation, detect, track and slam options as new dicts)."""
+    c = as_speed(c, "c")
+    if c is None:
+        raise InvalidInputError("c must be a positive speed of sound in m/s; got None")
+    dim = as_dim(dim)
+    isolation = as_scalar(isolation, "isolation", low=0.0, expected="a number of samples >= 0")
+    dopts = check_options_for(detect_options, "detect_options", detect_echoes, passed=("rir", "fs"))
+    topts = check_options_for(track_options, "track_options", track_echoes, passed=("detections",))
+    sopts = check_options_for(
+        slam_options, "slam_options", slam, passed=("ranges", "mask", "step_bounds", "dim", "rng")
+    )
+    return c, dim, isolation, dopts, topts, sopts
 
 
 def _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation):

@@ -15,7 +15,16 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
-__all__ = ["RangeOdometry", "dead_reckoning"]
+__all__ = ["MAX_BEACONS", "RangeOdometry", "dead_reckoning"]
+
+# Beacons are rows of (B, ...) arrays and variables of the factor graph: an index beyond this is
+# refused (one stray id of 10^12 used to allocate ~931 GiB). Sparse or large ids are mapped to
+# compact rows by RangeOdometry.from_beacon_ids, which keeps the ids in ``beacon_ids``.
+MAX_BEACONS = 100_000
+IDS_HINT = (
+    " (range_beacon holds row indices; for beacon ids that are large or sparse use "
+    "RangeOdometry.from_beacon_ids, which maps them to rows and keeps them in beacon_ids)"
+)
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -28,9 +37,12 @@ class RangeOdometry:
             takes pose k to pose k + 1, moving then turning (Pose2(d, 0, dtheta)).
         range_pose: (R,) index of the pose each range was measured from, non-decreasing (time
             order, which the incremental mode needs).
-        range_beacon: (R,) beacon of each range, 0..B-1.
+        range_beacon: (R,) beacon of each range, a row index 0..B-1 (B <= MAX_BEACONS).
         ranges: (R,) measured ranges [m], > 0 (uncalibrated: see ``range_calibration``).
-        n_beacons: B.
+        n_beacons: B (default: the largest index in ``range_beacon`` + 1).
+        beacon_ids: (B,) the caller's id of each beacon row, distinct integers >= 0 (default
+            0..B-1): a result's beacon row k is the beacon ``beacon_ids[k]``. Any ids, however
+            large or sparse: :meth:`from_beacon_ids`.
     """
 
     pose_time: np.ndarray
@@ -39,6 +51,7 @@ class RangeOdometry:
     range_beacon: np.ndarray
     ranges: np.ndarray
     n_beacons: int | None = None
+    beacon_ids: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         """Validate and freeze (copies); InvalidInputError names what is wrong. Runs for direct
@@ -78,16 +91,25 @@ class RangeOdometry:
             )
         b = self.n_beacons
         if b is None:
-            b = int(np.max(_as_index(self.range_beacon, "range_beacon", len(r), 2**62))) + 1
-        if isinstance(b, bool) or not isinstance(b, int | np.integer) or b < 1:
-            raise InvalidInputError(f"n_beacons must be a positive integer; got {self.n_beacons!r}")
-        beacon = _as_index(self.range_beacon, "range_beacon", len(r), int(b))
+            rows = _as_index(self.range_beacon, "range_beacon", len(r), MAX_BEACONS, IDS_HINT)
+            b = int(np.max(rows)) + 1
+        if isinstance(b, bool) or not isinstance(b, int | np.integer) or not 1 <= b <= MAX_BEACONS:
+            raise InvalidInputError(
+                f"n_beacons must be a positive integer <= {MAX_BEACONS}; got {self.n_beacons!r}"
+            )
+        beacon = _as_index(self.range_beacon, "range_beacon", len(r), int(b), IDS_HINT)
+        ids = np.arange(int(b), dtype=np.int64)
+        if self.beacon_ids is not None:
+            ids = _as_index(self.beacon_ids, "beacon_ids", int(b), 2**62)
+            if len(np.unique(ids)) != len(ids):
+                raise InvalidInputError("beacon_ids must be distinct; some id is repeated")
         for name, value in (
             ("pose_time", t),
             ("odometry", odo),
             ("range_pose", pose),
             ("range_beacon", beacon),
             ("ranges", r),
+            ("beacon_ids", ids),
         ):
             object.__setattr__(self, name, frozen(value))
         object.__setattr__(self, "n_beacons", int(b))
@@ -106,16 +128,43 @@ class RangeOdometry:
         return cls(pose_time, odometry, range_pose, range_beacon, ranges, n_beacons)
 
     @classmethod
+    def from_beacon_ids(
+        cls,
+        pose_time: ArrayLike,
+        odometry: ArrayLike,
+        range_pose: ArrayLike,
+        range_ids: ArrayLike,
+        ranges: ArrayLike,
+    ) -> RangeOdometry:
+        """Like :meth:`create`, with each range's beacon given by any id (R,) (integers >= 0, any
+        size, in any order): the distinct ids become rows 0..B-1 in increasing order and are kept
+        in ``beacon_ids``, so a result's beacon row k is beacon ``beacon_ids[k]``."""
+        shape = np.shape(range_ids) if isinstance(range_ids, list | tuple | np.ndarray) else ()
+        if len(shape) != 1:
+            raise InvalidInputError(
+                f"range_ids must be a 1-D sequence of integer ids, one per range; got {range_ids!r:.80}"
+            )
+        ids = _as_index(range_ids, "range_ids", shape[0], 2**62)
+        unique, rows = np.unique(ids, return_inverse=True)
+        if len(unique) > MAX_BEACONS:
+            raise InvalidInputError(
+                f"range_ids must name at most {MAX_BEACONS} beacons; got {len(unique)}"
+            )
+        return cls(pose_time, odometry, range_pose, rows, ranges, len(unique), unique)
+
+    @classmethod
     def from_plaza(cls, data) -> RangeOdometry:
         """The odometry and ranges of a :class:`~rangeslam.datasets.PlazaDataset` (beacons as its
-        rows; each range at the first pose at or after its time, as GTSAM's Plaza examples do)."""
-        return cls.create(
+        rows, with its ids in ``beacon_ids``; each range at the first pose at or after its time,
+        as GTSAM's Plaza examples do)."""
+        return cls(
             data.pose_time,
             data.odometry,
             data.range_pose,
             data.range_beacon_index,
             data.ranges,
             len(data.beacon_ids),
+            data.beacon_ids,
         )
 
     def first(self, n_poses: int) -> RangeOdometry:
@@ -125,13 +174,14 @@ class RangeOdometry:
                 f"n_poses must be an integer in [2, {len(self.pose_time)}]; got {n_poses!r}"
             )
         keep = self.range_pose < n_poses
-        return RangeOdometry.create(
+        return RangeOdometry(
             self.pose_time[:n_poses],
             self.odometry[: n_poses - 1],
             self.range_pose[keep],
             self.range_beacon[keep],
             self.ranges[keep],
             self.n_beacons,
+            self.beacon_ids,
         )
 
 
@@ -141,8 +191,12 @@ def _finite(arr: np.ndarray, name: str) -> None:
         raise InvalidInputError(f"{name} must be finite; entry {bad} is {arr[bad]}")
 
 
-def _as_index(value: ArrayLike, name: str, length: int, upper: int) -> np.ndarray:
-    arr = np.asarray(value)
+def _as_index(value: ArrayLike, name: str, length: int, upper: int, hint: str = "") -> np.ndarray:
+    """``value`` as (length,) int64 indices in [0, upper), else InvalidInputError naming ``name``."""
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be ({length},) integers; got {value!r:.80}") from exc
     if arr.dtype.kind not in "iuf":
         raise InvalidInputError(f"{name} must hold integers; got dtype {arr.dtype}")
     if arr.shape != (length,):
@@ -152,11 +206,14 @@ def _as_index(value: ArrayLike, name: str, length: int, upper: int) -> np.ndarra
     )
     if not integral:
         raise InvalidInputError(f"{name} must hold integers; got dtype {arr.dtype}")
-    idx = arr.astype(np.int64)
-    if np.any((idx < 0) | (idx >= upper)):
-        i = int(np.argmax((idx < 0) | (idx >= upper)))
-        raise InvalidInputError(f"{name} must lie in [0, {upper - 1}]; entry {i} is {idx[i]}")
-    return idx
+    out = (arr < 0) | (arr >= upper)  # compared before the cast: 1e30 or 2**64 - 1 would wrap
+    if np.any(out):
+        i = int(np.argmax(out))
+        raise InvalidInputError(
+            f"{name} must lie in [0, {upper - 1}]; entry {i} is {arr[i]}"
+            + (hint if arr[i] >= upper else "")
+        )
+    return arr.astype(np.int64)
 
 
 def check_data(data) -> None:

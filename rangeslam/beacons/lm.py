@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rangeslam._validation import as_scalar, check_int
 from rangeslam.status import HasStatus, Status
 
 __all__ = ["LMReport", "levenberg_marquardt"]
@@ -83,6 +84,17 @@ def stall_report(
     )
 
 
+def check_lm_settings(max_iterations, rel_tol, lambda_initial, lambda_max):
+    """The settings of :func:`levenberg_marquardt` checked at its door: max_iterations an integer
+    >= 1, rel_tol in (0, 1), 0 < lambda_initial < lambda_max (finite); InvalidInputError naming
+    the setting otherwise. Returns them as (int, float, float, float)."""
+    iterations = check_int(max_iterations, "max_iterations", 1)
+    tol = as_scalar(rel_tol, "rel_tol", low=0.0, high=1.0, low_open=True, high_open=True)
+    lam0 = as_scalar(lambda_initial, "lambda_initial", low=0.0, low_open=True)
+    lam_max = as_scalar(lambda_max, "lambda_max", low=lam0, low_open=True)
+    return iterations, tol, lam0, lam_max
+
+
 def levenberg_marquardt(
     graph,
     values,
@@ -113,6 +125,9 @@ def levenberg_marquardt(
     """
     import gtsam
 
+    max_iterations, rel_tol, lambda_initial, lambda_max = check_lm_settings(
+        max_iterations, rel_tol, lambda_initial, lambda_max
+    )
     models = {d: gtsam.noiseModel.Unit.Create(d) for d in set(dims.values())}
     cost = initial = graph.error(values)
     if not np.isfinite(cost):

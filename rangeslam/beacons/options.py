@@ -20,14 +20,37 @@ RANGE_CALIBRATIONS = ("affine", "scale", "offset", None)
 def positive_number(value, name: str) -> float:
     """A finite number > 0 (bools refused); InvalidInputError naming ``name`` otherwise."""
     ok = not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.number)
-    if not (ok and np.isfinite(value) and value > 0):
+    ok = ok and not isinstance(value, complex | np.complexfloating)
+    ok = ok and not (isinstance(value, int) and abs(value) > 2**1000)  # beyond any float
+    if not (ok and np.isfinite(float(value)) and value > 0):
         raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
     return float(value)
 
 
+def one_of(value, name: str, choices: tuple, *, or_none: bool = False) -> None:
+    """InvalidInputError naming ``name`` unless ``value`` is one of ``choices`` (or None with
+    ``or_none``). Only strings and None are compared: an array, say, is refused as it is."""
+    if value is None and or_none:
+        return
+    if not (value is None or isinstance(value, str)) or value not in choices:
+        what = ("None or " if or_none else "") + f"one of {choices}"
+        raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
+
+
+def min_window_length(min_spread: float) -> float:
+    """The shortest window that can ever place a beacon, metres: 2 sqrt(2) ``min_spread``.
+
+    A window's poses lie on a path of at most ``window_length`` metres, so within
+    window_length / 2 of the path's midpoint: their covariance has trace <= window_length^2 / 4
+    and its smaller eigenvalue <= window_length^2 / 8. A beacon is placed only when that
+    eigenvalue's root (the RMS spread across the poses' line) reaches ``min_spread``.
+    """
+    return 2.0 * np.sqrt(2.0) * min_spread
+
+
 def check_initialisation(initialisation: str, rng) -> None:
     """InvalidInputError unless ``initialisation`` is "edm" or "random" (the latter with a rng)."""
-    if initialisation not in ("edm", "random"):
+    if not isinstance(initialisation, str) or initialisation not in ("edm", "random"):
         raise InvalidInputError(f"initialisation must be 'edm' or 'random'; got {initialisation!r}")
     if initialisation == "random" and not isinstance(rng, np.random.Generator):
         raise InvalidInputError(
@@ -79,15 +102,8 @@ class BeaconSlamOptions:
 
     def __post_init__(self) -> None:
         """Validate every setting and store it in its canonical type."""
-        if self.range_calibration not in RANGE_CALIBRATIONS:
-            raise InvalidInputError(
-                f"range_calibration must be one of {RANGE_CALIBRATIONS}; got "
-                f"{self.range_calibration!r}"
-            )
-        if self.robust is not None and self.robust not in ROBUST_KERNELS:
-            raise InvalidInputError(
-                f"robust must be None or one of {ROBUST_KERNELS}; got {self.robust!r}"
-            )
+        one_of(self.range_calibration, "range_calibration", RANGE_CALIBRATIONS)
+        one_of(self.robust, "robust", ROBUST_KERNELS, or_none=True)
         osig = as_float_array(self.odometry_sigma, "odometry_sigma")
         if osig.shape != (3,) or not np.all(np.isfinite(osig)) or np.any(osig <= 0):
             raise InvalidInputError(
@@ -107,6 +123,13 @@ class BeaconSlamOptions:
             if isinstance(value, bool) or not (isinstance(value, int | np.integer) and value >= 3):
                 raise InvalidInputError(f"{name} must be an integer >= 3; got {value!r}")
             object.__setattr__(self, name, int(value))
+        shortest = min_window_length(self.min_spread)
+        if self.window_length < shortest:
+            raise InvalidInputError(
+                f"window_length must be >= {shortest:.4g} m (2 sqrt(2) min_spread: a shorter "
+                f"window's poses can never spread min_spread = {self.min_spread:g} m across their "
+                f"line, so no window would place a beacon); got {self.window_length:g}"
+            )
         if not isinstance(self.per_beacon, bool | np.bool_):
             raise InvalidInputError(f"per_beacon must be True or False; got {self.per_beacon!r}")
         object.__setattr__(self, "per_beacon", bool(self.per_beacon))

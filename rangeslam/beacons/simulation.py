@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_float_array, as_points, frozen
+from rangeslam._validation import as_float_array, as_points, as_scalar, frozen
 from rangeslam.beacons.data import RangeOdometry, dead_reckoning
 from rangeslam.beacons.options import positive_number
 from rangeslam.errors import InvalidInputError
@@ -61,6 +61,7 @@ def simulate_beacon_run(
         positive={"step_length": step_length, "dt": dt, "radius": radius},
         fractions={"range_rate": range_rate, "outlier_fraction": outlier_fraction},
         non_negative={"range_std": range_std, "outlier_size": outlier_size},
+        real={"range_scale": range_scale, "range_offset": range_offset},
     )
     k = np.arange(n_steps)
     turn = step_length / radius * (1.0 + 0.8 * np.sin(2 * np.pi * k / 700.0))
@@ -94,29 +95,35 @@ def simulate_beacon_run(
     )
 
 
+# The largest simulated run: a few arrays of n_steps rows each (10^7 steps: about 1 GB).
+MAX_SIM_STEPS = 10_000_000
+
+
 def _check_simulation(
-    rng, n_steps, odometry_std, *, positive: dict, fractions: dict, non_negative: dict
+    rng, n_steps, odometry_std, *, positive: dict, fractions: dict, non_negative: dict, real: dict
 ) -> np.ndarray:
     """Validate :func:`simulate_beacon_run`'s arguments (the dicts map names to values, checked
     in order); returns ``odometry_std`` as (2,)."""
     if not isinstance(rng, np.random.Generator):
-        raise InvalidInputError(f"rng must be a numpy Generator; got {rng!r}")
-    if isinstance(n_steps, bool) or not (isinstance(n_steps, int | np.integer) and n_steps >= 10):
-        raise InvalidInputError(f"n_steps must be an integer >= 10; got {n_steps!r}")
+        raise InvalidInputError(f"rng must be a numpy Generator; got {rng!r:.80}")
+    as_scalar(
+        n_steps, "n_steps", low=10, high=MAX_SIM_STEPS, integer=True,
+        expected=f"an integer >= 10 (at most {MAX_SIM_STEPS})",
+    )  # fmt: skip
     for name, value in positive.items():
         positive_number(value, name)
     for name, value in fractions.items():
-        if not (isinstance(value, int | float | np.number) and 0 <= value <= 1):
-            raise InvalidInputError(f"{name} must be a fraction in [0, 1]; got {value!r}")
+        as_scalar(value, name, low=0.0, high=1.0, expected="a fraction in [0, 1]")
     if fractions["range_rate"] == 0:
         raise InvalidInputError("range_rate must be > 0: without ranges there is nothing to map")
     odo_std = as_float_array(odometry_std, "odometry_std")
     if odo_std.shape != (2,) or not np.all(np.isfinite(odo_std)) or np.any(odo_std < 0):
         raise InvalidInputError(
             f"odometry_std must be two numbers >= 0 (distance [m], heading [rad]); got "
-            f"{odometry_std!r}"
+            f"{odometry_std!r:.80}"
         )
     for name, value in non_negative.items():
-        if not (isinstance(value, int | float | np.number) and np.isfinite(value) and value >= 0):
-            raise InvalidInputError(f"{name} must be a number >= 0; got {value!r}")
+        as_scalar(value, name, low=0.0, expected="a number >= 0")
+    for name, value in real.items():
+        as_scalar(value, name)
     return odo_std

@@ -19,7 +19,7 @@ from rangeslam._robust import MAD_TO_STD
 from rangeslam.beacons.data import RangeOdometry, compose_poses
 from rangeslam.beacons.graph import placed_error
 from rangeslam.beacons.options import BeaconSlamOptions
-from rangeslam.errors import SolverError
+from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.solvers.robust_kernels import robust_noise_model
 
 __all__ = ["Submap"]
@@ -39,6 +39,9 @@ MAX_WINDOW_GAP = 0.1
 STITCH_DRIFT_XY = 1.0
 STITCH_DRIFT_THETA = 0.05
 STITCH_BEACON_SIGMA = 1.0
+# A beacon's 2-D position needs ranges from 3 poses off one line: a window shorter than this
+# many mean steps cannot place one (and there would be up to N / 3 windows to stitch).
+MIN_POSES_PER_WINDOW = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,8 +99,21 @@ class Initialisation:
 
 
 def windows(data: RangeOdometry, length: float) -> tuple[np.ndarray, np.ndarray]:
-    """(N + 1,) distance travelled at each pose [m] and (N + 1,) its window (``length`` m each)."""
+    """(N + 1,) distance travelled at each pose [m] and (N + 1,) its window (``length`` m each).
+
+    InvalidInputError naming window_length when ``length`` is under
+    :data:`MIN_POSES_PER_WINDOW` mean steps of ``data``: such windows hold too few poses to place
+    a beacon (a 2-D position needs ranges from 3 poses off one line), and their number, which
+    the stitching loops over, grows without bound as ``length`` shrinks.
+    """
     travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
+    shortest = MIN_POSES_PER_WINDOW * travelled[-1] / len(data.odometry)
+    if length < shortest:
+        raise InvalidInputError(
+            f"window_length must be >= {shortest:.4g} m for this data ({MIN_POSES_PER_WINDOW} "
+            f"mean steps of {travelled[-1] / len(data.odometry):.4g} m: a window needs ranges "
+            f"from {MIN_POSES_PER_WINDOW} poses to place a beacon); got {length:g}"
+        )
     return travelled, np.floor(travelled / length).astype(int)
 
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,9 +48,18 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_float_array, as_point, frozen, shape_str
 from rangeslam.errors import DataFormatError, InvalidInputError
 
-__all__ = ["PLAZA_CITATION", "PLAZA_NAMES", "PlazaDataset", "plaza"]
+__all__ = ["PLAZA_CITATION", "PLAZA_NAMES", "PlazaDataset", "PlazaFileNotFoundError", "plaza"]
 
 log = logging.getLogger(__name__)
+
+# Ids are read as float64 from text and MATLAB files: beyond 2^53 they are no longer exact.
+MAX_EXACT_ID = 2**53
+
+
+class PlazaFileNotFoundError(InvalidInputError, FileNotFoundError):
+    """A CMU Plaza file is missing: the package's InvalidInputError, and the FileNotFoundError
+    that :func:`plaza` documents."""
+
 
 PLAZA_NAMES = ("Plaza1", "Plaza2")
 
@@ -206,7 +216,8 @@ def plaza(name: str = "Plaza1", *, data_dir: str | Path | None = None) -> PlazaD
 
     Raises:
         InvalidInputError: ``name`` is not one of :data:`PLAZA_NAMES`.
-        FileNotFoundError: a file is missing (the message names it).
+        PlazaFileNotFoundError (an InvalidInputError and a FileNotFoundError): a file is missing
+            (the message names it). InvalidInputError: ``data_dir`` is not a path.
         DataFormatError: a row is malformed or truncated, holds a non-finite value, goes back in
             time (odometry, ground truth), or ranges to a beacon that was not surveyed; the
             message names the file and the 1-based row.
@@ -232,11 +243,12 @@ def plaza(name: str = "Plaza1", *, data_dir: str | Path | None = None) -> PlazaD
 
     td = _read_table(td_path, ("time", "sender id", "beacon id", "range"))
     for col, what in ((1, "sender id"), (2, "beacon id")):
-        bad = td[:, col] != np.round(td[:, col])
+        bad = (td[:, col] != np.round(td[:, col])) | (np.abs(td[:, col]) >= MAX_EXACT_ID)
         if np.any(bad):
             row = int(np.argmax(bad)) + 1
             raise DataFormatError(
-                f"{td_path}, row {row}: {what} must be an integer; got {td[row - 1, col]}"
+                f"{td_path}, row {row}: {what} must be an integer below 2^53; got "
+                f"{td[row - 1, col]}"
             )
     if np.any(td[:, 3] <= 0):
         row = int(np.argmax(td[:, 3] <= 0)) + 1
@@ -275,16 +287,22 @@ def plaza(name: str = "Plaza1", *, data_dir: str | Path | None = None) -> PlazaD
 
 def _locate(filename: str, data_dir: str | Path | None) -> Path:
     if data_dir is not None:
+        if not isinstance(data_dir, str | os.PathLike) or (
+            isinstance(data_dir, str) and ("\x00" in data_dir or not data_dir)
+        ):
+            raise InvalidInputError(
+                f"data_dir must be a directory path (str or Path) or None; got {data_dir!r:.80}"
+            )
         path = Path(data_dir) / filename
         if not path.is_file():
-            raise FileNotFoundError(f"CMU Plaza file not found: {path}")
+            raise PlazaFileNotFoundError(f"CMU Plaza file not found: {path} (data_dir={data_dir})")
         return path
     import gtsam  # the example data ships with GTSAM's Python wheel
 
     try:
         return Path(gtsam.findExampleDataFile(filename))
     except (OSError, RuntimeError) as exc:
-        raise FileNotFoundError(
+        raise PlazaFileNotFoundError(
             f"CMU Plaza file {filename} not found in the installed GTSAM's example data ({exc}); "
             "pass data_dir= with the directory that holds it"
         ) from exc
@@ -369,6 +387,10 @@ def _read_mat(path: Path) -> tuple[np.ndarray, np.ndarray]:
     truth, tl = arrays["GT"], arrays["TL"]
     _check_increasing(truth[:, 0], path, "GT time")
     ids = tl[:, 0]
-    if np.any(ids != np.round(ids)) or len(np.unique(ids)) != len(ids):
+    if (
+        np.any(ids != np.round(ids))
+        or np.any(np.abs(ids) >= MAX_EXACT_ID)
+        or len(np.unique(ids)) != len(ids)
+    ):
         raise DataFormatError(f"{path}: TL ids must be distinct integers; got {ids.tolist()}")
     return truth, tl

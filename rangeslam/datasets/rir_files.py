@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 import warnings
 import zipfile
 from collections.abc import Sequence
@@ -24,6 +25,10 @@ from rangeslam._validation import frozen, shape_str
 from rangeslam.errors import DataFormatError, InvalidInputError
 
 __all__ = ["LoadedRirs", "SilentRirWarning", "load_rirs"]
+
+
+# scipy.io.wavfile's warnings when a file ends before its RIFF header says (scipy 1.x wording).
+TRUNCATED = re.compile(r"EOF|prematurely|Incomplete chunk|truncat", re.IGNORECASE)
 
 
 class SilentRirWarning(UserWarning):
@@ -120,7 +125,8 @@ def load_rirs(
     float WAVs are read as they are.
 
     Raises:
-        DataFormatError naming the file: unreadable, wrong shapes, NaN or infinite samples, files
+        DataFormatError naming the file: unreadable (empty, not a WAV, a truncated WAV that
+        ends before its header says), wrong shapes, NaN or infinite samples, files
         of different lengths or sampling rates (nothing is padded, cropped or resampled), a
         multichannel file among several, ``fs`` missing or contradicting the file.
         InvalidInputError: no such file, a directory without WAV files, a bad ``fs``.
@@ -140,7 +146,11 @@ def load_rirs(
                 raise InvalidInputError(f"no .wav files in the directory {p}{hint}")
         else:
             paths = [p]
-    elif isinstance(path_or_paths, Sequence):
+    elif isinstance(path_or_paths, Sequence) and not isinstance(path_or_paths, bytes):
+        if not all(isinstance(q, str | Path) for q in path_or_paths):
+            raise InvalidInputError(
+                f"path_or_paths must be a path or a list of paths; got {path_or_paths!r:.80}"
+            )
         paths = [Path(q) for q in path_or_paths]
         if not paths:
             raise InvalidInputError("path_or_paths must name at least one file; got none")
@@ -270,16 +280,73 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     )
 
 
+def wav_data_shortfall(q: Path) -> int:
+    """Bytes the ``data`` chunk of the RIFF/RIFX WAV ``q`` declares but the file does not hold.
+
+    0 for a complete file, and for anything this walk cannot follow (RF64, a malformed header):
+    scipy's reader judges those. Catches a file cut inside its samples even when its RIFF size
+    was rewritten to match (scipy then reads the samples that are there without a warning).
+    """
+    size = q.stat().st_size
+    with q.open("rb") as f:
+        head = f.read(12)
+        if len(head) < 12 or head[:4] not in (b"RIFF", b"RIFX") or head[8:12] != b"WAVE":
+            return 0
+        order = "<" if head[:4] == b"RIFF" else ">"
+        pos = 12
+        while pos + 8 <= size:
+            f.seek(pos)
+            chunk_id, chunk_size = struct.unpack(order + "4sI", f.read(8))
+            if chunk_id == b"data":
+                return max(0, pos + 8 + chunk_size - size)
+            pos += 8 + chunk_size + (chunk_size % 2)
+    return 0
+
+
 def _read_wav(q: Path) -> tuple[float, np.ndarray]:
     """(fs, (C, N) float64) of one WAV file, int PCM scaled to [-1, 1)."""
     from scipy.io import wavfile
 
+    if q.stat().st_size == 0:
+        raise DataFormatError(f"{q}: empty file (0 bytes), not a WAV file")
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", wavfile.WavFileWarning)  # unknown chunks (cue, list)
+        with warnings.catch_warnings(record=True) as caught:
+            # Record scipy's WavFileWarnings: unknown chunks (cue, list) are harmless, but a file
+            # that ends before its header says (truncated) would otherwise load silently with the
+            # samples it has.
+            warnings.simplefilter("always", wavfile.WavFileWarning)
             rate, data = wavfile.read(q)
-    except (OSError, ValueError) as exc:
+    except (
+        OSError,
+        ValueError,
+        EOFError,
+        struct.error,
+        MemoryError,
+        OverflowError,
+        IndexError,
+        UnboundLocalError,  # scipy 1.17 on a file without a data chunk
+    ) as exc:
         raise DataFormatError(f"{q}: not a readable WAV file ({exc})") from exc
+    for w in caught:
+        text = str(w.message)
+        if not issubclass(w.category, wavfile.WavFileWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        elif TRUNCATED.search(text):
+            raise DataFormatError(
+                f"{q}: truncated WAV file: it ends before its header says ({text}); "
+                "re-export or copy it again"
+            )
+    short = wav_data_shortfall(q)
+    if short:
+        raise DataFormatError(
+            f"{q}: truncated WAV file: its data chunk is {short} bytes shorter than its header "
+            "says; re-export or copy it again"
+        )
+    data = np.asarray(data)
+    if data.dtype.kind not in "iuf" or data.ndim not in (1, 2):
+        raise DataFormatError(
+            f"{q}: not a readable WAV file (samples of dtype {data.dtype}, {data.ndim} dims)"
+        )
     if data.dtype == np.uint8:
         x = (data.astype(float) - 128.0) / 128.0
     elif np.issubdtype(data.dtype, np.integer):

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_points
+from rangeslam._validation import as_float_array, as_points, as_scalar
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.room import Room
 
@@ -42,7 +42,7 @@ def shoebox_rirs(
     """
     import pyroomacoustics as pra
 
-    size = np.asarray(room_size, dtype=float)
+    size = as_float_array(room_size, "room_size")
     if size.shape != (3,) or not np.all(np.isfinite(size)) or np.any(size <= 0):
         raise InvalidInputError(f"room_size must be 3 positive lengths; got {room_size!r}")
     src = as_points(np.atleast_2d(source), "source", dim=3)[0]
@@ -53,7 +53,7 @@ def shoebox_rirs(
             raise InvalidInputError(
                 f"{name} must lie inside the room; row {int(np.argmax(outside))} does not"
             )
-    _check_options(absorption, fs, max_order)
+    duration = _check_options(absorption, fs, max_order, duration)
     room = pra.ShoeBox(
         size, fs=int(fs), materials=pra.Material(absorption), max_order=int(max_order)
     )
@@ -88,7 +88,7 @@ def room_rirs(
         raise InvalidInputError(f"room must be a 3-D rangeslam Room; got {room!r:.80}")
     k = room.n_walls
     absorb = (
-        np.broadcast_to(np.asarray(absorption, dtype=float), (k,)).copy()
+        np.broadcast_to(as_float_array(absorption, "absorption"), (k,)).copy()
         if np.ndim(absorption) in (0, 1) and np.size(absorption) in (1, k)
         else None
     )
@@ -97,7 +97,7 @@ def room_rirs(
             f"absorption must be one number or one per wall ({k}); got {absorption!r}"
         )
     for a in absorb:
-        _check_options(a, fs, max_order)
+        duration = _check_options(a, fs, max_order, duration)
     src = as_points(np.atleast_2d(source), "source", dim=3)[0]
     rec = as_points(receivers, "receivers", dim=3)
     for name, pts in (("source", src[None]), ("receivers", rec)):
@@ -130,13 +130,30 @@ def _wall_polygons(room: Room) -> list[np.ndarray]:
     return polygons
 
 
-def _check_options(absorption: float, fs, max_order) -> None:
-    if not 0 < absorption <= 1:
-        raise InvalidInputError(f"absorption must be in (0, 1]; got {absorption!r}")
-    if not (np.isfinite(fs) and fs > 0 and float(fs).is_integer()):
-        raise InvalidInputError(f"fs must be a positive whole number of Hz; got {fs!r}")
-    if not (isinstance(max_order, int | np.integer) and max_order >= 0):
-        raise InvalidInputError(f"max_order must be an integer >= 0; got {max_order!r}")
+# Limits of the simulation's sizes: beyond them pyroomacoustics (image sources ~ order^3, samples
+# ~ fs * duration per receiver) exhausts memory instead of failing.
+MAX_SIM_FS = 1_000_000
+MAX_SIM_ORDER = 30
+MAX_SIM_DURATION = 10.0
+
+
+def _check_options(absorption: float, fs, max_order, duration=None) -> float | None:
+    """Check absorption in (0, 1], fs a whole number of Hz in (0, MAX_SIM_FS], max_order an
+    integer in [0, MAX_SIM_ORDER], duration None or seconds in (0, MAX_SIM_DURATION]; returns
+    the duration as a float (or None)."""
+    as_scalar(absorption, "absorption", low=0.0, high=1.0, low_open=True, expected="in (0, 1]")
+    what = f"a positive whole number of Hz, at most {MAX_SIM_FS}"
+    rate = as_scalar(fs, "fs", low=0.0, low_open=True, high=MAX_SIM_FS, expected=what)
+    if not float(rate).is_integer():
+        raise InvalidInputError(f"fs must be {what}; got {fs!r:.80}")
+    as_scalar(
+        max_order, "max_order", low=0, high=MAX_SIM_ORDER, integer=True,
+        expected=f"an integer >= 0 (at most {MAX_SIM_ORDER})",
+    )  # fmt: skip
+    return as_scalar(
+        duration, "duration", low=0.0, low_open=True, high=MAX_SIM_DURATION, allow_none=True,
+        expected=f"None or seconds in (0, {MAX_SIM_DURATION:g}]",
+    )  # fmt: skip
 
 
 def _simulate(room, src: np.ndarray, rec: np.ndarray, fs, duration: float | None) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_mask, as_points, as_ranges, as_rng
+from rangeslam._validation import as_dim, as_mask, as_points, as_ranges, as_rng, as_scalar
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.room import Room
@@ -42,17 +42,33 @@ def echo_ranges(room: Room, receivers: ArrayLike, source: ArrayLike) -> np.ndarr
 
 
 def _check_sigma(sigma: float, name: str = "sigma") -> float:
-    sigma = float(sigma)
-    if not np.isfinite(sigma) or sigma < 0:
-        raise InvalidInputError(f"{name} must be a finite number >= 0; got {sigma}")
-    return sigma
+    return as_scalar(sigma, name, low=0.0, expected="a finite number >= 0")
 
 
 def _check_fraction(p: float, name: str) -> float:
-    p = float(p)
-    if not 0.0 <= p <= 1.0:
-        raise InvalidInputError(f"{name} must be in [0, 1]; got {p}")
-    return p
+    return as_scalar(p, name, low=0.0, high=1.0, expected="in [0, 1]")
+
+
+# The largest simulated mask or set of points, entries (10^8 booleans: 100 MB).
+MAX_ENTRIES = 100_000_000
+
+
+# Most walls of a random convex room (each draw is tried up to 1000 times).
+MAX_WALLS = 100
+
+
+def _check_shape(shape, name: str = "shape") -> tuple[int, ...]:
+    """A shape: a tuple (or list) of integers >= 0 with at most MAX_ENTRIES entries in all."""
+    if isinstance(shape, int | np.integer) and not isinstance(shape, bool):
+        shape = (shape,)
+    if not isinstance(shape, tuple | list) or not all(
+        isinstance(n, int | np.integer) and not isinstance(n, bool) and 0 <= n <= MAX_ENTRIES
+        for n in shape
+    ):
+        raise InvalidInputError(f"{name} must be a tuple of integers >= 0; got {shape!r:.80}")
+    if np.prod([float(n) for n in shape]) > MAX_ENTRIES:
+        raise InvalidInputError(f"{name} must hold at most {MAX_ENTRIES} entries; got {shape}")
+    return tuple(int(n) for n in shape)
 
 
 def add_range_noise(ranges: ArrayLike, sigma: float, *, rng=None) -> np.ndarray:
@@ -71,7 +87,7 @@ def random_mask(shape: tuple[int, ...], missing_fraction: float, *, rng=None) ->
     """Boolean mask of the given shape, True where observed, each entry missing with the given probability."""
     rng = as_rng(rng)
     p = _check_fraction(missing_fraction, "missing_fraction")
-    return rng.random(shape) >= p
+    return rng.random(_check_shape(shape)) >= p
 
 
 def add_outliers(
@@ -92,6 +108,8 @@ def add_outliers(
     observed = as_mask(mask, "mask", shape=np.shape(ranges))
     r = as_ranges(ranges, "ranges", shape=(None,) * np.ndim(ranges), observed=observed)
     p = _check_fraction(fraction, "fraction")
+    min_error = as_scalar(min_error, "min_error")
+    max_error = as_scalar(max_error, "max_error")
     if not 0 <= min_error <= max_error:
         raise InvalidInputError(f"need 0 <= min_error <= max_error; got {min_error}, {max_error}")
     is_outlier = observed & (rng.random(r.shape) < p)
@@ -161,10 +179,14 @@ def random_convex_room(
     from rangeslam.errors import DegenerateGeometryError
 
     rng = as_rng(rng)
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    if not isinstance(n_walls, int | np.integer) or n_walls < dim + 1:
-        raise InvalidInputError(f"n_walls must be an integer >= {dim + 1}; got {n_walls!r}")
+    dim = as_dim(dim)
+    n_walls = as_scalar(
+        n_walls, "n_walls", low=dim + 1, integer=True, expected=f"an integer >= {dim + 1}"
+    )
+    if n_walls > MAX_WALLS:
+        raise InvalidInputError(f"n_walls must be at most {MAX_WALLS}; got {n_walls}")
+    inner_radius = as_scalar(inner_radius, "inner_radius", low=0.0, low_open=True)
+    radius_spread = as_scalar(radius_spread, "radius_spread", low=0.0)
     centre = rng.uniform(2.0, 4.0, dim)
     for _ in range(1000):
         normals = _spread_directions(n_walls, dim, rng)

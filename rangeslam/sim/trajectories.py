@@ -9,24 +9,26 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
-from rangeslam._validation import as_points, as_rng
+from rangeslam._validation import as_dim, as_float_array, as_points, as_rng, as_scalar
 from rangeslam.errors import InvalidInputError
 from rangeslam.geometry.room import Room
 
 __all__ = ["lemniscate", "random_walk", "smooth_path", "step_lengths"]
 
 
+# The longest simulated trajectory (an (n, 3) float64 array of 10^7 rows is 240 MB).
+MAX_STEPS = 10_000_000
+
+
 def _check_count(n: int, name: str, minimum: int = 1) -> int:
-    if not isinstance(n, int | np.integer) or n < minimum:
-        raise InvalidInputError(f"{name} must be an integer >= {minimum}; got {n!r}")
-    return int(n)
+    return as_scalar(
+        n, name, low=minimum, high=MAX_STEPS, integer=True,
+        expected=f"an integer >= {minimum} (at most {MAX_STEPS})",
+    )  # fmt: skip
 
 
 def _check_positive(x: float, name: str) -> float:
-    x = float(x)
-    if not np.isfinite(x) or x <= 0:
-        raise InvalidInputError(f"{name} must be a positive finite number; got {x}")
-    return x
+    return as_scalar(x, name, low=0.0, low_open=True, expected="a positive finite number")
 
 
 def lemniscate(
@@ -48,12 +50,13 @@ def lemniscate(
     n_steps = _check_count(n_steps, "n_steps")
     step = _check_positive(step, "step")
     half_width = _check_positive(half_width, "half_width")
-    if dim not in (2, 3):
-        raise InvalidInputError(f"dim must be 2 or 3; got {dim!r}")
-    c = np.asarray(centre, dtype=float)
-    if c.shape != (2,):
-        raise InvalidInputError(f"centre must have shape (2,); got {c.shape}")
-    t = float(phase) + step * np.arange(n_steps)
+    dim = as_dim(dim)
+    c = as_float_array(centre, "centre")
+    if c.shape != (2,) or not np.all(np.isfinite(c)):
+        raise InvalidInputError(f"centre must be 2 finite numbers, shape (2,); got {c!r:.80}")
+    phase = as_scalar(phase, "phase")
+    height = as_scalar(height, "height")
+    t = phase + step * np.arange(n_steps)
     den = 1.0 + np.sin(t) ** 2
     x = c[0] + half_width * np.cos(t) / den
     y = c[1] + np.sin(t) * np.cos(t) / den
@@ -123,7 +126,12 @@ def random_walk(
     rng = as_rng(rng)
     n_steps = _check_count(n_steps, "n_steps")
     step_length = _check_positive(step_length, "step_length")
-    start_pt = as_points(np.atleast_2d(np.asarray(start, dtype=float)), "start", min_points=1)[0]
+    start_pt = as_points(np.atleast_2d(as_float_array(start, "start")), "start", min_points=1)[0]
+    step_jitter = as_scalar(step_jitter, "step_jitter", low=0.0)
+    turn_std = as_scalar(turn_std, "turn_std", low=0.0)
+    margin = as_scalar(margin, "margin")
+    if room is not None and not isinstance(room, Room):
+        raise InvalidInputError(f"room must be a Room or None; got {type(room).__name__}")
     d = start_pt.shape[0]
     if room is not None:
         if room.dim != d:

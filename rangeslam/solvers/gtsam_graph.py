@@ -34,7 +34,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_mask, as_points, as_ranges, frozen, shape_str
+from rangeslam._validation import (
+    as_flag,
+    as_float_array,
+    as_mask,
+    as_points,
+    as_ranges,
+    as_scalar,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection
@@ -43,7 +52,7 @@ from rangeslam.solvers.robust_kernels import (
     ROBUST_KERNELS,
     robust_noise_model,
 )
-from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 
 __all__ = ["STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
@@ -145,40 +154,57 @@ class GraphProblem:
 
 
 def check_lm_options(max_iterations, lambda_upper_bound) -> LMOptions:
-    """The LM settings, refused unless max_iterations is an integer >= 0 and the bound > 0."""
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):
-        raise InvalidInputError(f"max_iterations must be an integer >= 0; got {max_iterations!r}")
-    if not (lambda_upper_bound > 0):
-        raise InvalidInputError(f"lambda_upper_bound must be positive; got {lambda_upper_bound!r}")
-    return LMOptions(int(max_iterations), float(lambda_upper_bound))
+    """The LM settings, refused (InvalidInputError naming the setting) unless max_iterations is an
+    integer >= 0 and lambda_upper_bound a finite number > 0."""
+    iterations = as_scalar(max_iterations, "max_iterations", low=0, integer=True)
+    bound = as_scalar(
+        lambda_upper_bound,
+        "lambda_upper_bound",
+        low=0.0,
+        low_open=True,
+        expected="positive and finite",
+    )
+    return LMOptions(int(iterations), float(bound))
 
 
 def robust_constant(robust: str | None, robust_scale, noise_std: float) -> float | None:
     """The kernel's threshold in sigmas: robust_scale / noise_std, or the table's constant."""
     if robust is None:
         return None
-    c = ROBUST_KERNEL_CONSTANTS[robust] if robust_scale is None else robust_scale / noise_std
+    scale = as_scalar(
+        robust_scale, "robust_scale", low=0.0, low_open=True, allow_none=True,
+        expected="positive (metres) or None",
+    )  # fmt: skip
+    c = ROBUST_KERNEL_CONSTANTS[robust] if scale is None else scale / noise_std
     if not (np.isfinite(c) and c > 0):
         raise InvalidInputError(f"robust_scale must be positive; got {robust_scale!r}")
     return float(c)
 
 
-def parse_step_prior(step_bounds, step_sigma, kind: str, m: int, noise_std: float):
-    """The step prior from ``step_bounds`` (None without them); sigma defaults to the noise."""
+def parse_step_prior(
+    step_bounds, step_sigma, kind: str, m: int, noise_std: float, scale: float
+) -> StepPrior | None:
+    """The step prior from ``step_bounds`` (None without them); sigma defaults to the noise.
+
+    lower = upper is a known step length: such an interval is widened to
+    ``KNOWN_STEP_WIDTH * scale`` (``scale`` the median observed range, metres) about its
+    midpoint, as :func:`rangeslam.slam` does, because the dead zone needs a positive width.
+    """
     if step_bounds is None:
         return None
-    bounds = StepBounds.parse(step_bounds, m - 1)
-    sig = noise_std if step_sigma is None else float(step_sigma)
-    if not (np.isfinite(sig) and sig > 0):
-        raise InvalidInputError(f"step_sigma must be positive; got {step_sigma!r}")
-    return StepPrior(bounds, sig, kind)
+    bounds = StepBounds.parse(step_bounds, m - 1).widened(KNOWN_STEP_WIDTH * scale)
+    sig = as_scalar(
+        step_sigma, "step_sigma", low=0.0, low_open=True, allow_none=True,
+        expected="positive (metres) or None",
+    )  # fmt: skip
+    return StepPrior(bounds, noise_std if sig is None else sig, kind)
 
 
 def parse_odometry(step_lengths, step_vectors, odometry_sigma, m: int, d: int) -> Odometry:
     """Odometry lengths (M - 1,) and vectors (M - 1, d), checked."""
     lengths = vectors = None
     if step_lengths is not None:
-        lengths = np.asarray(step_lengths, dtype=float)
+        lengths = as_float_array(step_lengths, "step_lengths")
         if lengths.shape != (m - 1,) or not np.all(np.isfinite(lengths)) or np.any(lengths < 0):
             raise InvalidInputError(
                 f"step_lengths must be ({m - 1},) finite non-negative; got {shape_str(lengths.shape)}"
@@ -282,7 +308,12 @@ def add_step_priors(gtsam, graph, prior: StepPrior, keys: list[int], d: int) -> 
     """Per step, a dead-zone range factor of half-width (upper - lower) / 2 at the midpoint, and
     with "uniform" the moment-matched Gaussian of U(lower, upper) (never below sigma)."""
     range_factor = gtsam.RangeFactor3 if d == 3 else gtsam.RangeFactor2
-    lower, upper, sig = prior.bounds.lower, prior.bounds.upper, prior.sigma
+    bounds, sig = prior.bounds, prior.sigma
+    if np.any(bounds.upper <= bounds.lower):
+        # A known step length (lower = upper) built without refine_graph's door: the dead zone
+        # needs a positive width, so widen as parse_step_prior does (scale: the steps or sigma).
+        bounds = bounds.widened(KNOWN_STEP_WIDTH * max(float(np.median(bounds.midpoints)), sig))
+    lower, upper = bounds.lower, bounds.upper
     for i in range(prior.bounds.n_steps):
         half = 0.5 * (upper[i] - lower[i])
         model = gtsam.noiseModel.Robust.Create(
@@ -419,21 +450,27 @@ def parse_graph_problem(
     s = as_points(sources, "sources", dim=d)
     observed = as_mask(mask, "mask", shape=(m, len(s)))
     r = as_ranges(ranges, "ranges", shape=(m, len(s)), observed=observed)
-    if not (np.isfinite(noise_std) and noise_std > 0):
-        raise InvalidInputError(f"noise_std must be positive and finite; got {noise_std!r}")
-    if robust is not None and robust not in ROBUST_KERNELS:
-        raise InvalidInputError(f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r}")
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 0):
-        raise InvalidInputError(f"max_iterations must be an integer >= 0; got {max_iterations!r}")
-    if step_prior not in STEP_PRIORS:
-        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r}")
+    noise_std = as_scalar(
+        noise_std, "noise_std", low=0.0, low_open=True, expected="positive and finite"
+    )
+    if robust is not None and (not isinstance(robust, str) or robust not in ROBUST_KERNELS):
+        raise InvalidInputError(
+            f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r:.80}"
+        )
+    lm = check_lm_options(max_iterations, lambda_upper_bound)
+    if not isinstance(step_prior, str) or step_prior not in STEP_PRIORS:
+        raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r:.80}")
     odometry = step_lengths is not None or step_vectors is not None
-    if odometry and not (odometry_sigma is not None and odometry_sigma > 0):
+    odometry_sigma = as_scalar(
+        odometry_sigma, "odometry_sigma", low=0.0, low_open=True, allow_none=True,
+        expected="positive (metres) or None",
+    )  # fmt: skip
+    if odometry and odometry_sigma is None:
         raise InvalidInputError("odometry_sigma (> 0) is required with step_lengths/step_vectors")
     c = robust_constant(robust, robust_scale, noise_std)
-    prior = parse_step_prior(step_bounds, step_sigma, step_prior, m, noise_std)
+    scale = float(np.median(r[observed])) if observed.any() else 1.0
+    prior = parse_step_prior(step_bounds, step_sigma, step_prior, m, noise_std, max(scale, 1e-300))
     odo = parse_odometry(step_lengths, step_vectors, odometry_sigma, m, d)
-    lm = check_lm_options(max_iterations, lambda_upper_bound)
     return GraphProblem(x, s, r, observed, noise_std, robust, c, prior, odo, lm)
 
 
@@ -484,6 +521,7 @@ def refine_graph(
     """
     import gtsam  # the back end is imported on use, so `import rangeslam` stays light
 
+    covariances = as_flag(covariances, "covariances")
     problem = parse_graph_problem(
         receivers, sources, ranges, noise_std=noise_std, mask=mask, step_bounds=step_bounds,
         step_sigma=step_sigma, step_prior=step_prior, step_lengths=step_lengths,

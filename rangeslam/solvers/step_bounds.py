@@ -14,7 +14,13 @@ import numpy as np
 from rangeslam._validation import frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
-__all__ = ["StepBounds"]
+__all__ = ["KNOWN_STEP_WIDTH", "StepBounds"]
+
+#: Width, relative to the scale of the problem (the median range), given to step bounds with
+#: lower = upper (a known step length) by :meth:`StepBounds.widened` at the solvers' doors
+#: (:func:`rangeslam.slam`, :func:`rangeslam.solvers.gtsam_graph.refine_graph`): GTSAM's dead zone
+#: needs a positive width, and the step factor's sigma then holds the step at the known length.
+KNOWN_STEP_WIDTH = 1e-9
 
 
 @dataclass(frozen=True)
