@@ -149,3 +149,54 @@ def test_slam_in_2d_on_a_3d_walk_is_refused(rng):
     ranges = range_matrix(walk, landmarks) + 0.01 * rng.standard_normal((10, 7))
     assert not rangeslam.slam(ranges, dim=2, rng=rng).converged
     assert not rangeslam.slam(ranges, dim=2, noise_std=0.01, rng=rng).converged
+
+
+def test_room_from_microphones_on_a_table_is_not_identifiable(rng):
+    """Eight microphones within 1 mm of one plane: the whole room's mirror image through it fits
+    as well (walls 20-31 cm off and tilted used to converge in 28 of 30 scenes)."""
+    room = rangeslam.Room.shoebox([5.0, 4.0, 2.6])
+    for _ in range(3):
+        mics = np.array([2.0, 2.0, 1.0]) + rng.uniform(-0.5, 0.5, (8, 3))
+        mics[:, 2] = 1.0 + 1e-3 * rng.uniform(-1, 1, 8)
+        source = rng.uniform([0.5, 0.5, 0.5], [4.5, 3.5, 2.1])
+        points = np.vstack([source, room.image_sources(source, 1).positions])
+        ranges = range_matrix(mics, points) + 1e-3 * rng.standard_normal((8, 7))
+        res = rangeslam.reconstruct_room(mics, ranges, rng=rng)
+        assert res.status in (Status.NOT_IDENTIFIABLE, Status.INCONSISTENT), res.message
+        assert "mirror" in res.message or "weakly determined" in res.message
+
+
+def test_beacon_calibration_out_of_range():
+    """A range offset of metres (2.36 m on Plaza1's first 500 poses) is OUT_OF_RANGE; the full
+    run's 0.04 m and scale 1.065 pass; a scale of 1.5 does not."""
+    from rangeslam.beacons.result import calibration_check
+
+    ranges = np.full(40, 15.0)
+    beacon = np.repeat(np.arange(4), 10)
+    ok = calibration_check(np.full(4, 1.065), np.full(4, 0.04), ranges, beacon)
+    assert ok.passed
+    bad = calibration_check(np.full(4, 1.048), np.full(4, 2.36), ranges, beacon)
+    assert bad.status is Status.OUT_OF_RANGE and "range offset 2.36 m" in bad.reason
+    scale = np.array([1.0, 1.5, 1.0, np.nan])
+    assert calibration_check(scale, np.zeros(4), ranges, beacon).status is Status.OUT_OF_RANGE
+
+
+def test_calibrate_auto_robust_on_wrong_picks(rng):
+    """10% wrong picks (+0.2 to 1 m) on 16 x 10 ranges, defaults: robust="auto" notices the tail
+    and refits robustly; a converged answer is within 3x the bound of the clean ranges. With
+    fewer redundant ranges than unknowns (8 x 7) it stays with least squares and flags them."""
+    from rangeslam.evaluation.crlb import mdu_crlb
+
+    x, s = rng.uniform(0, [5, 4, 2.6], (16, 3)), rng.uniform(0, [5, 4, 2.6], (10, 3))
+    ranges = range_matrix(x, s) + 0.01 * rng.standard_normal((16, 10))
+    wrong = rng.uniform(size=ranges.shape) < 0.1
+    wrong[0, 0] = True
+    ranges[wrong] += rng.uniform(0.2, 1.0, int(wrong.sum()))
+    res = rangeslam.calibrate(ranges, rng=rng)
+    assert "robust='auto'" in res.message
+    if res.converged:
+        bound = mdu_crlb(x, s, 0.01, mask=~wrong).receiver_rmse
+        assert rangeslam.align(res.receivers, x, reflection=True).rmse <= 3 * bound
+    small = ranges[:8, :7]
+    res = rangeslam.calibrate(small, rng=rng)
+    assert not res.converged and "robust='auto'" not in res.message

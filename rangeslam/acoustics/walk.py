@@ -34,7 +34,14 @@ from rangeslam.acoustics.echoes import (
 )
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
-from rangeslam.mdu.core import canonical_frame, residual_status, rotated_covariances
+from rangeslam.mdu.core import (
+    EXACT_RTOL,
+    canonical_frame,
+    residual_status,
+    rotated_covariances,
+    step_prior_rows,
+    unfolding_check,
+)
 from rangeslam.mdu.slam import SlamResult, slam
 from rangeslam.solvers.gtsam_graph import refine_graph
 from rangeslam.solvers.step_bounds import StepBounds
@@ -640,6 +647,9 @@ def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise
     if not fit.converged:
         msg += f"GTSAM: {fit.message}; "
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
+    if status is Status.CONVERGED:
+        check = walk_check(fit, r_all, m_all, noise, prob.bounds)
+        status, msg = check.status, msg + (check.reason + "; " if check.reason else "")
     pinned = _steps_on_bounds(fit.receivers, prob.bounds.lower, prob.bounds.upper)
     if pinned > _MAX_PINNED * (prob.m - 1):
         msg += (
@@ -656,6 +666,28 @@ def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise
     )
     msg = f"{summary}; {msg.rstrip('; ')}" if msg else summary
     return out.result(status, msg, r_all, m_all, final.columns, answer, final.gate)
+
+
+def walk_check(fit, ranges: np.ndarray, mask: np.ndarray, noise: float | None, bounds):
+    """:func:`rangeslam.mdu.core.unfolding_check` of the final fit (trajectory (M, d),
+    landmarks (K, d); ``ranges`` and ``mask`` (M, K), metres) with the uniform step prior's
+    information; landmarks are noted, not judged (a planar walk has their mirror images)."""
+    res = fit.residuals[mask]
+    n_points = sum(mask.shape)
+    scale = float(np.median(ranges[mask]))
+    sigma = noise or float(np.sqrt(np.mean(res**2)))
+    rows = step_prior_rows(bounds, "uniform", None, fit.receivers, sigma, n_points)
+    return unfolding_check(
+        np.asarray(fit.receivers),
+        np.asarray(fit.sources),
+        np.where(mask, ranges, 0.0),
+        mask,
+        noise,
+        EXACT_RTOL * scale,
+        prior_jac=rows if sigma else None,
+        what="the walk",
+        judge_sources="none",
+    )
 
 
 def _slam_answer(fit, start, res, ssr, m_all, status: Status, message: str) -> SlamResult:

@@ -27,7 +27,7 @@ from rangeslam.beacons.graph import (
 )
 from rangeslam.beacons.lm import LMReport, levenberg_marquardt
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation
-from rangeslam.beacons.result import BeaconSlamResult
+from rangeslam.beacons.result import BeaconSlamResult, calibration_check
 from rangeslam.beacons.windows import Initialisation, edm_initialisation
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
@@ -165,6 +165,10 @@ def _verdict(
             f"({int(np.sum(~used))} of their ranges unused)"
         )
     status = report.status if all_heard_placed(data, placed) else Status.NOT_IDENTIFIABLE
+    if status is Status.CONVERGED:
+        check = calibration_check(refined.scale, refined.offset, data.ranges, data.range_beacon)
+        status = check.status
+        notes += [check.reason] if check.reason else []
     return BeaconSlamResult(
         method="edm+gtsam" if initialisation == "edm" else "gtsam random beacons",
         pose_time=data.pose_time,

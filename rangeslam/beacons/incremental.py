@@ -31,7 +31,7 @@ from rangeslam.beacons.graph import (
     range_noise,
 )
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation, positive_number
-from rangeslam.beacons.result import BeaconSlamResult
+from rangeslam.beacons.result import BeaconSlamResult, calibration_check
 from rangeslam.beacons.windows import WindowLog, place_window, windows
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
@@ -276,6 +276,10 @@ def _verdict(run: IsamRun, estimate, poses, settled: bool, seconds: float) -> Be
         status = Status.NOT_IDENTIFIABLE
     else:
         status = Status.CONVERGED if settled else Status.SOLVER_FAILED
+    if status is Status.CONVERGED:
+        check = calibration_check(scale, offset, data.ranges, data.range_beacon)
+        status = check.status
+        notes += [check.reason] if check.reason else []
     random = run.isam_cfg.initialisation == "random"
     return BeaconSlamResult(
         method="isam2 random beacons" if random else "edm+isam2",

@@ -7,8 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdicts import PASSED, Check
 
-__all__ = ["BeaconSlamResult"]
+__all__ = ["MAX_RELATIVE_BIAS", "MAX_SCALE_ERROR", "BeaconSlamResult", "calibration_check"]
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -53,3 +54,40 @@ class BeaconSlamResult(HasStatus):
     initial_poses: np.ndarray | None = None
     initial_beacons: np.ndarray | None = None
     seconds: float = float("nan")
+
+
+#: A range offset beyond this fraction of a beacon's median range, or a range scale further than
+#: this from 1, is outside what a radio ranging chain does (Plaza1 in full: offset 0.04 m, scale
+#: 1.065); an estimate there trades the calibration against the beacon positions.
+MAX_RELATIVE_BIAS = 0.05
+MAX_SCALE_ERROR = 0.2
+
+
+def calibration_check(
+    range_scale: np.ndarray | None,
+    range_bias: np.ndarray | None,
+    ranges: np.ndarray,
+    range_beacon: np.ndarray,
+) -> Check:
+    """OUT_OF_RANGE when a placed beacon's range offset (B,) exceeds MAX_RELATIVE_BIAS of its
+    median range (``ranges`` (R,) metres to beacons ``range_beacon`` (R,)) or its scale (B,) is
+    further than MAX_SCALE_ERROR from 1 (NaN entries: beacons not placed)."""
+    problems = []
+    for b in range(0 if range_bias is None else len(range_bias)):
+        heard = ranges[range_beacon == b]
+        if heard.size == 0 or not np.isfinite(range_bias[b]):
+            continue
+        limit = MAX_RELATIVE_BIAS * float(np.median(heard))
+        if abs(range_bias[b]) > limit:
+            problems.append(f"beacon {b}: range offset {range_bias[b]:.3g} m (limit {limit:.3g} m)")
+        if range_scale is not None and abs(range_scale[b] - 1.0) > MAX_SCALE_ERROR:
+            problems.append(f"beacon {b}: range scale {range_scale[b]:.3g}")
+    if not problems:
+        return PASSED
+    problems = list(dict.fromkeys(problems))  # a shared calibration repeats per beacon
+    return Check(
+        Status.OUT_OF_RANGE,
+        f"{'; '.join(problems[:3])}{' ...' if len(problems) > 3 else ''}: outside what a ranging "
+        "chain does; these data do not pin the calibration down (it trades against the beacon "
+        "positions)",
+    )

@@ -56,6 +56,12 @@ from rangeslam.geometry.room import Room
 from rangeslam.localization.multilateration import affine_rank, check_spanning, multilaterate
 from rangeslam.localization.robust_start import check_robust_options, minimal_subset_points
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdicts import (
+    ambiguity_check,
+    consistency_check,
+    information_check,
+    noise_upper_bound,
+)
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
 
@@ -69,6 +75,8 @@ _MAX_SCALE_GROWTH = 10.0
 # Largest plausible RMS range residual as a fraction of the median range: 2% is about 6 cm at 3 m,
 # ten times what the measured dEchorate picks show (0.2%); beyond it the fit explains nothing.
 _MAX_RELATIVE_RMS = 0.02
+# Exact data: RMS range residual at most this fraction of the median range (round-off only).
+_EXACT_RMS = 1e-8
 
 
 @dataclass(frozen=True)
@@ -610,6 +618,42 @@ def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_sca
     return problems, rms_s
 
 
+def _verdict_problems(prob: RoomProblem, fit: JointFit) -> list[tuple[Status, str]]:
+    """The checks of :mod:`rangeslam.verdicts` on the joint fit's kept ranges (scaled units):
+    their residuals against their own robust scale, the walls' information and precision, and
+    the whole room's mirror image through the microphones' plane (microphones on a table hear
+    it within the noise)."""
+    final = JointWallModel(prob.mics_s, prob.ranges_s, fit.use)
+    res, jac = final.residuals(fit.theta), final.jacobian(fit.theta)
+    d, j_n = prob.dim, prob.ranges.shape[0]
+    redundancy = res.size - fit.theta.size
+    sigma = noise_upper_bound(float(res @ res), redundancy)
+    checks = [
+        consistency_check(res, jac, redundancy, None, 1.0, _EXACT_RMS),
+        information_check(
+            jac, None, sigma, 1.0, "the walls", dim=d, rows=np.arange(j_n * d, fit.theta.size)
+        ),
+    ]
+    gap = _mirror_room_gap(final, fit.theta, prob.mics_s)
+    checks.append(ambiguity_check(gap, sigma, _EXACT_RMS, "the room"))
+    return [(c.status, c.reason + "; ") for c in checks if not c.passed][:1]
+
+
+def _mirror_room_gap(model: JointWallModel, theta: np.ndarray, mics: np.ndarray) -> float:
+    """How much worse the whole room's mirror image through the microphones' best-fit plane fits
+    (every loudspeaker and wall vector reflected, then refined): its sum of squared residuals
+    minus the fit's, scaled units. Coplanar microphones (a table) hear both rooms alike; inf when
+    the refinement returns to the fit (within 1% of the median range)."""
+    normal = np.linalg.svd(mics - mics.mean(axis=0))[2][-1]
+    reflect = np.eye(len(normal)) - 2.0 * np.outer(normal, normal)  # mics are centred
+    mirrored = (theta.reshape(-1, len(normal)) @ reflect).ravel()
+    fit = least_squares(model.residuals, mirrored, jac=model.jacobian, method="trf", max_nfev=50)
+    if np.linalg.norm(fit.x - theta) < 1e-2 * np.sqrt(theta.size):
+        return float("inf")
+    res = model.residuals(theta)
+    return float(2.0 * fit.cost - res @ res)
+
+
 def _room_result(prob: RoomProblem, fit: JointFit, problems, rms_s: float, hint: bool):
     """Walls oriented outward, checked to bound a room around the sources; the result in the
     caller's units (``hint``: suggest inlier_threshold when the run did not converge)."""
@@ -705,4 +749,5 @@ def reconstruct_room(
     fit = _joint_passes(prob, sources0, start.sigma0, robust, fixed_thr, max_hypotheses, rng)
     check_scale = robust and fixed_thr is None
     problems, rms_s = _support_problems(prob, fit, start.sigma0, check_scale)
+    problems += _verdict_problems(prob, fit)
     return _room_result(prob, fit, problems, rms_s, hint=robust and inlier_threshold is None)

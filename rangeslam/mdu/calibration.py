@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike
 from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
+from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.localization.multilateration import multilaterate
 from rangeslam.mdu.core import (
@@ -50,6 +51,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdicts import AMBIGUITY_CHI2, consistency_check
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -254,6 +256,7 @@ class CalibrationProblem:
     robust: bool
     random_starts: int
     options: ConvexIterationOptions
+    auto_robust: bool = False  # robust="auto": a heavy residual tail ends the search
 
     @property
     def n_points(self) -> int:
@@ -388,7 +391,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         if cand is None:
             continue
         # Votes count refined fits only: raw SDP points from different weights never coincide.
-        same = problem.refine and best is not None and _same(cand, best, problem.scale)
+        same = problem.refine and best is not None and _same(cand, best, problem, spread(cand))
         confirmed = confirmed or same
         if best is None or cand.key < best.key:
             confirmed = confirmed and same
@@ -402,6 +405,8 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         all_runs = attempts + len(failures) == problem.options.max_attempts
         if problem.noise_std is None and confirmed and all_runs:
             break
+        if problem.auto_robust and heavy_tail(cand, problem, (Status.OUTLIERS,)):
+            break  # wrong picks: robust="auto" goes on robustly rather than search further
     if problem.robust and best is not None:
         best, extra = lowest_on_inliers(best, problem, cauchy_scale, rng)
         starts += extra
@@ -496,6 +501,8 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
             noise_std,
             problem.exact_rms,
             what="the calibration",
+            judge_sources="mirror",
+            tail=not problem.robust,
         )
         status, message = check.status, message + check.reason
     return status, message.rstrip("; ")
@@ -543,7 +550,7 @@ def calibrate(
     max_attempts: int = 8,
     random_starts: int = 100,
     fit_weight: float = 10.0,
-    max_iterations: int = 50,
+    max_iterations: int | None = None,
     gap_tol: float = 1e-6,
     rng: np.random.Generator | int | None = None,
 ) -> Calibration:
@@ -566,16 +573,19 @@ def calibrate(
             run is refined with a Cauchy loss (scale ``noise_std``, or 1.4826 MAD of the first
             fit's residuals), then ranges whose studentized residual exceeds 3 sigma (sigma =
             ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
-            until the set is stable. Runs are ranked by their Cauchy cost over all ranges. No
-            random starts are made. ``"auto"`` (the default): least squares on all ranges first,
-            and the robust fit when that ends INCONSISTENT, OUTLIERS or NO_AGREEMENT (the
-            residuals then carry a tail no noise explains); ``False``: never.
+            until the set is stable. Runs are ranked by their Cauchy cost over all ranges; the
+            best one's inliers are then fitted from up to 30 random points, and a lower minimum
+            found there is refitted robustly. ``"auto"`` (the default): least squares on all
+            ranges first; as soon as a fit's residuals carry a heavy tail (wrong picks), or when
+            the search ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, the robust fit (the message
+            says so), provided there are at least as many redundant ranges as unknowns (with
+            fewer, wrong picks are reported, not searched for). ``False``: never robust.
         max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
             random starting points (a last resort; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
-        max_iterations: SDP solves per convex-iteration run.
+        max_iterations: SDP solves per convex-iteration run; None: 50, and 3 in robust runs.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.
@@ -585,21 +595,99 @@ def calibrate(
     with both Clarabel and the SCS fallback is noted in the message and the others go on;
     SolverError (with the statuses) when no run gives a usable answer.
     """
-    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
+    iterations = {
+        False: DEFAULT_MAX_ITERATIONS if max_iterations is None else max_iterations,
+        True: ROBUST_MAX_ITERATIONS if max_iterations is None else max_iterations,
+    }
     auto = isinstance(robust, str) and robust == "auto"
     problem = parse_calibration(
-        ranges, mask, dim, noise_std, refine, False if auto else robust, random_starts, options
-    )
+        ranges, mask, dim, noise_std, refine, False if auto else robust, random_starts,
+        ConvexIterationOptions(max_attempts, fit_weight, iterations[bool(robust is True)], gap_tol),
+    )  # fmt: skip
     rng = as_rng(rng)
-    result = solve_calibration(problem, rng)
-    if not (auto and refine and result.status in AUTO_ROBUST_STATUSES):
-        return result
-    second = solve_calibration(dataclasses.replace(problem, robust=True), rng)
-    note = (
-        f"robust='auto': least squares on all ranges ended {result.status.name} "
-        f"({result.message.split(':')[0]}), so wrong picks were searched for; "
+    if not (auto and problem.refine and enough_for_robust(problem)):
+        return solve_calibration(problem, rng)
+    return auto_robust_calibration(problem, iterations[True], rng)
+
+
+def auto_robust_calibration(
+    problem: CalibrationProblem, robust_iterations: int, rng: np.random.Generator
+) -> Calibration:
+    """robust="auto": least squares on all ranges unless a first short run shows a heavy
+    residual tail, and the robust fit (``robust_iterations`` SDP solves per run) when the tail
+    shows or the least-squares search ends in AUTO_ROBUST_STATUSES; the message says which."""
+    robust_problem = dataclasses.replace(
+        problem,
+        robust=True,
+        options=dataclasses.replace(problem.options, max_iterations=robust_iterations),
     )
-    return dataclasses.replace(second, message=note + second.message)
+    if probe_has_tail(problem, rng):
+        note = "robust='auto': least squares on all ranges left a heavy residual tail; "
+    else:
+        result = solve_calibration(dataclasses.replace(problem, auto_robust=True), rng)
+        if result.status not in AUTO_ROBUST_STATUSES:
+            return result
+        note = f"robust='auto': least squares on all ranges ended {result.status.name}; "
+    second = solve_calibration(robust_problem, rng)
+    message = note + "wrong picks were searched for; " + second.message
+    return dataclasses.replace(second, message=message)
+
+
+#: SDP solves per convex-iteration run by default, and in robust runs (on the dEchorate echoes,
+#: 3 reached 1.3-2.2 cm and 10 no better, at three times the cost).
+DEFAULT_MAX_ITERATIONS = 50
+ROBUST_MAX_ITERATIONS = 3
+
+
+def enough_for_robust(problem: CalibrationProblem) -> bool:
+    """Whether robust="auto" may look for wrong picks: at least as many redundant ranges as
+    unknowns. With fewer, dropping ranges lets wrong configurations fit (measured on the Fig. 3
+    scene, redundancy 6 of 36: a robust fit of clean ranges ended 0.9 m off), so least squares
+    is used and wrong picks are reported, not searched for."""
+    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    return int(problem.observed.sum()) - unknowns >= unknowns
+
+
+def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
+    """robust="auto"'s first look: one short robust run (the L1 SDP for ROBUST_MAX_ITERATIONS
+    solves, the Cauchy refit and the studentized rejection); True when it dropped ranges whose
+    median |residual| is over PROBE_OUTLIER_K times the noise its inliers imply: wrong picks
+    stand out. (A least-squares fit spreads wrong picks over every range, and from a short run
+    cannot be told from a local minimum.)"""
+    options = dataclasses.replace(
+        problem.options, max_attempts=1, max_iterations=ROBUST_MAX_ITERATIONS
+    )
+    probe = dataclasses.replace(problem, options=options, random_starts=0, robust=True)
+    start = next(iter(starting_points(probe, rng, [])), None)
+    if start is None:
+        return False
+    m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
+    fit0 = _embedding_fit(start.points, m, r, observed)
+    cand = fit_start(start, probe, problem.noise_std or robust_cauchy_scale(fit0, probe), rng)
+    if cand is None:
+        return False
+    dropped = observed & ~cand.inliers
+    noise = spread(cand)
+    if not dropped.any() or noise <= 0:
+        return False
+    distances = range_matrix(cand.fit.receivers, cand.fit.sources)
+    off = np.abs(distances - r)[dropped]
+    return bool(np.median(off) > PROBE_OUTLIER_K * noise)
+
+
+#: robust="auto" goes robust when the ranges a short robust run dropped are this many times its
+#: inliers' noise off (median): clear wrong picks, not the tail of the noise.
+PROBE_OUTLIER_K = 5.0
+
+
+def heavy_tail(cand: Candidate, problem: CalibrationProblem, statuses: tuple[Status, ...]) -> bool:
+    """Whether :func:`rangeslam.verdicts.consistency_check`, without a noise level, gives a
+    candidate's residuals one of ``statuses`` (OUTLIERS: a tail no noise explains)."""
+    observed = problem.observed
+    residuals = cand.fit.residuals[observed]
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    check = consistency_check(residuals, None, redundancy, None, problem.scale, problem.exact_rms)
+    return check.status in statuses
 
 
 #: Statuses of a least-squares calibration after which robust="auto" searches for wrong picks.
@@ -619,7 +707,39 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
             status="; ".join(dict.fromkeys(failures)) or None,
         )
     status, message = calibration_verdict(outcome, problem)
+    if status is Status.CONVERGED and problem.refine and not problem.robust:
+        rival = rival_configuration(problem, outcome.best, rng)
+        if rival:
+            status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
     return calibration_result(outcome, problem, status, message)
+
+
+#: Random least-squares starts that must not find other receivers of equal cost.
+AGREEMENT_STARTS = 3
+
+
+def rival_configuration(problem: CalibrationProblem, best: Candidate, rng) -> str:
+    """ "Restarts agree": least squares from AGREEMENT_STARTS random points; the reason when one
+    ends with a residual sum of squares within AMBIGUITY_CHI2 noise variances of the answer's
+    but receivers more than 3 noise levels (RMS, after the best rigid motion with reflection)
+    away, else "". Flat scenes fitted in 3-D fold this way."""
+    m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
+    noise = problem.noise_std or spread(best) or problem.exact_rms
+    far = max(3.0 * noise, 1e-3 * problem.scale)
+    for _ in range(AGREEMENT_STARTS):
+        points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
+        fit = refine_unfolding(points[:m], points[m:], r, observed)
+        ssr = float(np.sum(fit.residuals[observed] ** 2))
+        if not np.isfinite(ssr) or ssr > best.ssr + AMBIGUITY_CHI2 * noise**2:
+            continue
+        apart = align(fit.receivers, best.fit.receivers, reflection=True).rmse
+        if apart > far:
+            return (
+                f"another start fits the ranges as well (residual sum of squares {ssr:.3g} "
+                f"against {best.ssr:.3g} m^2) with receivers {apart:.3g} m RMS away: the data do "
+                "not decide between them"
+            )
+    return ""
 
 
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
@@ -631,9 +751,20 @@ def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
     return float(np.sum(np.log1p((res / scale) ** 2)))
 
 
-def _same(a: Candidate, b: Candidate, scale: float) -> bool:
-    """Whether two candidates are one configuration (squared distances within SAME_RTOL)."""
-    return bool(np.max(np.abs(a.edm() - b.edm())) <= SAME_RTOL * scale**2)
+def _same(a: Candidate, b: Candidate, problem: CalibrationProblem, noise: float) -> bool:
+    """Whether two candidates are one configuration: squared distances within SAME_RTOL of the
+    squared scale, and, for robust fits (whose inlier sets differ), within what 3 ``noise``
+    (metres) of distance error makes of them."""
+    scale = problem.scale
+    tol = SAME_RTOL * scale**2 + (6.0 * scale * noise if problem.robust else 0.0)
+    return bool(np.max(np.abs(a.edm() - b.edm())) <= tol)
+
+
+def spread(cand: Candidate) -> float:
+    """The noise level a candidate's inlier residuals imply, metres (0 without redundancy)."""
+    n_in = int(cand.inliers.sum())
+    dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
+    return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0
 
 
 def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:

@@ -57,6 +57,7 @@ __all__ = [
     "check_determined",
     "convex_iteration_runs",
     "dimension_check",
+    "information_model",
     "least_steps",
     "lifted_ssr",
     "mdu_edm",
@@ -65,6 +66,7 @@ __all__ = [
     "points_check",
     "residual_status",
     "rotated_covariances",
+    "step_prior_rows",
     "unfolding_check",
     "unknowns_up_to_rigid_motion",
     "validated_ranges",
@@ -347,9 +349,10 @@ def unfolding_check(
     exact_rms: float,
     *,
     prior_jac: np.ndarray | None = None,
-    n_offsets: int = 0,
+    offset_columns: np.ndarray | None = None,
     what: str = "the configuration",
-    judge_sources: bool = True,
+    judge_sources: str = "all",
+    tail: bool = True,
 ) -> Check:
     """The verdict of :mod:`rangeslam.verdicts` on an unfolding's answer (eq. 9 model).
 
@@ -360,11 +363,14 @@ def unfolding_check(
         exact_rms: RMS residual of exact data (round-off), metres.
         prior_jac: (P, (M + K) d) extra rows of the information in range-noise units (step
             priors: their Jacobian times noise sigma over the prior's sigma), or None.
-        n_offsets: unknown range offsets the model also fitted (they use up redundancy).
+        offset_columns: (P, G) derivatives of the P observed (row-major) residuals with respect
+            to G unknown range offsets the model also fitted (emission times), or None.
         what: what the points are, for the reason.
-        judge_sources: whether a source that is weakly determined or has a mirror image fails
-            the check (calibration); False only notes it in the reason (SLAM, whose answer is
-            the trajectory: on a planar walk every landmark has its mirror image).
+        judge_sources: "all": a source that is weakly determined or has a mirror image fails
+            the check; "mirror": only its mirror image fails it, its precision is noted (a
+            calibrated array: sources in the receivers' plane flag a flat scene); "none": both
+            only noted (SLAM's trajectory: on a planar walk every landmark has its mirror image).
+        tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
     information's rank beyond the rigid motions and the receivers' precision (in the receiver
@@ -380,64 +386,116 @@ def unfolding_check(
     residuals = (
         np.linalg.norm(points[pairs[:, 0]] - points[m + pairs[:, 1]], axis=1) - ranges[observed]
     )
+    n_offsets = 0 if offset_columns is None else offset_columns.shape[1]
     redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(len(points), d) - n_offsets
-    info_jac = jac if prior_jac is None else np.vstack([jac, prior_jac])
+    info_jac, gauge, projection = information_model(
+        receivers, sources, jac, prior_jac, offset_columns
+    )
     sigma = noise_std if noise_std else noise_upper_bound(float(residuals @ residuals), redundancy)
     scale = float(np.median(ranges[observed]))
     # Residuals first: a noise level estimated from residuals that do not fit means nothing.
     consistency = first_failure(
-        consistency_check(residuals, jac, redundancy, noise_std, scale, exact_rms),
+        consistency_check(residuals, jac, redundancy, noise_std, scale, exact_rms, tail=tail),
         dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms),
     )
     if not consistency.passed:
         return consistency
-    sources_note = ""
-    if not judge_sources:
-        note = points_check(receivers, sources, ranges, observed, sigma, exact_rms, False)
-        sources_note = "" if note.passed else f"not judged, {note.reason}"
+    source_check, sources_note = sources_verdict(
+        receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
+    )
+    information = information_check(
+        info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
+    )
+    receivers_check = PASSED
+    if prior_jac is None:  # priors tie the receivers to each other: not judged one by one
+        receivers_check = points_check(
+            receivers, sources, ranges, observed, sigma, exact_rms, "receiver"
+        )
     check = first_failure(
         flatness_check(points, sigma, scale, what),
-        information_check(
-            info_jac,
-            rigid_motion_basis(points),
-            sigma,
-            scale,
-            what,
-            dim=d,
-            rows=np.arange(m * d),
-            projection=receiver_gauge_projection(receivers, sources),
-        ),
-        points_check(receivers, sources, ranges, observed, sigma, exact_rms, prior_jac is None)
-        if judge_sources
-        else PASSED,
+        information,
+        source_check,
+        receivers_check,
     )
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 
 
-def points_check(
+def sources_verdict(
     receivers: np.ndarray,
     sources: np.ndarray,
     ranges: np.ndarray,
     observed: np.ndarray,
     sigma: float | None,
     exact_rms: float,
-    with_receivers: bool,
+    judge_sources: str,
+) -> tuple[Check, str]:
+    """The sources' :func:`points_check` as judged (see :func:`unfolding_check`'s
+    ``judge_sources``) and the note on what was only noted ("" if nothing)."""
+    full = points_check(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
+    note = "" if full.passed else f"noted: {full.reason}"
+    if judge_sources == "all":
+        return full, ""
+    if judge_sources == "none":
+        return PASSED, note
+    mirror = points_check(
+        sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source", precision=False
+    )
+    return mirror, note if mirror.passed else ""
+
+
+def information_model(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    jac: np.ndarray,
+    prior_jac: np.ndarray | None,
+    offset_columns: np.ndarray | None,
+):
+    """The information's Jacobian (range rows ``jac`` (P, (M + K) d), then the prior rows), the
+    gauge basis (the rigid motions of the points) and the receiver-gauge projection, each
+    extended by the G unknown offsets of ``offset_columns`` (P, G) when given (outside the
+    gauge, projected as they are)."""
+    info_jac = jac if prior_jac is None else np.vstack([jac, prior_jac])
+    gauge = rigid_motion_basis(np.vstack([receivers, sources]))
+    projection = receiver_gauge_projection(receivers, sources)
+    if offset_columns is None:
+        return info_jac, gauge, projection
+    n_off, n = offset_columns.shape[1], len(projection)
+    extra = np.zeros((info_jac.shape[0] - len(jac), n_off))
+    info_jac = np.hstack([info_jac, np.vstack([offset_columns, extra])])
+    gauge = np.vstack([gauge, np.zeros((n_off, gauge.shape[1]))])
+    projection = np.block(
+        [[projection, np.zeros((n, n_off))], [np.zeros((n_off, n)), np.eye(n_off)]]
+    )
+    return info_jac, gauge, projection
+
+
+def points_check(
+    points: np.ndarray,
+    partners: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    sigma: float | None,
+    exact_rms: float,
+    kind: str,
+    *,
+    precision: bool = True,
 ) -> Check:
-    """:func:`rangeslam.verdicts.point_check` for every source against the receivers that hear
-    it and, with ``with_receivers``, every receiver against its sources ((M, K) ``ranges`` and
-    ``observed``; metres)."""
+    """:func:`rangeslam.verdicts.point_check` of each of ``points`` (N, d) against the
+    ``partners`` (P, d) it is ranged to (``ranges`` and ``observed`` (N, P), metres); the first
+    failure, its reason naming ``kind`` and the index. ``precision=False``: rank and mirror
+    image only."""
     scale = float(np.median(ranges[observed]))
-    for k, source in enumerate(sources):
-        obs = observed[:, k]
-        check = point_check(
-            source, receivers[obs], ranges[obs, k], sigma, exact_rms, scale, f"source {k}"
-        )
-        if not check.passed:
-            return check
-    for i, receiver in enumerate(receivers if with_receivers else ()):
+    for i, point in enumerate(points):
         obs = observed[i]
         check = point_check(
-            receiver, sources[obs], ranges[i, obs], sigma, exact_rms, scale, f"receiver {i}"
+            point,
+            partners[obs],
+            ranges[i, obs],
+            sigma,
+            exact_rms,
+            scale,
+            f"{kind} {i}",
+            precision=precision,
         )
         if not check.passed:
             return check
@@ -496,3 +554,38 @@ def dimension_check(
             "freedom); fit with dim=3",
         )
     return PASSED
+
+
+def step_prior_rows(
+    bounds, kind: str, step_sigma: float | None, receivers: np.ndarray, sigma: float, n_points: int
+) -> np.ndarray | None:
+    """(P, (M + K) d) the information rows of the step priors the graph used, in range-noise
+    units (the step-length Jacobian times sigma over the prior's sigma): with "uniform" every
+    step's moment-matched Gaussian (spread max(width / sqrt(12), step sigma)); with "dead_zone"
+    only the steps at a bound (within the step sigma), where the prior is active. None without
+    bounds or rows. ``bounds``: a StepBounds (M - 1 steps, metres) or None; ``kind``: the
+    step prior ("uniform" or "dead_zone"); ``receivers`` (M, d) the trajectory; ``sigma`` the
+    range noise and ``step_sigma`` the prior's scale outside the bounds (default sigma), metres;
+    ``n_points`` M + K (the columns: (M + K) d)."""
+    if bounds is None:
+        return None
+    lower, upper = bounds.lower, bounds.upper
+    step_sigma = step_sigma or sigma
+    steps = np.linalg.norm(np.diff(receivers, axis=0), axis=1)
+    if kind == "uniform":
+        spread = np.maximum((upper - lower) / np.sqrt(12.0), step_sigma)
+        active = np.ones(len(steps), dtype=bool)
+    else:
+        spread = np.full(len(steps), step_sigma)
+        active = (steps <= lower + step_sigma) | (steps >= upper - step_sigma)
+    index = np.flatnonzero(active)
+    if index.size == 0:
+        return None
+    d = receivers.shape[1]
+    unit = np.diff(receivers, axis=0)[index] / np.maximum(steps[index], 1e-300)[:, None]
+    jac = np.zeros((len(index), n_points * d))
+    rows = np.arange(len(index))[:, None]
+    cols = np.arange(d)[None, :]
+    jac[rows, (index[:, None] + 1) * d + cols] = unit
+    jac[rows, index[:, None] * d + cols] = -unit
+    return jac * (sigma / spread[index])[:, None]

@@ -44,6 +44,7 @@ from rangeslam.mdu.core import (
     mdu_edm,
     mdu_mask,
     passes_residual_test,
+    unfolding_check,
     unknowns_up_to_rigid_motion,
 )
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
@@ -494,9 +495,34 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
             f"{', '.join(mirrored)}: mirrored in the plane of the points it is ranged to, it fits "
             "the ranges as well (they are (nearly) coplanar, or too few): its position is ambiguous; "
         )
+    if status is Status.CONVERGED:
+        check = emission_check(problem, scaled, fit)
+        status, message = check.status, message + check.reason + "; "
     if found.failures:
         message += f"{len(found.failures)} SDP runs failed ({found.failures[0]}); "
     return status, message.strip().rstrip(";")
+
+
+def emission_check(problem: EmissionProblem, scaled: ScaledUnfolding, fit):
+    """:func:`rangeslam.mdu.core.unfolding_check` of the fit (metres), the G offsets included
+    as unknowns."""
+    scale, model = scaled.scale, scaled.model
+    pts_s, b_s = model.split(fit.x)
+    m = problem.ranges.shape[0]
+    corrected = np.where(problem.observed, problem.ranges - scale * b_s[problem.groups], 0.0)
+    columns = np.zeros((len(model.pairs), model.n_groups))
+    columns[np.arange(len(model.pairs)), model.g_of_pair] = 1.0
+    return unfolding_check(
+        scale * pts_s[:m],
+        scale * pts_s[m:],
+        corrected,
+        problem.observed,
+        problem.noise_std,
+        EXACT_RTOL * scale,
+        offset_columns=columns,
+        what="the calibration",
+        judge_sources="mirror",
+    )
 
 
 def mirrored_points(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: float, fit):

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
 from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import (
     EXACT_RTOL,
@@ -33,14 +34,16 @@ from rangeslam.mdu.core import (
     passes_residual_test,
     residual_status,
     rotated_covariances,
+    step_prior_rows,
     unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
-from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdicts import AMBIGUITY_CHI2
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -202,11 +205,6 @@ class EdmSearch:
     attempts: int
     failures: tuple[str, ...]
     sigma_ref: float | None
-
-
-#: Width, relative to the median range, given to step bounds with lower = upper (a known step
-#: length): the SDP's eq. (11) constraints and GTSAM's step prior then pin the step to it.
-KNOWN_STEP_WIDTH = 1e-9
 
 
 def parse_slam(
@@ -437,36 +435,6 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
     return status, message.rstrip("; ")
 
 
-def step_prior_rows(problem: SlamProblem, receivers: np.ndarray, sigma: float, n_points: int):
-    """(P, (M + K) d) the information rows of the step priors the graph used, in range-noise
-    units (the step-length Jacobian times sigma over the prior's sigma): with "uniform" every
-    step's moment-matched Gaussian (spread max(width / sqrt(12), step sigma)); with "dead_zone"
-    only the steps at a bound (within the step sigma), where the prior is active. None without
-    bounds or rows."""
-    if problem.bounds is None:
-        return None
-    lower, upper = problem.bounds.lower, problem.bounds.upper
-    step_sigma = problem.step_sigma or sigma
-    steps = np.linalg.norm(np.diff(receivers, axis=0), axis=1)
-    if problem.step_prior == "uniform":
-        spread = np.maximum((upper - lower) / np.sqrt(12.0), step_sigma)
-        active = np.ones(len(steps), dtype=bool)
-    else:
-        spread = np.full(len(steps), step_sigma)
-        active = (steps <= lower + step_sigma) | (steps >= upper - step_sigma)
-    index = np.flatnonzero(active)
-    if index.size == 0:
-        return None
-    d = problem.dim
-    unit = np.diff(receivers, axis=0)[index] / np.maximum(steps[index], 1e-300)[:, None]
-    jac = np.zeros((len(index), n_points * d))
-    rows = np.arange(len(index))[:, None]
-    cols = np.arange(d)[None, :]
-    jac[rows, (index[:, None] + 1) * d + cols] = unit
-    jac[rows, index[:, None] * d + cols] = -unit
-    return jac * (sigma / spread[index])[:, None]
-
-
 def trajectory_check(problem: SlamProblem, best: SlamRun):
     """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows;
     with a robust kernel only the ranges it kept (within 4 robust standard deviations)."""
@@ -489,9 +457,13 @@ def trajectory_check(problem: SlamProblem, best: SlamRun):
         observed,
         problem.noise_std,
         EXACT_RTOL * problem.scale,
-        prior_jac=step_prior_rows(problem, best.receivers, sigma, n_points) if sigma else None,
+        prior_jac=step_prior_rows(
+            problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
+        )
+        if sigma
+        else None,
         what="the trajectory",
-        judge_sources=False,
+        judge_sources="none",
     )
 
 
@@ -588,4 +560,38 @@ def slam(
     if problem.refine and problem.extra_starts:
         best, start, start_failures = try_random_starts(problem, best, found.sigma_ref, rng)
     status, message = slam_verdict(problem, best, found.failures, start_failures)
+    if status is Status.CONVERGED and problem.refine:
+        rival = rival_minimum(problem, best, found.sigma_ref, rng)
+        if rival:
+            status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
     return slam_result(problem, best, found.attempts, start, status, message)
+
+
+#: GTSAM-style random starts that must not find a different trajectory of equal cost.
+AGREEMENT_STARTS = 3
+
+
+def rival_minimum(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> str:
+    """ "Restarts agree": GTSAM from AGREEMENT_STARTS random starts; the reason when one ends
+    with a graph cost within AMBIGUITY_CHI2 / 2 of the answer's (the data cannot tell them
+    apart) but a trajectory more than 3 times the noise-free spread off (RMS after the best
+    rigid motion with reflection), else "". Lower minima are left to ``extra_starts``."""
+    r, observed = problem.ranges, problem.observed
+    nominal = nominal_steps(problem.bounds, r, observed)
+    far = max(3.0 * (problem.noise_std or sigma_ref or 0.0), 1e-3 * problem.scale)
+    for _ in range(AGREEMENT_STARTS):
+        x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
+        try:
+            fit, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref)
+        except SolverError:
+            continue
+        if not fit.converged or fit.error > best.key + 0.5 * AMBIGUITY_CHI2:
+            continue
+        apart = align(fit.receivers, best.receivers, reflection=True).rmse
+        if apart > far:
+            return (
+                f"another start fits the data as well (graph cost {fit.error:.4g} against "
+                f"{best.key:.4g}) with a trajectory {apart:.3g} m RMS away: the ranges do not "
+                "decide between them"
+            )
+    return ""
