@@ -20,8 +20,10 @@ def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
     assert code == 0
     tmp_path = tmp_path / "rangeslam-out"
     assert "| room | wall | true offset [m]" in out and "| shoebox | True |" in out
-    assert "| sigma (mm) | trials | failed | median error (mm)" in out
-    assert "EKF + RTS mean / median (cm)" in out
+    assert (
+        "| sigma (mm) | trials | failed | not identifiable | RMS error (mm) | RMS CRLB (mm)" in out
+    )
+    assert "EKF + RTS: RMS (cm), / CRLB, regime" in out
     for name in (
         "room_shoebox.png",
         "room_cut_corner.png",

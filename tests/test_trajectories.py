@@ -63,13 +63,16 @@ def test_lemniscate_default_steps_are_about_30_cm():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"n_steps": 0}, "n_steps must be an integer >= 1; got 0"),
+        ({"n_steps": 0}, r"n_steps must be an integer >= 1 \(at most 10000000\); got 0"),
         ({"n_steps": 2.5}, "n_steps must be an integer >= 1"),
         ({"n_steps": 5, "step": 0.0}, "step must be a positive finite number"),
         ({"n_steps": 5, "step": np.inf}, "step must be a positive finite number"),
         ({"n_steps": 5, "half_width": -1.0}, "half_width must be a positive finite number"),
         ({"n_steps": 5, "dim": 4}, "dim must be 2 or 3; got 4"),
-        ({"n_steps": 5, "centre": (1.0, 2.0, 3.0)}, r"centre must have shape \(2,\)"),
+        (
+            {"n_steps": 5, "centre": (1.0, 2.0, 3.0)},
+            r"centre must be 2 finite numbers, shape \(2,\)",
+        ),
     ],
 )
 def test_lemniscate_rejects_bad_input(kwargs, match):
@@ -156,7 +159,12 @@ def test_smooth_path_raises_when_too_short(rng):
     ("waypoints", "n_steps", "kwargs", "match"),
     [
         ([[0.0, 0.0]], 5, {}, "waypoints must hold at least 2 points"),
-        ([[0.0, 0.0], [1.0, 0.0]], 1, {}, "n_steps must be an integer >= 2; got 1"),
+        (
+            [[0.0, 0.0], [1.0, 0.0]],
+            1,
+            {},
+            r"n_steps must be an integer >= 2 \(at most 10000000\); got 1",
+        ),
         ([[0.0, 0.0], [1.0, 1.0], [1.0, 1.0]], 5, {}, "must not repeat consecutively"),
         ([[0.0, 0.0], [1.0, 1.0]], 5, {"step_length": -0.1}, "step_length must be a positive"),
     ],

@@ -63,6 +63,9 @@ def simulate_beacon_run(
         non_negative={"range_std": range_std, "outlier_size": outlier_size},
         real={"range_scale": range_scale, "range_offset": range_offset},
     )
+    # Checked numbers as floats: a huge Python int would overflow numpy's C long below.
+    step_length, dt, radius = float(step_length), float(dt), float(radius)
+    range_std = float(range_std) + 0.0  # -0.0 would be a negative scale to numpy
     k = np.arange(n_steps)
     turn = step_length / radius * (1.0 + 0.8 * np.sin(2 * np.pi * k / 700.0))
     controls = np.column_stack([np.full(n_steps, step_length), turn])

@@ -324,6 +324,8 @@ def _read_wav(q: Path) -> tuple[float, np.ndarray]:
         MemoryError,
         OverflowError,
         IndexError,
+        ZeroDivisionError,  # a header declaring 0 channels or 0 bytes per sample
+        TypeError,  # a damaged format field: numpy is asked for a dtype such as '<f251'
         UnboundLocalError,  # scipy 1.17 on a file without a data chunk
     ) as exc:
         raise DataFormatError(f"{q}: not a readable WAV file ({exc})") from exc

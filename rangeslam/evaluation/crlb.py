@@ -39,8 +39,9 @@ __all__ = ["STEP_PRIOR_KINDS", "MDUBound", "mdu_crlb", "multilateration_crlb", "
 def _check_sigma(sigma: float) -> float:
     """A range noise standard deviation must be positive (at 0 the information is infinite)."""
     value = real_scalar(sigma, "sigma", "a positive number of metres")
-    if not (value > 0 and (isinstance(value, int) or np.isfinite(value))):
-        raise InvalidInputError(f"sigma must be positive and finite; got {sigma!r}")
+    # sigma^2 and 1 / sigma^2 must stay finite floats (1e-100 m is no noise level anyway).
+    if not (1e-100 <= value <= 1e100):
+        raise InvalidInputError(f"sigma must be in [1e-100, 1e100] metres; got {sigma!r}")
     return float(value)
 
 

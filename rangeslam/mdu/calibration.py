@@ -51,7 +51,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2, consistency_check
+from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, consistency_check
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -714,6 +714,17 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
     return calibration_result(outcome, problem, status, message)
 
 
+def receiver_spread(best: Candidate, observed: np.ndarray, noise: float) -> float:
+    """The receivers' RMS standard deviation at the answer (:func:`mdu_crlb` in the receiver
+    gauge at ``noise``), metres; ``noise`` where the bound is undefined."""
+    from rangeslam.evaluation.crlb import mdu_crlb
+
+    try:
+        return mdu_crlb(best.fit.receivers, best.fit.sources, noise, mask=observed).receiver_rmse
+    except (DegenerateGeometryError, InvalidInputError):
+        return noise
+
+
 #: Random least-squares starts that must not find other receivers of equal cost.
 AGREEMENT_STARTS = 3
 
@@ -721,11 +732,11 @@ AGREEMENT_STARTS = 3
 def rival_configuration(problem: CalibrationProblem, best: Candidate, rng) -> str:
     """ "Restarts agree": least squares from AGREEMENT_STARTS random points; the reason when one
     ends with a residual sum of squares within AMBIGUITY_CHI2 noise variances of the answer's
-    but receivers more than 3 noise levels (RMS, after the best rigid motion with reflection)
-    away, else "". Flat scenes fitted in 3-D fold this way."""
+    but receivers more than RIVAL_SPREADS times their RMS standard deviation (RMS, after the
+    best rigid motion with reflection) away, else "". Flat scenes fitted in 3-D fold this way."""
     m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
     noise = problem.noise_std or spread(best) or problem.exact_rms
-    far = max(3.0 * noise, 1e-3 * problem.scale)
+    far = max(RIVAL_SPREADS * receiver_spread(best, observed, noise), 1e-6 * problem.scale)
     for _ in range(AGREEMENT_STARTS):
         points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
         fit = refine_unfolding(points[:m], points[m:], r, observed)

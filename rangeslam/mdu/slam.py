@@ -43,7 +43,7 @@ from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2
+from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -567,6 +567,15 @@ def slam(
     return slam_result(problem, best, found.attempts, start, status, message)
 
 
+def trajectory_spread(best: SlamRun, sigma: float) -> float:
+    """The trajectory's RMS standard deviation per point from GTSAM's marginal covariances
+    (receiver gauge), metres; ``sigma`` when there are none."""
+    cov = None if best.fit is None else best.fit.receiver_cov
+    if cov is None:
+        return sigma
+    return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
+
+
 #: GTSAM-style random starts that must not find a different trajectory of equal cost.
 AGREEMENT_STARTS = 3
 
@@ -574,11 +583,12 @@ AGREEMENT_STARTS = 3
 def rival_minimum(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> str:
     """ "Restarts agree": GTSAM from AGREEMENT_STARTS random starts; the reason when one ends
     with a graph cost within AMBIGUITY_CHI2 / 2 of the answer's (the data cannot tell them
-    apart) but a trajectory more than 3 times the noise-free spread off (RMS after the best
-    rigid motion with reflection), else "". Lower minima are left to ``extra_starts``."""
+    apart) but a trajectory more than RIVAL_SPREADS times its RMS standard deviation off (RMS
+    after the best rigid motion with reflection), else "". Lower minima are left to ``extra_starts``."""
     r, observed = problem.ranges, problem.observed
     nominal = nominal_steps(problem.bounds, r, observed)
-    far = max(3.0 * (problem.noise_std or sigma_ref or 0.0), 1e-3 * problem.scale)
+    spread = trajectory_spread(best, problem.noise_std or sigma_ref or 0.0)
+    far = max(RIVAL_SPREADS * spread, 1e-6 * problem.scale)  # exact data: round-off apart
     for _ in range(AGREEMENT_STARTS):
         x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
         try:

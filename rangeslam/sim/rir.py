@@ -45,7 +45,7 @@ def shoebox_rirs(
     size = as_float_array(room_size, "room_size")
     if size.shape != (3,) or not np.all(np.isfinite(size)) or np.any(size <= 0):
         raise InvalidInputError(f"room_size must be 3 positive lengths; got {room_size!r}")
-    src = as_points(np.atleast_2d(source), "source", dim=3)[0]
+    src = as_points(np.atleast_2d(as_float_array(source, "source")), "source", dim=3)[0]
     rec = as_points(receivers, "receivers", dim=3)
     for name, pts in (("source", src[None]), ("receivers", rec)):
         outside = np.any((pts <= 0) | (pts >= size), axis=1)
@@ -55,7 +55,7 @@ def shoebox_rirs(
             )
     duration = _check_options(absorption, fs, max_order, duration)
     room = pra.ShoeBox(
-        size, fs=int(fs), materials=pra.Material(absorption), max_order=int(max_order)
+        size, fs=int(fs), materials=pra.Material(float(absorption)), max_order=int(max_order)
     )
     return _simulate(room, src, rec, fs, duration)
 
@@ -98,7 +98,7 @@ def room_rirs(
         )
     for a in absorb:
         duration = _check_options(a, fs, max_order, duration)
-    src = as_points(np.atleast_2d(source), "source", dim=3)[0]
+    src = as_points(np.atleast_2d(as_float_array(source, "source")), "source", dim=3)[0]
     rec = as_points(receivers, "receivers", dim=3)
     for name, pts in (("source", src[None]), ("receivers", rec)):
         outside = ~room.contains(pts, margin=1e-9)
@@ -132,18 +132,20 @@ def _wall_polygons(room: Room) -> list[np.ndarray]:
 
 # Limits of the simulation's sizes: beyond them pyroomacoustics (image sources ~ order^3, samples
 # ~ fs * duration per receiver) exhausts memory instead of failing.
+#: Below this sampling rate (Hz) an RIR has too few samples to hold a room's echoes.
+MIN_SIM_FS = 1000
 MAX_SIM_FS = 1_000_000
 MAX_SIM_ORDER = 30
 MAX_SIM_DURATION = 10.0
 
 
 def _check_options(absorption: float, fs, max_order, duration=None) -> float | None:
-    """Check absorption in (0, 1], fs a whole number of Hz in (0, MAX_SIM_FS], max_order an
+    """Check absorption in (0, 1], fs a whole number of Hz in [MIN_SIM_FS, MAX_SIM_FS], max_order an
     integer in [0, MAX_SIM_ORDER], duration None or seconds in (0, MAX_SIM_DURATION]; returns
     the duration as a float (or None)."""
     as_scalar(absorption, "absorption", low=0.0, high=1.0, low_open=True, expected="in (0, 1]")
-    what = f"a positive whole number of Hz, at most {MAX_SIM_FS}"
-    rate = as_scalar(fs, "fs", low=0.0, low_open=True, high=MAX_SIM_FS, expected=what)
+    what = f"a whole number of Hz in [{MIN_SIM_FS}, {MAX_SIM_FS}]"
+    rate = as_scalar(fs, "fs", low=MIN_SIM_FS, high=MAX_SIM_FS, expected=what)
     if not float(rate).is_integer():
         raise InvalidInputError(f"fs must be {what}; got {fs!r:.80}")
     as_scalar(

@@ -156,7 +156,8 @@ class GraphProblem:
 def check_lm_options(max_iterations, lambda_upper_bound) -> LMOptions:
     """The LM settings, refused (InvalidInputError naming the setting) unless max_iterations is an
     integer >= 0 and lambda_upper_bound a finite number > 0."""
-    iterations = as_scalar(max_iterations, "max_iterations", low=0, integer=True)
+    # GTSAM takes a C int: at most 2^31 - 1 iterations.
+    iterations = as_scalar(max_iterations, "max_iterations", low=0, high=2**31 - 1, integer=True)
     bound = as_scalar(
         lambda_upper_bound,
         "lambda_upper_bound",
