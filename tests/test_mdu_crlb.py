@@ -67,7 +67,7 @@ def test_bad_input(rng):
     x, s = _scene(rng, 3)
     with pytest.raises(InvalidInputError, match="gauge must be"):
         mdu_crlb(x, s, 0.01, gauge="sources")
-    with pytest.raises(InvalidInputError, match="sigma must be positive"):
+    with pytest.raises(InvalidInputError, match="sigma must be in"):
         mdu_crlb(x, s, 0.0)
     with pytest.raises(DegenerateGeometryError, match="coincides"):
         mdu_crlb(x, np.vstack([s[:-1], x[:1]]), 0.01)
