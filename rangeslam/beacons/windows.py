@@ -196,28 +196,42 @@ def beacon_spread(
     return spread, count
 
 
-def window_submap(
-    window: int, dr_xy: np.ndarray, rows: np.ndarray, data: RangeOdometry, cfg: BeaconSlamOptions
-) -> Submap | None:
-    """EDM completion of one window (eq. 9 with the receiver block known from dead reckoning).
+class ProblemCache:
+    """Compiled window SDPs by size, reused across windows and beacons (cvxpy compiles a problem
+    once; later solves only load new data: the "warm" part of a cheap EDM start)."""
 
-    The points are the window's keyframe poses and the beacons heard at least ``min_ranges``
-    times from poses whose RMS spread across their principal direction is at least
-    ``min_spread`` metres (collinear poses leave a beacon's mirror image equally good). Up to
-    ``keyframes`` ranges are taken, evenly in time and shared among the beacons. Pose-pose
-    distances come from dead reckoning (weight ``pose_weight``), pose-beacon distances are the
-    ranges (weight 1, l1 fit: robust to wrong ranges); beacon-beacon distances are unknown. The
-    completed points are aligned onto the dead-reckoned keyframes (reflection allowed: an EDM has
-    no handedness, the odometry has), which carries the beacons into the dead-reckoning frame.
-    None when no beacon qualifies. SolverError from the SDP propagates.
+    def __init__(self) -> None:
+        self.problems: dict[int, object] = {}
+
+    def for_points(self, n: int):
+        """The l1 EDM completion SDP of ``n`` fully observed points (built on first use)."""
+        from rangeslam.solvers.sdp import EDMCompletionSDP
+
+        if n not in self.problems:
+            mask = ~np.eye(n, dtype=bool)
+            self.problems[n] = EDMCompletionSDP(
+                mask, loss="l1", solver_options=WINDOW_SOLVER_OPTIONS
+            )
+        return self.problems[n]
+
+
+def place_beacon(
+    dr_xy: np.ndarray, pick: np.ndarray, beacon: int, data: RangeOdometry, cfg, cache
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """One beacon of a window by EDM completion (eq. 10, l1 fit) of its picked ranges ``pick``
+    and their dead-reckoned poses: returns its position (2,) in the dead-reckoning frame, the
+    eigen-gap of the answer and the poses (k,) used.
+
+    The points are the poses, then the beacon; every pair is observed (pose-pose from dead
+    reckoning, weight ``pose_weight``; pose-beacon the ranges, weight 1). With the pose-pose
+    block known, the beacons of a window decouple (their mutual distances are unobserved), so
+    one small SDP per beacon gives what the window's joint SDP gave at a fraction of its cost
+    (an interior-point step on a PSD cone of n points costs about n^6).
     """
     from rangeslam.geometry.alignment import align
     from rangeslam.solvers.sdp import complete_edm
 
-    sel = pick_window_ranges(dr_xy, rows, data, cfg)
-    if sel is None:
-        return None
-    edm = window_edm(dr_xy, sel, data, cfg.pose_weight)
+    edm = window_edm(dr_xy, WindowPicks(picks=pick, placed=[beacon]), data, cfg.pose_weight)
     completion = complete_edm(
         edm.sq,
         edm.mask,
@@ -225,36 +239,79 @@ def window_submap(
         loss="l1",
         weights=edm.weights,
         max_iterations=WINDOW_ITERATIONS,
-        solver_options=WINDOW_SOLVER_OPTIONS,
+        problem=cache.for_points(len(edm.sq)),
     )
     p = len(edm.poses)
     fit = align(completion.points[:p], dr_xy[edm.poses], reflection=True)
-    positions = fit.apply(completion.points[p:])
-    spread, count = beacon_spread(dr_xy, rows, data, sel.placed, positions)
-    return Submap(
+    return fit.apply(completion.points[p:])[0], completion.eigen_gap, edm.poses
+
+
+def window_submap(
+    window: int,
+    dr_xy: np.ndarray,
+    rows: np.ndarray,
+    data: RangeOdometry,
+    cfg: BeaconSlamOptions,
+    cache: ProblemCache | None = None,
+) -> tuple[Submap | None, list[int]]:
+    """EDM completion of one window (eq. 9 with the receiver block known from dead reckoning).
+
+    The beacons placed are those heard at least ``min_ranges`` times from poses whose RMS spread
+    across their principal direction is at least ``min_spread`` metres (collinear poses leave a
+    beacon's mirror image equally good). Up to ``keyframes`` ranges are taken, evenly in time and
+    shared among the beacons; each beacon is placed by :func:`place_beacon` (l1 fit: robust to
+    wrong ranges). The completed points are aligned onto the dead-reckoned poses (reflection
+    allowed: an EDM has no handedness, the odometry has), which carries the beacon into the
+    dead-reckoning frame. A beacon whose answer is not 2-D (eigen-gap over
+    :data:`MAX_WINDOW_GAP`) is left out. Returns the submap (None when no beacon is placed) and
+    the beacons left out for not being 2-D. SolverError from the SDP propagates.
+    """
+    sel = pick_window_ranges(dr_xy, rows, data, cfg)
+    if sel is None:
+        return None, []
+    cache = ProblemCache() if cache is None else cache
+    placed, positions, gaps, used, not_2d = [], [], [], [], []
+    for beacon in sel.placed:
+        pick = sel.picks[data.range_beacon[sel.picks] == beacon]
+        position, gap, poses = place_beacon(dr_xy, pick, beacon, data, cfg, cache)
+        if gap > MAX_WINDOW_GAP:
+            not_2d.append(beacon)
+            continue
+        placed.append(beacon)
+        positions.append(position)
+        gaps.append(gap)
+        used.append(poses)
+    if not placed:
+        return None, not_2d
+    positions = np.array(positions)
+    spread, count = beacon_spread(dr_xy, rows, data, placed, positions)
+    sub = Submap(
         window=window,
-        beacons=np.array(sel.placed),
+        beacons=np.array(placed),
         positions=positions,
         counts=count,
         spread=spread,
-        eigen_gap=completion.eigen_gap,
-        keyframes=edm.poses,
+        eigen_gap=max(gaps),
+        keyframes=np.unique(np.concatenate(used)),
     )
+    return sub, not_2d
 
 
 @dataclass
 class WindowLog:
-    """Windows whose SDP failed and windows left out for not being 2-D, for the result's message."""
+    """Windows whose SDP failed and (window, beacon) answers left out for not being 2-D, for the
+    result's message."""
 
     failed: list[str] = field(default_factory=list)
-    far_from_2d: list[int] = field(default_factory=list)
+    far_from_2d: list[tuple[int, int]] = field(default_factory=list)
 
     def notes(self) -> list[str]:
         """The log as notes for the result's message."""
         out = []
         if self.far_from_2d:
             out.append(
-                f"windows {self.far_from_2d} left out: their EDM was not 2-D (eigen-gap > 0.1)"
+                f"{len(self.far_from_2d)} (window, beacon) placements left out: their EDM was "
+                f"not 2-D (eigen-gap > {MAX_WINDOW_GAP:g}): {self.far_from_2d[:5]}"
             )
         if self.failed:
             out.append(f"{len(self.failed)} window SDPs failed ({self.failed[0]})")
@@ -268,17 +325,17 @@ def place_window(
     data: RangeOdometry,
     cfg: BeaconSlamOptions,
     log: WindowLog,
+    cache: ProblemCache | None = None,
 ) -> Submap | None:
-    """The submap of window ``w`` (its ranges ``rows``), or None when it places no beacon, its
-    SDP fails or its EDM is not 2-D (the last two recorded in ``log``)."""
+    """The submap of window ``w`` (its ranges ``rows``), or None when it places no beacon or its
+    SDP fails; failures and beacons whose EDM is not 2-D are recorded in ``log``. ``cache``: the
+    compiled SDPs to reuse (:class:`ProblemCache`)."""
     try:
-        sub = window_submap(w, dr_xy, rows, data, cfg)
+        sub, not_2d = window_submap(w, dr_xy, rows, data, cfg, cache)
     except SolverError as exc:
         log.failed.append(f"window {w}: {exc}")
         return None
-    if sub is not None and sub.eigen_gap > MAX_WINDOW_GAP:
-        log.far_from_2d.append(w)
-        return None
+    log.far_from_2d += [(w, int(b)) for b in not_2d]
     return sub
 
 
@@ -362,12 +419,12 @@ def window_submaps(
     """Step 2 of the batch: the submap of every window that places a beacon, and the log."""
     n_windows = int(window_of_pose[-1]) + 1
     window_of_range = window_of_pose[data.range_pose]
-    submaps, log = [], WindowLog()
+    submaps, log, cache = [], WindowLog(), ProblemCache()
     for w in range(n_windows):
         rows = np.flatnonzero(window_of_range == w)
         if len(rows) == 0:
             continue
-        sub = place_window(w, dr[:, :2], rows, data, cfg, log)
+        sub = place_window(w, dr[:, :2], rows, data, cfg, log, cache)
         if sub is not None:
             submaps.append(sub)
     if not submaps:
