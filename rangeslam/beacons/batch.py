@@ -114,12 +114,19 @@ def random_initialisation(
 
 
 def refine(
-    data: RangeOdometry, init: Initialisation, cfg: BeaconSlamOptions, max_iterations: int
+    data: RangeOdometry,
+    init: Initialisation,
+    cfg: BeaconSlamOptions,
+    max_iterations: int,
+    calibration0: np.ndarray | None = None,
 ) -> Refinement:
-    """Step 4: the factor graph over the ranges to placed beacons, Levenberg-Marquardt from
-    ``init``."""
+    """Step 4: the factor graph over the ranges to placed beacons (the joint model: the range
+    calibration an unknown of the graph), Levenberg-Marquardt from ``init`` and the calibration
+    ``calibration0`` (G, nc) (zero when None)."""
     used = init.placed[data.range_beacon]
-    values, dims = initial_values(init.poses, init.beacons, init.placed, cfg, data.n_beacons)
+    values, dims = initial_values(
+        init.poses, init.beacons, init.placed, cfg, data.n_beacons, calibration0
+    )
     group, n_groups = group_of_range(data, cfg.per_beacon)
     graph = build_graph(
         init.poses[0],

@@ -212,8 +212,11 @@ def pose_array(values, n: int) -> np.ndarray:
     return out
 
 
-def initial_values(poses, beacons, placed, cfg: BeaconSlamOptions, n_beacons: int):
-    """GTSAM Values for poses, placed beacons and zero calibrations, and each key's dimension."""
+def initial_values(
+    poses, beacons, placed, cfg: BeaconSlamOptions, n_beacons: int, calibration0=None
+):
+    """GTSAM Values for poses, placed beacons and the calibrations (zero, or ``calibration0``
+    (G, nc): each group's (s,), (b,) or (s, b)), and each key's dimension."""
     import gtsam
 
     values = gtsam.Values()
@@ -227,7 +230,8 @@ def initial_values(poses, beacons, placed, cfg: BeaconSlamOptions, n_beacons: in
     nc = calibration_dim(cfg.range_calibration)
     if nc:
         for g in range(n_beacons if cfg.per_beacon else 1):
-            values.insert(key_c(g), np.zeros(nc))
+            start = np.zeros(nc) if calibration0 is None else np.asarray(calibration0[g], float)
+            values.insert(key_c(g), start)
             dims[key_c(g)] = nc
     return values, dims
 
