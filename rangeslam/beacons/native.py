@@ -133,8 +133,8 @@ class NativeRanges:
         return out
 
     def scale_gradient(self, distances, ranges, groups, offsets_c):
-        """Envelope gradient df/ds_g (G,) and the partial curvature d2f/ds_g^2 (G,) (which
-        overstates the profile's) from the current distances (R,) [m], their ranges (R,), groups
+        """Envelope gradient df/ds_g (G,) and the partial curvature d2f/ds_g^2 (G,) (Gauss-Newton
+        with the kernel's IRLS weights; it overstates the profile's) from the current distances (R,) [m], their ranges (R,), groups
         (R,) and c of each range's group (R,)."""
         cfg, s = self.cfg, self.scale_error
         sigma_s, sigma_b = cfg.calibration_sigma
