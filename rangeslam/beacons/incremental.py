@@ -29,6 +29,7 @@ from rangeslam.beacons.graph import (
     pose_array,
     range_inliers,
 )
+from rangeslam.beacons.lm import LMReport
 from rangeslam.beacons.native import NativeRanges, ScaleSecant, scale_step
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation, positive_number
 from rangeslam.beacons.result import BeaconSlamResult, calibration_check
@@ -360,12 +361,15 @@ def polish(run: IsamRun, estimate, poses: np.ndarray, max_iterations: int) -> Re
     """The joint model's optimum (:func:`~rangeslam.beacons.batch.refine`, the range scale and
     offset unknowns of the graph) from iSAM2's answer at the end of the data. The native run
     holds the scale between secant steps, and a map built at a scale a little off sits in a
-    shallow valley that those steps leave only slowly (a simulated run ended with its scale at
-    1.045 instead of 1.05, positions 0.21 m off; the joint polish took it to 0.088 m in 4
-    iterations)."""
+    shallow valley that those steps leave only slowly (benchmarks/README.md, "Plaza at scale").
+    With no beacon placed there is nothing to polish: iSAM2's odometry-only answer stands."""
     placed = run.placed
-    init = Initialisation(poses, beacon_array(estimate, placed), placed, notes=[])
+    beacons = beacon_array(estimate, placed)
     scale, offset = native_calibration(run, estimate)
+    if not np.any(placed):
+        report = LMReport(0, 0.0, 0.0, Status.CONVERGED, "nothing to polish: no beacon placed")
+        return Refinement(poses, beacons, scale, offset, report)
+    init = Initialisation(poses, beacons, placed, notes=[])
     columns = []
     if scale is not None:
         columns.append(run.native.scale_error)
@@ -402,7 +406,7 @@ def _verdict(run: IsamRun, refined: Refinement, settled: bool, seconds: float):
     report = refined.report
     notes = [
         f"{run.updates} iSAM2 updates, {run.scale_steps} range-scale steps; joint polish: "
-        f"{report.message} after {report.iterations} iterations"
+        f"{report.message} ({report.iterations} iterations)"
     ]
     if not settled:
         notes.append(f"iSAM2 still moved positions by >= {SETTLED} m after its last update")
