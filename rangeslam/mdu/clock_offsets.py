@@ -1,0 +1,374 @@
+"""Unsynchronised receivers and unknown emission times: one range offset per receiver and per event.
+
+Model (the paper's eq. 9 with two offsets; El Badawy, Larsson, Pollefeys, Dokmanic, "Localizing
+unsynchronized sensors with unknown sources", arXiv 2102.03565):
+
+    T[m, k] = ||x_m - s_k|| + a_m + b_{g(k)} + noise                                    (C1)
+
+with M receivers x_m, K sources s_k, an unknown clock offset a_m per receiver and an unknown
+emission offset b_g per event g (a group of columns), all in metres (times c). One common shift
+a + t, b - t leaves (C1) unchanged: it is fixed by the gauge mean(a) = 0.
+
+The offsets enter (C1) linearly through a design matrix A (P, M + G) that does not depend on the
+points, so for given points the best offsets are a linear least-squares fit and the residual left
+is (I - A A^+)(||x_m - s_k|| - T[m, k]): a loss of the points alone that no offset changes (the
+xtdoa paper's "loss invariant to the timings"). Least squares on this profiled loss (variable
+projection, Golub and Pereyra 1973; exact here since A is constant) minimises the joint loss over
+points and offsets together. It is started from random points in a box of the size the data give
+(:func:`spread_from_arrivals`), each run capped, until the lowest minimum is reached again
+(:data:`VOTES` runs agreeing), and judged by :func:`rangeslam.mdu.core.unfolding_check` with the
+offsets among the unknowns.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rangeslam._validation import (
+    as_dim,
+    as_float_array,
+    as_mask,
+    as_rng,
+    as_speed,
+    check_int,
+    frozen,
+    shape_str,
+)
+from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
+from rangeslam.localization.emission import RANK_RTOL
+from rangeslam.localization.pseudorange import pseudoranges
+from rangeslam.mdu.core import (
+    EXACT_RTOL,
+    MAX_RELATIVE_RMS,
+    SAME_RTOL,
+    canonical_frame,
+    check_determined,
+    check_noise_std,
+    passes_residual_test,
+    unfolding_check,
+    unknowns_up_to_rigid_motion,
+)
+from rangeslam.mdu.emission import UnknownEmissionCalibration, as_groups
+from rangeslam.solvers.least_squares import unfolding_jacobian
+from rangeslam.status import Status
+
+# Function evaluations of one search run: from a start in the right basin, Levenberg-Marquardt
+# converges in 40 - 70 evaluations on the xtdoa data (12 microphones, 6 - 11 events); runs from
+# the wrong basin wander for thousands (measured), so they are cut short.
+SEARCH_NFEV = 100
+# The lowest minimum counts as found when this many runs reached it (sums of squares within
+# SAME_SSR relative, squared distances within SAME_RTOL): 3 gave the K = 6 median error of 14 cm
+# on 15 subsets of the xtdoa data (2 stops too early on a near-minimum at K = 6).
+VOTES = 3
+SAME_SSR = 1e-3
+# Verdicts after which the search goes on for a lower minimum (the residuals reject the fit).
+RETRY = (Status.INCONSISTENT, Status.OUTLIERS, Status.NO_AGREEMENT)
+
+
+def unknowns_with_clock_offsets(m: int, k: int, n_groups: int, dim: int) -> int:
+    """Unknowns of (C1): the M + K points up to a rigid motion, M receiver offsets and G event
+    offsets less the one common shift: (M + K) d - d (d + 1) / 2 + G + M - 1."""
+    return unknowns_up_to_rigid_motion(m + k, dim) + n_groups + m - 1
+
+
+def offset_design(pairs: np.ndarray, m: int, groups: np.ndarray) -> np.ndarray:
+    """(P, M + G) derivative of the P observed arrivals (``pairs`` (P, 2): receiver, column) with
+    respect to the offsets [a (M,), b (G,)] of (C1)."""
+    n_groups = int(groups.max()) + 1
+    design = np.zeros((len(pairs), m + n_groups))
+    rows = np.arange(len(pairs))
+    design[rows, pairs[:, 0]] = 1.0
+    design[rows, m + groups[pairs[:, 1]]] = 1.0
+    return design
+
+
+def spread_from_arrivals(arrivals: np.ndarray, observed: np.ndarray) -> float:
+    """A length scale of the scene (metres) that no offset changes: half the largest spread over
+    the columns of T[m, k] - T[m', k] (offsets cancel; |d_mk - d_m'k| <= ||x_m - x_m'||, so the
+    spread is at most twice the receivers' diameter); 1 when no pair of receivers shares two
+    columns."""
+    best = 0.0
+    for i in range(len(arrivals)):
+        both = observed[i][None, :] & observed[i + 1 :]
+        diff = np.where(both, arrivals[i][None, :] - arrivals[i + 1 :], np.nan)
+        ok = both.sum(axis=1) >= 2
+        if np.any(ok):
+            best = max(best, float(np.max(np.nanmax(diff[ok], 1) - np.nanmin(diff[ok], 1))))
+    return best / 2.0 if best > 0 else 1.0
+
+
+class ProfiledUnfolding:
+    """The loss of (C1) with the offsets profiled out, in units of ``scale`` (metres).
+
+    Residuals (I - U U^T)(||x_m - s_k|| - T_mk) over the P observed pairs (row-major), U an
+    orthonormal basis of the offsets' design (:func:`offset_design`); theta = the stacked points
+    (M + K, d), receivers first."""
+
+    def __init__(
+        self, arrivals: np.ndarray, observed: np.ndarray, groups: np.ndarray, dim: int, scale: float
+    ) -> None:
+        self.m, self.dim, self.scale = arrivals.shape[0], dim, scale
+        self.pairs = np.argwhere(observed)
+        self.t = arrivals[observed] / scale
+        self.design = offset_design(self.pairs, self.m, groups)
+        u, sv, _ = np.linalg.svd(self.design, full_matrices=False)
+        self.basis = u[:, sv > RANK_RTOL * sv[0]]
+
+    def _project(self, v: np.ndarray) -> np.ndarray:
+        return v - self.basis @ (self.basis.T @ v)
+
+    def distances(self, theta: np.ndarray) -> np.ndarray:
+        """(P,) distances of the observed pairs, scaled units."""
+        pts = theta.reshape(-1, self.dim)
+        return np.linalg.norm(pts[self.pairs[:, 0]] - pts[self.m + self.pairs[:, 1]], axis=1)
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        return self._project(self.distances(theta) - self.t)
+
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        pts = theta.reshape(-1, self.dim)
+        return self._project(unfolding_jacobian(pts, self.m, self.pairs))
+
+    def offsets(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The best offsets (a (M,), b (G,)) for the points, scaled units, gauge mean(a) = 0."""
+        ab = np.linalg.lstsq(self.design, self.t - self.distances(theta), rcond=None)[0]
+        a, b = ab[: self.m], ab[self.m :]
+        shift = float(a.mean())
+        return a - shift, b + shift
+
+
+@dataclass(frozen=True)
+class ClockFit:
+    """A profiled least-squares fit: points (M + K, d) scaled, its sum of squares, whether another
+    run reached it, and the runs made."""
+
+    theta: np.ndarray
+    ssr: float
+    confirmed: bool
+    runs: int
+
+
+def _fit(model: ProfiledUnfolding, theta0: np.ndarray, max_nfev: int | None):
+    method = "lm" if len(model.t) >= theta0.size else "trf"  # MINPACK needs P >= unknowns
+    fit = least_squares(
+        model.residuals, theta0, jac=model.jacobian, method=method, max_nfev=max_nfev,
+        **({} if max_nfev else {"xtol": 1e-15, "ftol": 1e-15, "gtol": 1e-15}),
+    )  # fmt: skip
+    return fit.x, float(fit.fun @ fit.fun)
+
+
+def _same(model: ProfiledUnfolding, theta: np.ndarray, other: np.ndarray) -> bool:
+    pts, ref = theta.reshape(-1, model.dim), other.reshape(-1, model.dim)
+    d1 = np.sum((pts[:, None] - pts[None]) ** 2, axis=2)
+    d2 = np.sum((ref[:, None] - ref[None]) ** 2, axis=2)
+    return bool(np.max(np.abs(d1 - d2)) <= max(SAME_RTOL, 1e-3 * float(np.max(d2))))
+
+
+def clock_candidates(model: ProfiledUnfolding, runs: int, rng: np.random.Generator):
+    """Yield candidate fits (:class:`ClockFit`, refined to convergence): Levenberg-Marquardt on
+    the profiled loss from random points uniform in [-1, 1]^d (scaled units: the size of the
+    scene, :func:`spread_from_arrivals`), each run capped at :data:`SEARCH_NFEV` evaluations. A
+    candidate is yielded when a run is exact (then the search ends) or when :data:`VOTES` runs
+    have reached the lowest minimum so far; the caller judges it and asks for more if it fails.
+    The search ends when that minimum has been reached 2 :data:`VOTES` times (on the xtdoa data
+    at K = 20, the tail test flags the model error of real data as outliers: searching all
+    ``runs`` for a lower minimum took 9 s a solve and found none), or after ``runs`` runs, when
+    the lowest minimum is yielded if it was not yet."""
+    n_pts = model.m + int(model.pairs[:, 1].max()) + 1
+    exact_ssr = EXACT_RTOL**2 * len(model.t)
+    best, hits, n = None, 0, 0
+    for _ in range(runs):
+        n += 1
+        theta, ssr = _fit(model, rng.uniform(-1.0, 1.0, n_pts * model.dim), SEARCH_NFEV)
+        if not np.all(np.isfinite(theta)):
+            continue
+        if best is None or ssr < best[1] * (1.0 - SAME_SSR):
+            best, hits = (theta, ssr), 1
+        elif ssr <= best[1] * (1.0 + SAME_SSR) and _same(model, theta, best[0]):
+            hits += 1
+        if best[1] <= exact_ssr or hits == VOTES:
+            yield _refined(model, best, hits >= 2, n)
+            if best[1] <= exact_ssr:
+                return
+        if hits >= 2 * VOTES:
+            return  # the judged minimum reached again as often: no lower one is coming
+    if best is None:
+        yield ClockFit(np.full(n_pts * model.dim, np.nan), math.inf, False, n)
+    elif hits < VOTES:
+        yield _refined(model, best, hits >= 2, n)
+
+
+def _refined(model: ProfiledUnfolding, best, confirmed: bool, runs: int) -> ClockFit:
+    theta, ssr = _fit(model, best[0], None)
+    if not ssr <= best[1]:
+        theta, ssr = best
+    return ClockFit(theta, ssr, confirmed, runs)
+
+
+def joint_jacobian(model: ProfiledUnfolding, theta: np.ndarray) -> np.ndarray:
+    """(P, (M + K) d + M - 1 + G) Jacobian of (C1)'s residuals in points, receiver offsets a_1..
+    a_{M-1} (a_0 held: the common shift removed) and event offsets, scaled units."""
+    pts = theta.reshape(-1, model.dim)
+    jac = unfolding_jacobian(pts, model.m, model.pairs)
+    return np.hstack([jac, model.design[:, 1 : model.m], model.design[:, model.m :]])
+
+
+def clock_verdict(model, fit: ClockFit, corrected, observed, noise_std, need: int):
+    """(status, message) of a fit: the residual test (or, without noise_std, the vote of two runs
+    and an RMS below MAX_RELATIVE_RMS of the scene), the redundancy, the rank of the joint
+    Jacobian beyond the rigid motions (``need``), then
+    :func:`rangeslam.mdu.core.unfolding_check` with the M - 1 + G offsets as unknowns."""
+    scale, m = model.scale, model.m
+    n_obs = len(model.t)
+    rms = math.sqrt(fit.ssr / n_obs) * scale
+    noise = None if noise_std is None else noise_std / scale
+    n_off = model.design.shape[1] - 1
+    n_pts = len(fit.theta) // model.dim
+    passed = passes_residual_test(
+        fit.ssr, n_obs, n_pts, model.dim, noise, EXACT_RTOL, n_offsets=n_off
+    )
+    vote = noise_std is None and fit.confirmed and rms <= MAX_RELATIVE_RMS * scale
+    if not (passed or vote):
+        status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
+        return status, f"no run passed the residual test: best RMS residual {rms:.3g} m"
+    if n_obs == need:
+        return Status.NOT_IDENTIFIABLE, "no redundant arrivals: the data cannot tell the solutions"
+    sv = np.linalg.svd(joint_jacobian(model, fit.theta), compute_uv=False)
+    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
+    if rank < need:
+        return Status.NOT_IDENTIFIABLE, (
+            f"the Jacobian has rank {rank} < {need}: the points or offsets are not determined"
+        )
+    pts = fit.theta.reshape(-1, model.dim) * scale
+    offset_columns = np.hstack([model.design[:, 1:m], model.design[:, m:]])
+    check = unfolding_check(
+        pts[:m], pts[m:], corrected, observed, noise_std, EXACT_RTOL * scale,
+        offset_columns=offset_columns, what="the calibration", judge_sources="mirror",
+    )  # fmt: skip
+    return check.status, check.reason
+
+
+def clock_offsets_crlb(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    sigma: float,
+    *,
+    groups: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+) -> float:
+    """RMS Cramer-Rao bound (metres) on the receivers of (C1), all offsets unknown.
+
+    The Fisher information of the points with the offsets eliminated (Schur complement: the
+    Jacobian projected off the offsets' design, as :class:`ProfiledUnfolding`), its rigid motions
+    removed by a pseudo-inverse on their complement, then the receiver gauge of
+    :func:`rangeslam.mdu_crlb` (errors after aligning the receivers rigidly).
+
+    Args:
+        receivers: (M, d), sources: (K, d), metres; sigma: arrival noise (metres).
+        groups: (K,) event of each column (default: one event per column); mask: (M, K).
+    """
+    x, s = np.asarray(receivers, float), np.asarray(sources, float)
+    m, k = len(x), len(s)
+    g = np.arange(k) if groups is None else np.asarray(groups)
+    observed = np.ones((m, k), bool) if mask is None else np.asarray(mask, bool)
+    pairs = np.argwhere(observed)
+    design = offset_design(pairs, m, g)
+    u, sv, _ = np.linalg.svd(design, full_matrices=False)
+    basis = u[:, sv > RANK_RTOL * sv[0]]
+    pts = np.vstack([x, s])
+    jac = unfolding_jacobian(pts, m, pairs)
+    jac = jac - basis @ (basis.T @ jac)
+    full = np.linalg.svd(rigid_motion_basis(pts), full_matrices=True)[0]
+    q = full[:, rigid_motion_basis(pts).shape[1] :]
+    _, sv, vt = np.linalg.svd(jac @ q, full_matrices=False)
+    half = q @ (vt.T / sv) * sigma  # F^+ = half half^T, no explicit inverse
+    proj = receiver_gauge_projection(x, s)
+    half = (proj @ half)[: m * x.shape[1]]
+    return float(np.sqrt(np.sum(half**2) / m))
+
+
+def one_blas_thread():
+    """A context with one BLAS thread (threadpoolctl, when installed): the matrices here are
+    small, and on a busy 2-core machine OpenBLAS's threads made a K = 18 solve 5x slower (median
+    of 4: 4.4 s against 1.6 s, measured beside another process)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scipy's usual stacks
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
+def _search_and_judge(model, observed, groups, noise_std, need: int, runs: int, rng):
+    """(fit, status, message): the candidates of :func:`clock_candidates`, each judged by
+    :func:`clock_verdict`, until one is not rejected by its residuals (restarts judged by the
+    verdict: a minimum the residuals reject is a wrong one)."""
+    arrivals = np.zeros(observed.shape)
+    arrivals[observed] = model.t * model.scale
+    for fit in clock_candidates(model, runs, as_rng(rng)):
+        if not np.isfinite(fit.ssr):
+            raise SolverError(f"every one of {fit.runs} least-squares runs diverged")
+        a, b = (v * model.scale for v in model.offsets(fit.theta))
+        corrected = np.where(observed, arrivals - a[:, None] - b[groups][None, :], 0.0)
+        status, message = clock_verdict(model, fit, corrected, observed, noise_std, need)
+        if status not in RETRY:
+            break
+    return fit, status, message
+
+
+def calibrate_with_clock_offsets(
+    ranges, groups, *, dim, mask, noise_std, c, runs, rng
+) -> UnknownEmissionCalibration:
+    """:func:`rangeslam.mdu.emission.calibrate_unknown_emission` with ``receiver_offsets=True``
+    (see there; ``runs``: the search runs of :func:`search_clock_offsets`)."""
+    dim = as_dim(dim)
+    shape = as_float_array(ranges, "ranges").shape
+    if len(shape) != 2:
+        raise InvalidInputError(f"ranges must be an (M, K) array; got {shape_str(shape)}")
+    observed = as_mask(mask, "mask", shape=shape)
+    r = pseudoranges(ranges, "ranges", shape, observed)
+    (m, k), g = shape, as_groups(groups, shape[1])
+    n_groups = int(g.max()) + 1
+    check_determined(observed, dim, "mask" if mask is not None else "ranges")
+    need = unknowns_with_clock_offsets(m, k, n_groups, dim)
+    if observed.sum() < need:
+        raise InvalidInputError(
+            f"{int(observed.sum())} observed ranges for {need} unknowns ({m} receivers and {k} "
+            f"sources in {dim}-D up to a rigid motion, {n_groups} event offsets and {m} receiver "
+            f"offsets less their common shift: (M + K) d - d (d + 1) / 2 + G + M - 1)"
+        )
+    noise_std, c = check_noise_std(noise_std), as_speed(c)
+    runs = check_int(runs, "random_starts", 1)
+    model = ProfiledUnfolding(r, observed, g, dim, spread_from_arrivals(r, observed))
+    with one_blas_thread():
+        fit, status, message = _search_and_judge(model, observed, g, noise_std, need, runs, rng)
+    a, b = (v * model.scale for v in model.offsets(fit.theta))
+    corrected = np.where(observed, r - a[:, None] - b[g][None, :], 0.0)
+    pts = fit.theta.reshape(-1, dim) * model.scale
+    receivers, sources, _ = canonical_frame(pts[:m], pts[m:])
+    residuals = np.full(shape, np.nan)
+    residuals[observed] = (model.distances(fit.theta) * model.scale) - corrected[observed]
+    n_obs = int(observed.sum())
+    return UnknownEmissionCalibration(
+        receivers=frozen(receivers),
+        sources=frozen(sources),
+        offsets=frozen(b),
+        offset_times=frozen(b / c if c is not None else np.full(n_groups, np.nan)),
+        residuals=frozen(residuals),
+        observed=frozen(observed),
+        residual_rms=math.sqrt(fit.ssr / n_obs) * model.scale,
+        noise_estimate=(
+            math.sqrt(fit.ssr / (n_obs - need)) * model.scale if n_obs > need else float("nan")
+        ),
+        redundancy=int(n_obs - need),
+        status=status,
+        message=message,
+        attempts=0,
+        random_starts=int(fit.runs),
+        receiver_offsets=frozen(a),
+    )

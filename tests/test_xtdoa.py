@@ -1,0 +1,100 @@
+"""Real data: the xtdoa measurements (El Badawy, Larsson, Pollefeys, Dokmanic, "Localizing
+unsynchronized sensors with unknown sources", arXiv 2102.03565; MIT licence) in ../shared/data.
+
+12 microphones with measured positions, 65 events, times of arrival with both the microphones'
+clock offsets and the emission times unknown. The thresholds are the issue's (16): the authors'
+published medians beaten, under the floor of the measured positions (a few centimetres).
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from rangeslam import DataFormatError, InvalidInputError
+from rangeslam.app.xtdoa_bench import (
+    PUBLISHED_MEDIAN_CM,
+    fit_from_reference,
+    reference_sources,
+    subset_rows,
+    summary_rows,
+)
+from rangeslam.datasets import xtdoa
+
+_REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def data():
+    """The xtdoa data: $RANGESLAM_DATA/xtdoa, else <repo>/../shared/data/xtdoa; skip if absent."""
+    env = os.environ.get("RANGESLAM_DATA")
+    base = Path(env) if env else _REPO.parent / "shared" / "data"
+    path = (base / "xtdoa").resolve()
+    if not (path / "real_data_M12_K65.mat").is_file():
+        pytest.skip(
+            f"xtdoa data not found at {path}; set RANGESLAM_DATA to the directory that "
+            "contains xtdoa/"
+        )
+    return xtdoa(path)
+
+
+def test_loader_shapes(data):
+    """Points as rows, 12 x 65 arrivals, a boolean mask with the 23 all-clean events."""
+    assert data.receivers.shape == (12, 3)
+    assert data.arrivals.shape == (12, 65) and data.arrivals.dtype == np.float64
+    assert data.clean.dtype == bool and data.clean.shape == (12, 65)
+    assert len(data.clean_columns) == 23
+    assert not data.arrivals.flags.writeable
+
+
+def _write(path, **fields):
+    savemat(path / "real_data_M12_K65.mat", fields)
+    return path
+
+
+def test_loader_bad_input(tmp_path):
+    """A missing path, a missing variable, wrong shapes and a non-binary mask are refused."""
+    with pytest.raises(InvalidInputError, match="xtdoa directory"):
+        xtdoa(tmp_path / "nowhere")
+    t, w, x = np.ones((4, 5)), np.ones((4, 5)), np.zeros((3, 4))
+    with pytest.raises(DataFormatError, match="variable 'W' missing"):
+        xtdoa(_write(tmp_path, T=t, X_r=x))
+    with pytest.raises(DataFormatError, match=r"W must be \(4, 5\)"):
+        xtdoa(_write(tmp_path, T=t, W=np.ones((4, 6)), X_r=x))
+    with pytest.raises(DataFormatError, match=r"X_r must be \(3, 4\)"):
+        xtdoa(_write(tmp_path, T=t, W=w, X_r=x.T))
+    with pytest.raises(DataFormatError, match="W must hold only 0 and 1"):
+        xtdoa(_write(tmp_path, T=t, W=2 * w, X_r=x))
+    (tmp_path / "real_data_M12_K65.mat").write_text("not a MATLAB file")
+    with pytest.raises(DataFormatError, match="not a readable MATLAB file"):
+        xtdoa(tmp_path)
+    ok = xtdoa(_write(tmp_path, T=t, W=w, X_r=x))
+    assert ok.receivers.shape == (4, 3)
+
+
+def test_authors_protocol_reduced(data):
+    """10 random subsets of K = 8 and of K = 11 clean events (the authors' protocol, each event
+    its own offset, microphone offsets unknown). The global search reaches the least-squares fit
+    started from the truth (microphone error within 1 mm of it) in at least 9 of 10 subsets of
+    each size; the median mean-microphone error after a similarity alignment is at most the
+    authors' published 13.7 cm at K = 8 and the issue's 9 cm at K = 11 (published 9.6 cm). (The
+    issue's 11 cm at K = 8 is for the 200-subset median: the fit from the truth itself has a
+    10-subset median above 11 cm for some draws; benchmarks/bench_xtdoa.py checks it.)"""
+    rows = subset_rows(data, [8, 11], 10, seed=2026)
+    sources = reference_sources(data)
+    for k in (8, 11):
+        mine = [r for r in rows if r["K"] == k]
+        same = [
+            abs(r["similarity_error_m"] - fit_from_reference(data, _columns(r), sources)) < 1e-3
+            for r in mine
+        ]
+        assert sum(same) >= 9, (k, same)
+    summary = {s["K"]: s for s in summary_rows(rows)}
+    assert summary[8]["median_similarity_cm"] <= PUBLISHED_MEDIAN_CM[8]
+    assert summary[11]["median_similarity_cm"] <= 9.0
+
+
+def _columns(row: dict) -> np.ndarray:
+    return np.array([int(c) for c in row["columns"].split()])
