@@ -143,23 +143,13 @@ def _twenty_beacons_run(rng, n_steps):
 
 def _joint_cost(data, result, cfg):
     """The batch graph's cost (the joint model) at a result."""
-    from rangeslam.beacons.graph import build_graph, group_of_range, initial_values
+    from rangeslam.beacons.batch import joint_problem
+    from rangeslam.beacons.windows import Initialisation
 
     placed = np.isfinite(result.beacons[:, 0])
     cal = np.array([[np.nanmedian(result.range_scale) - 1, np.nanmedian(result.range_bias)]])
-    values, _ = initial_values(result.poses, result.beacons, placed, cfg, data.n_beacons, cal)
-    used = placed[data.range_beacon]
-    group, n_groups = group_of_range(data, cfg.per_beacon)
-    graph = build_graph(
-        result.poses[0],
-        data.odometry,
-        data.range_pose[used],
-        data.range_beacon[used],
-        data.ranges[used],
-        group[used],
-        n_groups,
-        cfg,
-    )
+    init = Initialisation(result.poses, result.beacons, placed, notes=[])
+    graph, values, _ = joint_problem(data, init, cfg, cal)
     return graph.error(values)
 
 

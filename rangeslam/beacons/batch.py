@@ -113,16 +113,15 @@ def random_initialisation(
     )
 
 
-def refine(
+def joint_problem(
     data: RangeOdometry,
     init: Initialisation,
     cfg: BeaconSlamOptions,
-    max_iterations: int,
     calibration0: np.ndarray | None = None,
-) -> Refinement:
-    """Step 4: the factor graph over the ranges to placed beacons (the joint model: the range
-    calibration an unknown of the graph), Levenberg-Marquardt from ``init`` and the calibration
-    ``calibration0`` (G, nc) (zero when None)."""
+):
+    """The joint model at ``init``: the factor graph over the ranges to placed beacons (range
+    scale and offset unknowns of the graph), its values (calibration ``calibration0`` (G, nc),
+    zero when None) and each key's dimension. ``graph.error(values)`` is the joint cost."""
     used = init.placed[data.range_beacon]
     values, dims = initial_values(
         init.poses, init.beacons, init.placed, cfg, data.n_beacons, calibration0
@@ -138,6 +137,20 @@ def refine(
         n_groups,
         cfg,
     )
+    return graph, values, dims
+
+
+def refine(
+    data: RangeOdometry,
+    init: Initialisation,
+    cfg: BeaconSlamOptions,
+    max_iterations: int,
+    calibration0: np.ndarray | None = None,
+) -> Refinement:
+    """Step 4: the factor graph over the ranges to placed beacons (the joint model: the range
+    calibration an unknown of the graph), Levenberg-Marquardt from ``init`` and the calibration
+    ``calibration0`` (G, nc) (zero when None)."""
+    graph, values, dims = joint_problem(data, init, cfg, calibration0)
     values, report = levenberg_marquardt(graph, values, dims, max_iterations=max_iterations)
     scale, offset = calibration_arrays(values, cfg, data.n_beacons, init.placed)
     return Refinement(
