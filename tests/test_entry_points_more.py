@@ -270,7 +270,7 @@ def test_beacon_slam_refuses_bad_input(data, beacon_run):
                 initialisation="edm", rng=None, **SETTINGS)  # fmt: skip
     only_package_errors(beacon_slam, fuzzed(base, data))
     base = dict(data=beacon_run.data, start_pose=(0.0, 0.0, 0.0), update_every=25,
-                relinearize_threshold=0.1, factorization="QR", initialisation="edm", rng=None,
+                relinearize_threshold=0.1, factorization=None, initialisation="edm", rng=None,
                 **SETTINGS)  # fmt: skip
     only_package_errors(beacon_slam_incremental, fuzzed(base, data))
 
