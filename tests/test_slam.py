@@ -81,6 +81,21 @@ def test_bounds_that_contradict_the_ranges_are_reported(rng):
         slam(r, step_bounds=(np.zeros(7), hi), max_attempts=1)
 
 
+def test_a_wrong_pick_against_the_bounds_is_left_to_the_robust_kernel(rng):
+    """One wrong echo (1 m) that the triangle inequality puts at odds with the step bounds: the
+    bounds are refused without a robust kernel (naming 1 of 7 landmarks), and with one the
+    range is the kernel's business: no refusal, and an answer said converged is right."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    r = range_matrix(traj, landmarks)
+    r[3, 4] += 1.0
+    bounds = (0.8 * steps, 1.2 * steps)
+    with pytest.raises(InvalidInputError, match=r"at step [23]: .*1 of 7 landmarks"):
+        slam(r, step_bounds=bounds, noise_std=1e-3, max_attempts=1)
+    out = slam(r, step_bounds=bounds, noise_std=1e-3, robust="cauchy", rng=rng)
+    assert not out.converged or align(out.receivers, traj, reflection=True).rmse < 0.01
+
+
 def test_exact_recovery_with_bounds_off_centre(rng):
     """Exact ranges and bounds that do not centre on the true steps: the step prior must not pull
     the answer (the ranges are weighed as exact once the noise is found to be nil), whether the

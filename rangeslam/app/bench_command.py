@@ -12,7 +12,7 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["bench", "run_bench", "run_plaza_bench", "run_xtdoa_bench"]
+__all__ = ["bench", "run_bench", "run_plaza_bench", "run_regimes_bench", "run_xtdoa_bench"]
 
 
 def bench(args: argparse.Namespace) -> int:
@@ -24,6 +24,8 @@ def bench(args: argparse.Namespace) -> int:
         return run_plaza_bench(args)
     if args.which == "xtdoa":
         return run_xtdoa_bench(args)
+    if getattr(args, "regimes", False):
+        return run_regimes_bench(args)
     slam = {}
     if args.which != "fig3":
         slam = dict(steps=args.steps, bounds=BOUND_SETTINGS[args.bounds], placement=args.placement)
@@ -188,6 +190,38 @@ def run_plaza_bench(args: argparse.Namespace) -> int:
     written = [out / f"{stem}_methods.csv"] + ([out / f"{stem}_lengths.csv"] if lengths else [])
     written += _write_plaza_outputs(args, dataset, rows, length_rows, kept, wall)
     return _finish("runs", rows, wall=wall, seed=args.seed, written=written)
+
+
+def run_regimes_bench(args: argparse.Namespace) -> int:
+    """The regime map (:mod:`rangeslam.app.regime_map`): a CSV row per trial (rewritten as
+    trials finish), a Markdown table per figure of merit (printed and written), the figures;
+    progress on standard error."""
+    from rangeslam.app.benchmarking import FIG5_STEPS
+    from rangeslam.app.progress import Progress
+    from rangeslam.app.regime_map import regime_map, regime_tables
+    from rangeslam.app.regime_plot import plot_regimes
+    from rangeslam.app.regimes import REGIME_STEPS, regime_cells
+    from rangeslam.app.reports import markdown, write_csv
+
+    steps = REGIME_STEPS if args.steps == list(FIG5_STEPS) else args.steps
+    cells = regime_cells(steps, args.sigmas)
+    out, finished = args.out, []
+    t0 = time.perf_counter()
+    with Progress(len(cells) * args.trials, "regimes") as progress:
+
+        def keep(row: dict) -> None:
+            finished.append(row)
+            write_csv(out / "regimes_trials.csv", finished)
+            progress.update()
+
+        rows = regime_map(cells, trials=args.trials, seed=args.seed, jobs=args.jobs, on_row=keep)
+    wall = time.perf_counter() - t0
+    written = [write_csv(out / "regimes_trials.csv", rows)]
+    text = "\n\n".join(f"### {t}\n\n" + markdown(h, tab) for t, h, tab in regime_tables(rows))
+    (out / "regimes_summary.md").write_text(text + "\n")
+    print(text)
+    written += [out / "regimes_summary.md", *plot_regimes(out, rows)]
+    return _finish("trials", rows, wall=wall, seed=args.seed, written=written)
 
 
 def _finish(unit: str, rows: list[dict], *, wall: float, seed: int, written: list[Path]) -> int:

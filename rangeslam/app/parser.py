@@ -148,6 +148,15 @@ def _add_bench(sub) -> None:
             formatter_class=DefaultsHelpFormatter,
         )
         _add_slam_bench_options(slam)
+        if name == "compare":
+            slam.add_argument(
+                "--regimes",
+                action="store_true",
+                help="the regime map instead: lemniscate and random walks in random rooms, "
+                "bounds or none, each sigma and M, and 2-D, 30%% missing and 5%% wrong picks; "
+                "GTSAM's random starts (one, and best of k in EDM + GTSAM's time) beside "
+                "(default steps: 4 5 6 8 10 20; --bounds and --placement do not apply)",
+            )
     plaza = experiments.add_parser(
         "plaza",
         help="range-only SLAM on the CMU Plaza radio data shipped with GTSAM",

@@ -105,23 +105,25 @@ class SlamResult(HasStatus):
     eigen_gap: float
 
 
-def _check_bounds_against_ranges(bounds, r, observed, noise_std) -> None:
+def _check_bounds_against_ranges(bounds, r, observed, noise_std, robust=None) -> None:
     """Refuse step bounds that no positions can meet: by the triangle inequality, for every
     landmark k heard at steps i and i + 1, |r_ik - r_(i+1)k| <= |x_(i+1) - x_i| <= r_ik + r_(i+1)k
-    (with 4 sigma of slack for the noise, or 1% of the range when noise_std is unknown)."""
+    (with 4 sigma of slack for the noise, or 1% of the range when noise_std is unknown). With a
+    ``robust`` kernel a landmark that contradicts the bounds may be a wrong pick (the kernel's
+    business): the bounds are refused only when most landmarks heard at both steps do."""
     lower, upper = bounds
     both = observed[:-1] & observed[1:]
     slack_abs = 0.0 if noise_std is None else 4 * np.sqrt(2) * noise_std
-    least_all = least_steps(r, observed)
     for i in np.flatnonzero(both.any(axis=1)):
         a, b = r[i, both[i]], r[i + 1, both[i]]
         slack = slack_abs if noise_std is not None else 0.01 * float(np.max(a + b))
-        least, most = float(least_all[i]), float(np.min(a + b))
-        if upper[i] < least - slack or lower[i] > most + slack:
+        against = (upper[i] < np.abs(a - b) - slack) | (lower[i] > a + b + slack)
+        if (np.any(against) and robust is None) or np.sum(against) > len(a) / 2:
+            least, most = float(np.max(np.abs(a - b))), float(np.min(a + b))
             raise InvalidInputError(
                 f"step_bounds contradict the ranges at step {i}: [{lower[i]:.4g}, {upper[i]:.4g}] m "
                 f"lies outside [{least:.4g}, {most:.4g}] m, what the ranges to the same landmarks "
-                "allow (triangle inequality)"
+                f"allow (triangle inequality; {int(np.sum(against))} of {len(a)} landmarks)"
             )
 
 
@@ -217,7 +219,7 @@ def parse_slam(
     m = r.shape[0]
     bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
     if bounds is not None:
-        _check_bounds_against_ranges(bounds, r, observed, noise_std)
+        _check_bounds_against_ranges(bounds, r, observed, noise_std, robust)
         # lower = upper is a known step length: an interval KNOWN_STEP_WIDTH of the scale wide
         # (the GTSAM dead zone needs a positive width; the step factor's sigma holds it there).
         bounds = bounds.widened(KNOWN_STEP_WIDTH * scale)

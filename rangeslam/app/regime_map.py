@@ -1,0 +1,173 @@
+"""Run the regime map (:mod:`rangeslam.app.regimes`) and summarise it, one table per figure of merit.
+
+    from rangeslam.app.regime_map import regime_map, regime_tables
+    rows = regime_map(trials=10, seed=0, jobs=2)
+    for title, header, table in regime_tables(rows): ...
+
+Figures of merit per cell and method: success (trajectory RMS error under 10 cm), the RMS error
+over the trials against the RMS of the per-trial Cramer-Rao bounds (with the step prior; trials
+whose bound is infinite are left out and counted as not identifiable), median and 90th percentile
+of the error, median landmark error, median wall time, median GTSAM iterations, and the share of
+trials a method's own verdict flagged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict
+
+import numpy as np
+
+from rangeslam.app.regimes import MAX_RANDOM_STARTS, REGIME_METHODS, RegimeCell, run_regime_trial
+from rangeslam.errors import InvalidInputError
+
+__all__ = ["MERITS", "METHOD_LABELS", "cell_of_row", "regime_map", "regime_tables"]
+
+METHOD_LABELS = {
+    "edm": "EDM only",
+    "edm_gtsam": "EDM + GTSAM",
+    "gtsam_1": "GTSAM, 1 random start",
+    "gtsam_k": "GTSAM, best of k (equal time)",
+    "ekf": "EKF",
+    "ekf_rts": "EKF + RTS",
+}
+
+
+def one_trial(task: tuple[RegimeCell, int, int, int]) -> dict:
+    """:func:`~rangeslam.app.regimes.run_regime_trial` of (cell, trial, seed, max_starts), for
+    a pool; a trial that raises is a row whose status says why."""
+    cell, trial, seed, max_starts = task
+    try:
+        return run_regime_trial(cell, trial, seed, max_starts=max_starts)
+    except Exception as exc:  # a failing trial is recorded, and the map goes on
+        why = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+        return {**asdict(cell), "trial": trial, "seed": seed, "status": f"failed: {why}"}
+
+
+def regime_map(
+    cells: Sequence[RegimeCell],
+    *,
+    trials: int,
+    seed: int,
+    jobs: int = 1,
+    max_starts: int = MAX_RANDOM_STARTS,
+    on_row: Callable[[dict], None] | None = None,
+) -> list[dict]:
+    """Every method on ``trials`` scenes of each of ``cells``, over ``jobs`` processes: the rows
+    (:func:`~rangeslam.app.regimes.run_regime_trial`; "gtsam_k" takes at most ``max_starts``
+    random starts) in the order of the cells and trials.
+    ``on_row`` is called with each row as it finishes (progress, writing as it goes)."""
+    if not (isinstance(trials, int) and trials >= 1):
+        raise InvalidInputError(f"trials must be a positive integer; got {trials!r}")
+    if not (isinstance(jobs, int) and jobs >= 1):
+        raise InvalidInputError(f"jobs must be a positive integer; got {jobs!r}")
+    tasks = [(cell, t, int(seed), int(max_starts)) for cell in cells for t in range(trials)]
+    if jobs == 1:
+        rows = []
+        for task in tasks:
+            rows.append(one_trial(task))
+            if on_row is not None:
+                on_row(rows[-1])
+        return rows
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(one_trial, task) for task in tasks]
+        for f in as_completed(futures):
+            if on_row is not None:
+                on_row(f.result())
+        return [f.result() for f in futures]
+
+
+def cell_of_row(row: dict) -> RegimeCell:
+    """The :class:`RegimeCell` a row was drawn in."""
+    return RegimeCell(
+        row["walk"], int(row["m"]), bool(row["bounds"]), float(row["sigma"]), int(row["dim"]),
+        float(row["missing"]), float(row["wrong"]),
+    )  # fmt: skip
+
+
+def finite(values) -> np.ndarray:
+    """The finite values of ``values`` as floats (failed methods have NaN)."""
+    v = np.asarray(values, dtype=float)
+    return v[np.isfinite(v)]
+
+
+def success_text(rows: list[dict], method: str) -> str:
+    """Share of trials with a trajectory error under 10 cm, percent."""
+    return f"{100 * np.mean([r[f'{method}_success'] for r in rows]):.0f}%"
+
+
+def bound_text(rows: list[dict], method: str) -> str:
+    """RMS error over the trials / RMS of the bounds, and how many trials were unidentifiable."""
+    from rangeslam.evaluation.metrics import rms_against_bound
+
+    c = rms_against_bound([r[f"{method}_error_m"] for r in rows], [r["crlb_m"] for r in rows])
+    if not c.trials:
+        return f"- ({c.regime})"
+    text = f"{c.ratio:.2f}x"
+    return text + (f" ({c.unidentifiable} n.i.)" if c.unidentifiable else "")
+
+
+def quantile_text(rows: list[dict], key: str, q: float, scale: float, fmt: str) -> str:
+    """The ``q`` quantile of a column (its finite values) times ``scale``; "-" when none."""
+    v = finite([r[key] for r in rows])
+    return "-" if v.size == 0 else format(scale * float(np.quantile(v, q)), fmt)
+
+
+#: The methods that judge their own answer (a status); the others only fail or not.
+JUDGED = ("edm_gtsam", "ekf", "ekf_rts")
+
+
+def flagged_text(rows: list[dict], method: str) -> str:
+    """Share of trials the method's verdict flagged or in which it failed, percent; for the
+    methods without a verdict, "failed" and the share in which they failed."""
+    share = f"{100 * np.mean([r[f'{method}_status'] != 'ok' for r in rows]):.0f}%"
+    return share if method in JUDGED else f"failed {share}"
+
+
+#: (title, text of one method in one cell) for each table of :func:`regime_tables`.
+MERITS: dict[str, Callable[[list[dict], str], str]] = {
+    "success (error < 10 cm)": success_text,
+    "RMS error / RMS bound (n.i.: trials not identifiable)": bound_text,
+    "median error [cm]": lambda rows, m: quantile_text(rows, f"{m}_error_m", 0.5, 100, ".2f"),
+    "90th percentile of the error [cm]": lambda rows, m: quantile_text(
+        rows, f"{m}_error_m", 0.9, 100, ".2f"
+    ),
+    "median landmark error [cm]": lambda rows, m: quantile_text(
+        rows, f"{m}_landmark_error_m", 0.5, 100, ".1f"
+    ),
+    "median time [s]": lambda rows, m: quantile_text(rows, f"{m}_seconds", 0.5, 1, ".3f"),
+    "median GTSAM iterations (random starts used)": lambda rows, m: (
+        quantile_text(rows, f"{m}_iterations", 0.5, 1, ".0f")
+        + (f" ({quantile_text(rows, f'{m}_starts', 0.5, 1, '.0f')})" if m == "gtsam_k" else "")
+    ),
+    "flagged by its own verdict, or failed": flagged_text,
+}
+
+
+def rows_by_cell(rows: Sequence[dict]) -> dict[RegimeCell, list[dict]]:
+    """The rows of finished trials (status "ok") grouped by cell, cells in their first
+    appearance's order."""
+    cells: dict[RegimeCell, list[dict]] = {}
+    for r in rows:
+        if r["status"] == "ok":
+            cells.setdefault(cell_of_row(r), []).append(r)
+    return cells
+
+
+def regime_tables(
+    rows: Sequence[dict], methods: Sequence[str] = REGIME_METHODS
+) -> list[tuple[str, list[str], list[list[str]]]]:
+    """One (title, header, table) per figure of merit (:data:`MERITS`): a row per cell (its
+    label and trial count), a column per method."""
+    cells = rows_by_cell(rows)
+    header = ["regime", "trials"] + [METHOD_LABELS[m] for m in methods]
+    out = []
+    for title, text in MERITS.items():
+        table = [
+            [cell.label, str(len(cell_rows))] + [text(cell_rows, m) for m in methods]
+            for cell, cell_rows in cells.items()
+        ]
+        out.append((title, header, table))
+    return out

@@ -1,0 +1,184 @@
+"""The regime map (rangeslam.app.regimes, regime_map, regime_plot; ``bench compare --regimes``)."""
+
+import csv
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rangeslam.app.cli import main
+from rangeslam.app.regime_map import regime_map, regime_tables
+from rangeslam.app.regimes import (
+    REGIME_METHODS,
+    RegimeCell,
+    draw_scene,
+    regime_cells,
+    run_regime_trial,
+)
+from rangeslam.errors import InvalidInputError
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.sim.trajectories import step_lengths
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(walk="spiral", m=6, bounds=True, sigma=0.01), "walk"),
+        (dict(walk="lemniscate", m=6, bounds=True, sigma=0.01, dim=2), "3-D walk"),
+        (dict(walk="random", m=6, bounds=True, sigma=0.01, dim=4), "dim"),
+        (dict(walk="random", m=2, bounds=True, sigma=0.01), "m must"),
+        (dict(walk="random", m=6, bounds=True, sigma=0.0), "sigma"),
+        (dict(walk="random", m=6, bounds=True, sigma=0.01, missing=1.0), "missing"),
+        (dict(walk="random", m=6, bounds=True, sigma=0.01, wrong=-0.1), "wrong"),
+    ],
+)
+def test_bad_cells_are_refused_naming_the_field(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        RegimeCell(**kwargs)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    walk=st.sampled_from(["lemniscate", "random", "x"]),
+    m=st.integers(-2, 30),
+    sigma=st.floats(allow_nan=True, allow_infinity=True),
+    dim=st.integers(0, 4),
+    missing=st.floats(-1, 2),
+)
+def test_cells_accept_or_refuse_with_the_package_error(walk, m, sigma, dim, missing):
+    try:
+        cell = RegimeCell(walk, m, True, sigma, dim, missing)
+    except InvalidInputError:
+        return
+    assert cell.m >= 3 and cell.sigma > 0 and cell.label
+
+
+def test_the_grid_covers_the_issue_regimes():
+    cells = regime_cells()
+    assert len(set(cells)) == len(cells)
+    assert {c.m for c in cells} == {4, 5, 6, 8, 10, 20}
+    assert {c.walk for c in cells} == {"lemniscate", "random"}
+    assert {c.bounds for c in cells} == {True, False}
+    assert {c.sigma for c in cells} == {1e-3, 1e-2}
+    assert any(c.dim == 2 for c in cells)
+    assert any(c.missing == 0.3 for c in cells) and any(c.wrong == 0.05 for c in cells)
+    assert len({c.spawn_key(0) for c in cells}) == len(cells)
+
+
+@pytest.mark.parametrize(
+    "cell",
+    [
+        RegimeCell("lemniscate", 8, True, 1e-3),
+        RegimeCell("random", 8, False, 1e-3),
+        RegimeCell("random", 8, True, 1e-3, dim=2),
+        RegimeCell("random", 10, True, 1e-3, missing=0.3),
+    ],
+)
+def test_scenes_hold_what_the_cell_says(cell):
+    scene = draw_scene(cell, np.random.default_rng(3))
+    k = 7 if cell.dim == 3 else 6
+    assert scene.trajectory.shape == (cell.m, cell.dim) and scene.landmarks.shape == (k, cell.dim)
+    truth = range_matrix(scene.trajectory, scene.landmarks)
+    seen = scene.mask
+    assert np.all(np.isnan(scene.ranges[~seen]))
+    assert np.max(np.abs(scene.ranges[seen] - truth[seen])) < 6 * cell.sigma
+    assert np.all(seen[:, 0]) and np.all(seen.sum(axis=1) >= cell.dim + 1)
+    if cell.missing:
+        assert 0.1 < 1 - seen[:, 1:].mean() < 0.5
+    steps = step_lengths(scene.trajectory)
+    if cell.bounds:
+        lower, upper = scene.step_bounds
+        assert np.allclose(lower, 0.8 * steps) and np.allclose(upper, 1.2 * steps)
+    else:
+        assert scene.step_bounds is None
+    if cell.walk == "random" and cell.dim == 3:
+        # non-planar: the smallest principal spread of the walk is not nil
+        assert np.linalg.svd(scene.trajectory - scene.trajectory.mean(0))[1][-1] > 0.01
+
+
+def test_wrong_picks_are_a_share_of_the_ranges():
+    cell = RegimeCell("random", 20, True, 1e-3, wrong=0.05)
+    scene = draw_scene(cell, np.random.default_rng(4))
+    off = np.abs(scene.ranges - range_matrix(scene.trajectory, scene.landmarks)) > 0.1
+    assert 1 <= off.sum() <= 0.15 * off.size
+
+
+def test_a_trial_runs_every_method_on_a_reproducible_scene():
+    cell = RegimeCell("random", 6, True, 1e-3)
+    row = run_regime_trial(cell, 0, 11, max_starts=3)
+    assert row["status"] == "ok" and np.isfinite(row["crlb_m"])
+    for m in REGIME_METHODS:
+        assert f"{m}_error_m" in row and f"{m}_seconds" in row
+    # a well-posed scene: EDM + GTSAM near the bound; best-of-k used 1..3 starts
+    assert row["edm_gtsam_error_m"] < 3 * row["crlb_m"]
+    assert 1 <= row["gtsam_k_starts"] <= 3 and row["gtsam_1_starts"] == 1
+    # the same key draws the same scene; another trial another one
+    key = np.random.SeedSequence(11, spawn_key=cell.spawn_key(0))
+    a = draw_scene(cell, np.random.default_rng(key))
+    b = draw_scene(
+        cell, np.random.default_rng(np.random.SeedSequence(11, spawn_key=cell.spawn_key(0)))
+    )
+    c = draw_scene(
+        cell, np.random.default_rng(np.random.SeedSequence(11, spawn_key=cell.spawn_key(1)))
+    )
+    assert np.array_equal(a.ranges, b.ranges) and not np.array_equal(a.ranges, c.ranges)
+
+
+def fake_row(m, error, bound, seconds=1.0, status="ok"):
+    row = dict(
+        walk="random", m=m, bounds=True, sigma=0.01, dim=3, missing=0.0, wrong=0.0,
+        trial=0, seed=0, status="ok", crlb_m=bound,
+    )  # fmt: skip
+    for name in REGIME_METHODS:
+        row.update(
+            {
+                f"{name}_error_m": error,
+                f"{name}_landmark_error_m": 2 * error,
+                f"{name}_success": error < 0.1,
+                f"{name}_seconds": seconds,
+                f"{name}_iterations": 10.0,
+                f"{name}_starts": 1,
+                f"{name}_status": status,
+            }
+        )
+    return row
+
+
+def test_tables_compute_each_figure_of_merit():
+    rows = [fake_row(6, 0.02, 0.01), fake_row(6, 0.2, 0.01, status="flagged: INCONSISTENT")]
+    rows.append({**fake_row(6, 0.0, 0.01), "status": "failed: boom"})  # left out
+    tables = {title: table for title, _, table in regime_tables(rows)}
+    (success,) = tables["success (error < 10 cm)"]
+    assert success[:3] == ["random 3-D, M=6, bounds, 10 mm", "2", "50%"]
+    (ratio,) = tables["RMS error / RMS bound (n.i.: trials not identifiable)"]
+    assert ratio[2] == f"{np.sqrt((0.02**2 + 0.2**2) / 2) / 0.01:.2f}x"
+    (flag,) = tables["flagged by its own verdict, or failed"]
+    assert flag[2] == "failed 50%" and flag[3] == "50%"  # EDM only has no verdict
+
+
+def test_the_map_runs_over_processes_in_order():
+    cells = [RegimeCell("random", 5, True, 1e-3)]
+    seen = []
+    rows = regime_map(cells, trials=2, seed=5, jobs=2, max_starts=2, on_row=seen.append)
+    assert [r["trial"] for r in rows] == [0, 1] and len(seen) == 2
+    assert all(r["status"] == "ok" and r["gtsam_k_starts"] <= 2 for r in rows)
+    with pytest.raises(InvalidInputError, match="trials"):
+        regime_map(cells, trials=0, seed=0)
+    with pytest.raises(InvalidInputError, match="jobs"):
+        regime_map(cells, trials=1, seed=0, jobs=0)
+
+
+def test_cli_writes_the_tables_and_figures(tmp_path, monkeypatch, capsys):
+    import rangeslam.app.regimes as regimes
+
+    monkeypatch.setattr(
+        regimes, "regime_cells", lambda steps, sigmas: [RegimeCell("random", 5, True, 1e-2)]
+    )
+    code = main(["bench", "compare", "--regimes", "--trials", "1", "--out", str(tmp_path)])
+    assert code == 0
+    with open(tmp_path / "regimes_trials.csv") as f:
+        assert len(list(csv.DictReader(f))) == 1
+    for name in ("regimes_summary.md", "regimes_success.png", "regimes_bound.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert "GTSAM, best of k (equal time)" in capsys.readouterr().out
