@@ -7,6 +7,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rangeslam.app.calibration_regimes import (
+    CALIBRATION_METHODS,
+    CalibrationCell,
+    calibration_cells,
+    calibration_scene,
+    run_calibration_trial,
+)
 from rangeslam.app.cli import main
 from rangeslam.app.regime_map import regime_map, regime_tables
 from rangeslam.app.regimes import (
@@ -127,8 +134,8 @@ def test_a_trial_runs_every_method_on_a_reproducible_scene():
 
 def fake_row(m, error, bound, seconds=1.0, status="ok"):
     row = dict(
-        walk="random", m=m, bounds=True, sigma=0.01, dim=3, missing=0.0, wrong=0.0,
-        trial=0, seed=0, status="ok", crlb_m=bound,
+        regime=f"random 3-D, M={m}, bounds, 10 mm", walk="random", m=m, bounds=True,
+        sigma=0.01, dim=3, missing=0.0, wrong=0.0, trial=0, seed=0, status="ok", crlb_m=bound,
     )  # fmt: skip
     for name in REGIME_METHODS:
         row.update(
@@ -149,7 +156,7 @@ def test_tables_compute_each_figure_of_merit():
     rows = [fake_row(6, 0.02, 0.01), fake_row(6, 0.2, 0.01, status="flagged: INCONSISTENT")]
     rows.append({**fake_row(6, 0.0, 0.01), "status": "failed: boom"})  # left out
     tables = {title: table for title, _, table in regime_tables(rows)}
-    (success,) = tables["success (error < 10 cm)"]
+    (success,) = tables["success (SLAM: error < 10 cm; calibration: < 5 cm)"]
     assert success[:3] == ["random 3-D, M=6, bounds, 10 mm", "2", "50%"]
     (ratio,) = tables["RMS error / RMS bound (n.i.: trials not identifiable)"]
     assert ratio[2] == f"{np.sqrt((0.02**2 + 0.2**2) / 2) / 0.01:.2f}x"
@@ -170,15 +177,60 @@ def test_the_map_runs_over_processes_in_order():
 
 
 def test_cli_writes_the_tables_and_figures(tmp_path, monkeypatch, capsys):
+    import rangeslam.app.calibration_regimes as calibration
     import rangeslam.app.regimes as regimes
 
     monkeypatch.setattr(
         regimes, "regime_cells", lambda steps, sigmas: [RegimeCell("random", 5, True, 1e-2)]
     )
+    monkeypatch.setattr(
+        calibration, "calibration_cells", lambda sigmas: [CalibrationCell("12x12", 1e-2)]
+    )
     code = main(["bench", "compare", "--regimes", "--trials", "1", "--out", str(tmp_path)])
     assert code == 0
-    with open(tmp_path / "regimes_trials.csv") as f:
-        assert len(list(csv.DictReader(f))) == 1
+    for stem in ("regimes", "regimes_calibration"):
+        with open(tmp_path / f"{stem}_trials.csv") as f:
+            assert len(list(csv.DictReader(f))) == 1
     for name in ("regimes_summary.md", "regimes_success.png", "regimes_bound.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert "GTSAM, best of k (equal time)" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(scene="9x9", sigma=0.01), "scene"),
+        (dict(scene="fig3", sigma=-1.0), "sigma"),
+        (dict(scene="fig3", sigma=0.01, wrong=1.5), "wrong"),
+    ],
+)
+def test_bad_calibration_cells_are_refused(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        CalibrationCell(**kwargs)
+
+
+def test_calibration_cells_and_scenes():
+    cells = calibration_cells()
+    assert {c.scene for c in cells} == {"fig3", "12x12"} and any(c.wrong for c in cells)
+    assert len({c.spawn_key(0) for c in cells}) == len(cells)
+    for cell, shape in (
+        (CalibrationCell("fig3", 1e-3), (6, 6)),
+        (CalibrationCell("12x12", 1e-3), (12, 12)),
+    ):
+        receivers, sources, ranges = calibration_scene(cell, np.random.default_rng(2))
+        assert ranges.shape == shape
+        assert np.max(np.abs(ranges - range_matrix(receivers, sources))) < 6e-3
+
+
+def test_a_calibration_trial_runs_every_method():
+    cell = CalibrationCell("12x12", 1e-3)
+    row = run_calibration_trial(cell, 0, 3, max_starts=3)
+    assert row["status"] == "ok" and row["regime"] == "12x12, 1 mm"
+    # 12 x 12 ranges pin the array: calibrate near the bound, trace minimisation alone far off
+    assert row["calibrate_error_m"] < 3 * row["crlb_m"]
+    assert row["trace_min_error_m"] > row["calibrate_error_m"]
+    assert 1 <= row["ls_k_starts"] <= 3
+    (table,) = [
+        t for title, _, t in regime_tables([row], CALIBRATION_METHODS) if "median error" in title
+    ]
+    assert table[0][:2] == ["12x12, 1 mm", "1"] and len(table[0]) == 2 + len(CALIBRATION_METHODS)

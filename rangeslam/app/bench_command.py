@@ -193,35 +193,64 @@ def run_plaza_bench(args: argparse.Namespace) -> int:
 
 
 def run_regimes_bench(args: argparse.Namespace) -> int:
-    """The regime map (:mod:`rangeslam.app.regime_map`): a CSV row per trial (rewritten as
-    trials finish), a Markdown table per figure of merit (printed and written), the figures;
-    progress on standard error."""
+    """The regime map (:mod:`rangeslam.app.regime_map`), SLAM then calibration: a CSV row per
+    trial (rewritten as trials finish), a Markdown table per figure of merit (printed and
+    written), the SLAM figures; progress on standard error."""
     from rangeslam.app.benchmarking import FIG5_STEPS
-    from rangeslam.app.progress import Progress
-    from rangeslam.app.regime_map import regime_map, regime_tables
+    from rangeslam.app.calibration_regimes import (
+        CALIBRATION_METHODS,
+        calibration_cells,
+        run_calibration_trial,
+    )
+    from rangeslam.app.regime_map import MERITS, regime_tables
     from rangeslam.app.regime_plot import plot_regimes
     from rangeslam.app.regimes import REGIME_STEPS, regime_cells
-    from rangeslam.app.reports import markdown, write_csv
+    from rangeslam.app.reports import markdown
 
     steps = REGIME_STEPS if args.steps == list(FIG5_STEPS) else args.steps
-    cells = regime_cells(steps, args.sigmas)
-    out, finished = args.out, []
+    slam_cells, cal_cells = regime_cells(steps, args.sigmas), calibration_cells(args.sigmas)
     t0 = time.perf_counter()
-    with Progress(len(cells) * args.trials, "regimes") as progress:
+    slam_rows = _map_with_progress(args, slam_cells, "regimes", None)
+    cal_rows = _map_with_progress(args, cal_cells, "regimes_calibration", run_calibration_trial)
+    wall = time.perf_counter() - t0
+    cal_merits = [t for t in MERITS if "landmark" not in t]
+    sections = [("SLAM", regime_tables(slam_rows))]
+    sections.append(("Calibration", regime_tables(cal_rows, CALIBRATION_METHODS, cal_merits)))
+    text = "\n\n".join(
+        f"### {name}: {t}\n\n" + markdown(h, tab)
+        for name, tables in sections
+        for t, h, tab in tables
+    )
+    (args.out / "regimes_summary.md").write_text(text + "\n")
+    print(text)
+    written = [args.out / f"{s}_trials.csv" for s in ("regimes", "regimes_calibration")]
+    written += [args.out / "regimes_summary.md", *plot_regimes(args.out, slam_rows)]
+    rows = slam_rows + cal_rows
+    return _finish("trials", rows, wall=wall, seed=args.seed, written=written)
+
+
+def _map_with_progress(args: argparse.Namespace, cells, stem: str, run) -> list[dict]:
+    """:func:`~rangeslam.app.regime_map.regime_map` of ``cells`` by ``run`` (None: the SLAM
+    trial) with progress, the rows written to ``{stem}_trials.csv`` as they finish."""
+    from rangeslam.app.progress import Progress
+    from rangeslam.app.regime_map import regime_map
+    from rangeslam.app.reports import write_csv
+
+    finished: list[dict] = []
+    path = args.out / f"{stem}_trials.csv"
+    with Progress(len(cells) * args.trials, stem) as progress:
 
         def keep(row: dict) -> None:
             finished.append(row)
-            write_csv(out / "regimes_trials.csv", finished)
+            write_csv(path, finished)
             progress.update()
 
-        rows = regime_map(cells, trials=args.trials, seed=args.seed, jobs=args.jobs, on_row=keep)
-    wall = time.perf_counter() - t0
-    written = [write_csv(out / "regimes_trials.csv", rows)]
-    text = "\n\n".join(f"### {t}\n\n" + markdown(h, tab) for t, h, tab in regime_tables(rows))
-    (out / "regimes_summary.md").write_text(text + "\n")
-    print(text)
-    written += [out / "regimes_summary.md", *plot_regimes(out, rows)]
-    return _finish("trials", rows, wall=wall, seed=args.seed, written=written)
+        extra = {} if run is None else {"run": run}
+        rows = regime_map(
+            cells, trials=args.trials, seed=args.seed, jobs=args.jobs, on_row=keep, **extra
+        )
+    write_csv(path, rows)
+    return rows
 
 
 def _finish(unit: str, rows: list[dict], *, wall: float, seed: int, written: list[Path]) -> int:

@@ -24,6 +24,10 @@ from rangeslam.errors import InvalidInputError
 __all__ = ["MERITS", "METHOD_LABELS", "cell_of_row", "regime_map", "regime_tables"]
 
 METHOD_LABELS = {
+    "calibrate": "calibrate (EDM + LS)",
+    "trace_min": "trace minimisation alone",
+    "ls_1": "LS, 1 random start",
+    "ls_k": "LS, best of k (equal time)",
     "edm": "EDM only",
     "edm_gtsam": "EDM + GTSAM",
     "gtsam_1": "GTSAM, 1 random start",
@@ -33,35 +37,40 @@ METHOD_LABELS = {
 }
 
 
-def one_trial(task: tuple[RegimeCell, int, int, int]) -> dict:
-    """:func:`~rangeslam.app.regimes.run_regime_trial` of (cell, trial, seed, max_starts), for
-    a pool; a trial that raises is a row whose status says why."""
-    cell, trial, seed, max_starts = task
+def one_trial(task: tuple) -> dict:
+    """``run(cell, trial, seed, max_starts=max_starts)`` of the task (run, cell, trial, seed,
+    max_starts), for a pool; a trial that raises is a row whose status says why."""
+    run, cell, trial, seed, max_starts = task
     try:
-        return run_regime_trial(cell, trial, seed, max_starts=max_starts)
+        return run(cell, trial, seed, max_starts=max_starts)
     except Exception as exc:  # a failing trial is recorded, and the map goes on
         why = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
-        return {**asdict(cell), "trial": trial, "seed": seed, "status": f"failed: {why}"}
+        return {
+            "regime": cell.label, **asdict(cell), "trial": trial, "seed": seed,
+            "status": f"failed: {why}",
+        }  # fmt: skip
 
 
 def regime_map(
-    cells: Sequence[RegimeCell],
+    cells: Sequence,
     *,
     trials: int,
     seed: int,
     jobs: int = 1,
     max_starts: int = MAX_RANDOM_STARTS,
     on_row: Callable[[dict], None] | None = None,
+    run: Callable[..., dict] = run_regime_trial,
 ) -> list[dict]:
     """Every method on ``trials`` scenes of each of ``cells``, over ``jobs`` processes: the rows
-    (:func:`~rangeslam.app.regimes.run_regime_trial`; "gtsam_k" takes at most ``max_starts``
-    random starts) in the order of the cells and trials.
+    of ``run`` (:func:`~rangeslam.app.regimes.run_regime_trial` for SLAM cells,
+    :func:`~rangeslam.app.calibration_regimes.run_calibration_trial` for calibration ones; the
+    random-start peers take at most ``max_starts`` starts) in the order of the cells and trials.
     ``on_row`` is called with each row as it finishes (progress, writing as it goes)."""
     if not (isinstance(trials, int) and trials >= 1):
         raise InvalidInputError(f"trials must be a positive integer; got {trials!r}")
     if not (isinstance(jobs, int) and jobs >= 1):
         raise InvalidInputError(f"jobs must be a positive integer; got {jobs!r}")
-    tasks = [(cell, t, int(seed), int(max_starts)) for cell in cells for t in range(trials)]
+    tasks = [(run, cell, t, int(seed), int(max_starts)) for cell in cells for t in range(trials)]
     if jobs == 1:
         rows = []
         for task in tasks:
@@ -110,13 +119,14 @@ def bound_text(rows: list[dict], method: str) -> str:
 
 
 def quantile_text(rows: list[dict], key: str, q: float, scale: float, fmt: str) -> str:
-    """The ``q`` quantile of a column (its finite values) times ``scale``; "-" when none."""
-    v = finite([r[key] for r in rows])
+    """The ``q`` quantile of a column (its finite values) times ``scale``; "-" when none (or
+    when the rows have no such column: calibration has no landmark error)."""
+    v = finite([r.get(key, np.nan) for r in rows])
     return "-" if v.size == 0 else format(scale * float(np.quantile(v, q)), fmt)
 
 
 #: The methods that judge their own answer (a status); the others only fail or not.
-JUDGED = ("edm_gtsam", "ekf", "ekf_rts")
+JUDGED = ("edm_gtsam", "ekf", "ekf_rts", "calibrate")
 
 
 def flagged_text(rows: list[dict], method: str) -> str:
@@ -128,7 +138,7 @@ def flagged_text(rows: list[dict], method: str) -> str:
 
 #: (title, text of one method in one cell) for each table of :func:`regime_tables`.
 MERITS: dict[str, Callable[[list[dict], str], str]] = {
-    "success (error < 10 cm)": success_text,
+    "success (SLAM: error < 10 cm; calibration: < 5 cm)": success_text,
     "RMS error / RMS bound (n.i.: trials not identifiable)": bound_text,
     "median error [cm]": lambda rows, m: quantile_text(rows, f"{m}_error_m", 0.5, 100, ".2f"),
     "90th percentile of the error [cm]": lambda rows, m: quantile_text(
@@ -146,28 +156,30 @@ MERITS: dict[str, Callable[[list[dict], str], str]] = {
 }
 
 
-def rows_by_cell(rows: Sequence[dict]) -> dict[RegimeCell, list[dict]]:
-    """The rows of finished trials (status "ok") grouped by cell, cells in their first
-    appearance's order."""
-    cells: dict[RegimeCell, list[dict]] = {}
+def rows_by_cell(rows: Sequence[dict]) -> dict[str, list[dict]]:
+    """The rows of finished trials (status "ok") grouped by their regime's label, in the order
+    of first appearance."""
+    cells: dict[str, list[dict]] = {}
     for r in rows:
         if r["status"] == "ok":
-            cells.setdefault(cell_of_row(r), []).append(r)
+            cells.setdefault(r["regime"], []).append(r)
     return cells
 
 
 def regime_tables(
-    rows: Sequence[dict], methods: Sequence[str] = REGIME_METHODS
+    rows: Sequence[dict], methods: Sequence[str] = REGIME_METHODS, merits=None
 ) -> list[tuple[str, list[str], list[list[str]]]]:
-    """One (title, header, table) per figure of merit (:data:`MERITS`): a row per cell (its
-    label and trial count), a column per method."""
+    """One (title, header, table) per figure of merit (``merits``, default :data:`MERITS`, or
+    the titles of it to keep): a row per regime (its label and trial count), a column per
+    method."""
+    keep = MERITS if merits is None else {t: MERITS[t] for t in merits}
     cells = rows_by_cell(rows)
     header = ["regime", "trials"] + [METHOD_LABELS[m] for m in methods]
     out = []
-    for title, text in MERITS.items():
+    for title, text in keep.items():
         table = [
-            [cell.label, str(len(cell_rows))] + [text(cell_rows, m) for m in methods]
-            for cell, cell_rows in cells.items()
+            [label, str(len(cell_rows))] + [text(cell_rows, m) for m in methods]
+            for label, cell_rows in cells.items()
         ]
         out.append((title, header, table))
     return out

@@ -387,7 +387,7 @@ def run_regime_trial(
     the Generator keyed on (``seed``, the cell, ``trial``)."""
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=cell.spawn_key(trial)))
     scene = draw_scene(cell, rng)
-    row = {**asdict(cell), "trial": trial, "seed": seed, "status": "ok"}
+    row = {"regime": cell.label, **asdict(cell), "trial": trial, "seed": seed, "status": "ok"}
     row["crlb_m"] = scene_bound(scene, cell)
     edm, full = run_slam(scene, cell, rng)
     runs = {
