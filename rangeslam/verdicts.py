@@ -51,6 +51,7 @@ __all__ = [
     "gauge_free_covariance",
     "information_check",
     "mirror_gap",
+    "mirror_point",
     "noise_upper_bound",
     "point_check",
 ]
@@ -298,14 +299,13 @@ def _gauss_newton(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, steps:
     return x
 
 
-def mirror_gap(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> float:
-    """How much worse the point's mirror image fits: the sum of squared range residuals at the
-    reflection of ``point`` (d,) through the best-fit plane (line in 2-D) of ``anchors`` (N, d),
-    refined locally, minus the point's own; units of ``ranges`` (N,) squared. Infinite when the
-    refinement returns to the point's basin (within 1% of the anchors' RMS spread) or with fewer
-    than d anchors."""
-    if len(anchors) < point.size:  # no plane to reflect through: nothing to compare
-        return float("inf")
+def mirror_point(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
+    """The other side of ``point`` (d,): its reflection through the best-fit plane (line in 2-D)
+    of ``anchors`` (N, d), refined locally on the ``ranges`` (N,); None when the refinement
+    returns to the point's basin (within 1% of the anchors' RMS spread) or with fewer than d
+    anchors (no plane to reflect through)."""
+    if len(anchors) < point.size:
+        return None
     centre = anchors.mean(axis=0)
     centred = anchors - centre
     normal = np.linalg.svd(centred)[2][-1]
@@ -313,6 +313,16 @@ def mirror_gap(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> fl
     mirror = _gauss_newton(mirror, anchors, ranges)
     spread = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
     if np.linalg.norm(mirror - point) < 1e-2 * spread:
+        return None
+    return mirror
+
+
+def mirror_gap(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> float:
+    """How much worse the point's mirror image (:func:`mirror_point`) fits: its sum of squared
+    range residuals minus the point's own; units of ``ranges`` (N,) squared. Infinite when there
+    is no mirror image."""
+    mirror = mirror_point(point, anchors, ranges)
+    if mirror is None:
         return float("inf")
     res_p = np.linalg.norm(anchors - point, axis=1) - ranges
     res_m = np.linalg.norm(anchors - mirror, axis=1) - ranges

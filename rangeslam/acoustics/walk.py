@@ -533,7 +533,9 @@ def _first_fit(prob: _WalkProblem, ranges, mask, chosen: _StartChoice, sopts, rn
             step_bounds=prob.bounds,
             dim=dim,
             rng=rng,
-            **sopts,
+            # the full schedule: on tracked ranges of simulated RIRs (0.35 mm residuals) the cheap
+            # start's lowest-cost run was a flexible one, flagged NOT_IDENTIFIABLE (issue 18 note)
+            **{"edm_start": "full", **sopts},
         )
     except SolverError as exc:
         return _Failure(Status.SOLVER_FAILED, f"the EDM start failed: {exc}")

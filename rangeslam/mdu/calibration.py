@@ -370,7 +370,10 @@ def fit_start(
 
 def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     """Fit the starts in turn, keeping the lowest; stop at the first accepted one (not robust),
-    or without noise_std once every convex-iteration run is made and the best was reached twice."""
+    or without noise_std once every convex-iteration run is made and the best was reached twice.
+    (Stopping once the best was reached twice and the verdict accepts it, before every run is
+    made, was measured on Fig. 3 at 1 cm and rejected: two early runs often agree on a minimum
+    that a later run beats; see benchmarks/README.md, "Cheap EDM start".)"""
     failures: list[str] = []
     cauchy_scale = problem.noise_std if problem.noise_std else None
     best: Candidate | None = None
@@ -552,6 +555,7 @@ def calibrate(
     fit_weight: float = 10.0,
     max_iterations: int | None = None,
     gap_tol: float = 1e-6,
+    edm_start: str = "cheap",
     rng: np.random.Generator | int | None = None,
 ) -> Calibration:
     """Locate M receivers and K sources, all unknown, from their ranges (MDU, eqs. 8-10).
@@ -602,7 +606,9 @@ def calibrate(
     auto = isinstance(robust, str) and robust == "auto"
     problem = parse_calibration(
         ranges, mask, dim, noise_std, refine, False if auto else robust, random_starts,
-        ConvexIterationOptions(max_attempts, fit_weight, iterations[bool(robust is True)], gap_tol),
+        ConvexIterationOptions(
+            max_attempts, fit_weight, iterations[bool(robust is True)], gap_tol, edm_start
+        ),
     )  # fmt: skip
     rng = as_rng(rng)
     if not (auto and problem.refine and enough_for_robust(problem)):

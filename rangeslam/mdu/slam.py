@@ -10,12 +10,14 @@ covariances.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
 from rangeslam.errors import InvalidInputError, SolverError
@@ -39,6 +41,7 @@ from rangeslam.mdu.core import (
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
+from rangeslam.mdu.landmark_mirrors import landmark_mirrors
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
@@ -84,9 +87,15 @@ class SlamResult(HasStatus):
             ``noise_std``), else why not (``converged`` is derived from it).
         message: why not, when not converged.
         attempts: convex-iteration runs made.
-        start: where the answer's GTSAM run started: "edm" or "random start j" ("filter" for
-            the EKF baseline).
+        start: where the answer's GTSAM run started: "edm", "random start j" (one of the
+            random starts that check the answer ended clearly lower and replaced it) or "extra
+            start j" (of ``extra_starts``); "filter" for the EKF baseline.
         eigen_gap: eigen-gap of the SDP answer used.
+        ambiguous_landmarks: (K,) bool, the landmarks whose mirror image through the walk fits
+            as well (a near-planar walk cannot tell the two sides apart: see
+            :mod:`rangeslam.mdu.landmark_mirrors`); None without the check (EKF baseline).
+        landmark_mirrors: (K, d) the other position of each ambiguous landmark, same frame,
+            metres; NaN for the others.
     """
 
     receivers: np.ndarray
@@ -103,6 +112,8 @@ class SlamResult(HasStatus):
     attempts: int
     start: str
     eigen_gap: float
+    ambiguous_landmarks: np.ndarray | None = None
+    landmark_mirrors: np.ndarray | None = None
 
 
 def _check_bounds_against_ranges(bounds, r, observed, noise_std, robust=None) -> None:
@@ -187,8 +198,9 @@ class SlamProblem:
 @dataclass(frozen=True)
 class SlamRun:
     """One answer: squared range residual sum (m^2), trajectory (M, d) and landmarks (K, d), the
-    GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), and the
-    key runs are ranked by (the graph's cost, or ``ssr`` without refinement)."""
+    GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), the
+    key runs are ranked by (the graph's cost, or ``ssr`` without refinement), and where its GTSAM
+    run started (:attr:`SlamResult.start`)."""
 
     ssr: float
     receivers: np.ndarray
@@ -197,16 +209,42 @@ class SlamRun:
     completion: EDMCompletion
     residuals: np.ndarray
     key: float
+    start: str = "edm"
 
 
 @dataclass(frozen=True)
 class EdmSearch:
-    """The best convex-iteration run, runs made, SDP failures and the sigma runs are ranked on."""
+    """The best run (of the convex-iteration runs and the random starts that replaced them),
+    runs made, SDP failures, the sigma runs are ranked on, the run :func:`rival_search` already
+    cleared (None if none)."""
 
     best: SlamRun | None
     attempts: int
     failures: tuple[str, ...]
     sigma_ref: float | None
+    rival_checked: SlamRun | None = None
+
+
+@dataclass(frozen=True)
+class RivalSearch:
+    """What GTSAM from AGREEMENT_STARTS random starts found beside an answer: ``reason`` when one
+    ends as low with a trajectory far off ("" if none), whether one ``confirmed`` the best
+    trajectory, and the ``best`` run after them (a start that ends clearly lower replaces the
+    answer)."""
+
+    reason: str
+    confirmed: bool
+    best: SlamRun
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """:func:`accepted`'s decision: ``ok`` to stop, the ``rivals`` searched (None if not), and
+    the ``run`` to keep."""
+
+    ok: bool
+    rivals: RivalSearch | None
+    run: SlamRun
 
 
 def parse_slam(
@@ -307,10 +345,11 @@ def settle_noise(problem: SlamProblem, pts: np.ndarray) -> tuple[np.ndarray, flo
 
 
 def refine_run(
-    problem: SlamProblem, pts: np.ndarray, sigma: float | None = None
+    problem: SlamProblem, pts: np.ndarray, sigma: float | None = None, *, covariances: bool = True
 ) -> tuple[GraphFit, float]:
-    """GTSAM from ``pts`` with covariances; the range sigma of its final graph. ``sigma``: that
-    of the graph (default: ``noise_std``, or found from the residuals when unknown)."""
+    """GTSAM from ``pts`` (with covariances unless ``covariances=False``); the range sigma of its
+    final graph. ``sigma``: that of the graph (default: ``noise_std``, or found from the
+    residuals when unknown)."""
     if sigma is None and problem.noise_std is None:
         # The weight of the step prior against the ranges depends on the sigma.
         pts, sigma = settle_noise(problem, pts)
@@ -318,22 +357,23 @@ def refine_run(
         sigma = problem.noise_std
     floor = problem.floor
     if sigma >= floor:
-        return graph_fit(problem, pts, sigma, covariances=True), sigma
+        return graph_fit(problem, pts, sigma, covariances=covariances), sigma
     # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
     # step at all): first at the floor, then at sigma itself, or for exact data (where the
     # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
     target = sigma if sigma > 0 else _EXACT_POLISH * floor
     fit = graph_fit(problem, pts, floor)
-    return graph_fit(problem, _stacked(fit), target, covariances=True), target
+    return graph_fit(problem, _stacked(fit), target, covariances=covariances), target
 
 
-def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | None):
-    """One convex-iteration answer, refined by GTSAM when ``refine``. Returns (SlamRun, the
-    sigma of its graph or None). Refined runs are ranked by the graph's cost (ranges and step
-    priors: a low range residual bought by breaking the step bounds is no better answer), all
-    on one graph, that of ``sigma_ref`` (the first run's; None: this run's)."""
+def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | None, pts=None):
+    """One convex-iteration answer, refined by GTSAM when ``refine``, from the SDP's points or
+    from ``pts`` (M + K, d) when given. Returns (SlamRun, the sigma of its graph or None).
+    Refined runs are ranked by the graph's cost (ranges and step priors: a low range residual
+    bought by breaking the step bounds is no better answer), all on one graph, that of
+    ``sigma_ref`` (the first run's; None: this run's)."""
     m = problem.ranges.shape[0]
-    pts = completion.points
+    pts = completion.points if pts is None else pts
     fit, sigma, key = None, None, None
     if problem.refine:
         fit, sigma = refine_run(problem, pts)
@@ -349,6 +389,15 @@ def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | 
     return SlamRun(ssr, rec, src, fit, completion, res, key), sigma
 
 
+def rekeyed(problem: SlamProblem, run: SlamRun | None, sigma: float) -> SlamRun | None:
+    """``run`` with its key on the graph of range sigma ``sigma`` (its cost there, where it is;
+    runs without GTSAM keep their sum of squares)."""
+    if run is None or run.fit is None:
+        return run
+    key = graph_fit(problem, _stacked(run.fit), sigma, max_iterations=0).error
+    return dataclasses.replace(run, key=key)
+
+
 def passes(problem: SlamProblem, ssr: float) -> bool:
     """The residual test (:func:`passes_residual_test`) on a sum of squared ranges, m^2."""
     n = sum(problem.ranges.shape)
@@ -356,9 +405,43 @@ def passes(problem: SlamProblem, ssr: float) -> bool:
     return passes_residual_test(ssr, problem.n_obs, n, problem.dim, problem.noise_std, exact_rms)
 
 
+def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acceptance:
+    """Whether the search may stop at ``run`` (or at a lower minimum a random start found).
+
+    It may when the run passes the residual test (:func:`passes`), or, with
+    ``edm_start="cheap"`` and GTSAM's refinement, when the verdict accepts it: :func:`slam_verdict`
+    (the residuals against the noise or, without ``noise_std``, against the scene and their own
+    tail; the trajectory's information and flatness) passes, GTSAM from random starts
+    (:func:`rival_search`) ends at no other trajectory of equal cost, and a second start reached
+    the same trajectory (one of those random starts, or one of the earlier runs ``others``):
+    without a noise level a wrong minimum's residual can pass, so it must be reached twice, as
+    calibrate's vote asks. A random start that ends clearly lower replaces the run (the graph's
+    cost ranks the EDM answer and the random starts alike), but the search stops there only once
+    a convex-iteration run reached it too."""
+    if passes(problem, run.ssr):
+        return Acceptance(True, None, run)
+    if problem.options.start != "cheap" or run.fit is None:
+        return Acceptance(False, None, run)
+    rivals = rival_search(problem, run, sigma_ref, rng)
+    best = rivals.best
+    if rivals.reason or slam_verdict(problem, best, (), ())[0] is not Status.CONVERGED:
+        return Acceptance(False, rivals, best)
+    far = max(RIVAL_SPREADS * trajectory_spread(best, problem.noise_std or sigma_ref or 0.0),
+              1e-6 * problem.scale)  # fmt: skip
+
+    def near(other: SlamRun) -> bool:
+        return align(other.receivers, best.receivers, reflection=True).rmse <= far
+
+    confirmed = rivals.confirmed or any(near(o) for o in others if o is not best)
+    # a random start's minimum that no convex-iteration run reached waits for the next run: two
+    # random starts can agree on a wrong minimum that the EDM start avoids (measured: 24 cm off)
+    edm_agrees = any(near(o) for o in (run, *others) if o.start == "edm")
+    return Acceptance(confirmed and edm_agrees, rivals, best)
+
+
 def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
-    """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one passes the residual
-    test; the best by its key otherwise."""
+    """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one is :func:`accepted`;
+    the best by its key otherwise."""
     from rangeslam.solvers.sdp import EDMCompletionSDP
 
     m = problem.ranges.shape[0]
@@ -368,46 +451,56 @@ def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
     sdp = EDMCompletionSDP(w, bounded_pairs=pairs)
     bounds = None if problem.bounds is None else (problem.bounds.lower, problem.bounds.upper)
     failures: list[str] = []
-    best, attempts, sigma_ref = None, 0, None
+    best, attempts, sigma_ref, runs, verdict = None, 0, None, [], None
     for completion in convex_iteration_runs(
         sdp, mdu_edm(problem.ranges), w, problem.dim, options=problem.options, rng=rng,
         failures=failures, bounds=bounds,
     ):  # fmt: skip
         attempts += 1
         run, sigma = edm_run(problem, completion, sigma_ref)
+        if sigma is not None and sigma_ref is not None and sigma < sigma_ref:
+            # a wrong minimum inflates the noise it settles at: rank on the best-fitting graph
+            sigma_ref, run, best = (
+                sigma,
+                rekeyed(problem, run, sigma),
+                rekeyed(problem, best, sigma),
+            )
         if sigma_ref is None:
             sigma_ref = sigma
-        ok = passes(problem, run.ssr)
-        if best is None or run.key < best.key or ok:  # a run that passes is taken as it is
-            best = run
-        if ok:
+        # the lowest answer so far is the one checked (random starts may confirm or beat it)
+        candidate = run if best is None or run.key < best.key else best
+        verdict = accepted(problem, candidate, runs, sigma_ref, rng)
+        runs.extend(r for r in (run, verdict.run) if all(r is not o for o in runs))
+        if best is None or verdict.run.key < best.key or verdict.ok:  # one that passes is taken
+            best = verdict.run
+        if verdict.ok:
             break
-    return EdmSearch(best, attempts, tuple(failures), sigma_ref)
+    cleared = best if verdict is not None and verdict.ok and verdict.rivals else None
+    return EdmSearch(best, attempts, tuple(failures), sigma_ref, cleared)
 
 
 def try_random_starts(problem: SlamProblem, best: SlamRun, sigma_ref, rng):
     """GTSAM also from ``extra_starts`` GTSAM-style starts (a random walk of the nominal step,
     landmarks uniform in a box of the largest range); the graph's cost decides. Where the ranges
     leave the shape nearly free (few steps, no bounds, a planar path) LM from the EDM answer can
-    stop in a valley another start avoids. Returns (best run, its start's name, failures)."""
+    stop in a valley another start avoids. Returns (best run, failures)."""
     r, observed = problem.ranges, problem.observed
-    start, start_failures = "edm", []
+    start_failures = []
     nominal = nominal_steps(problem.bounds, r, observed)
     for j in range(problem.extra_starts):
         x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
         try:
-            fit_j, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref)
-        except SolverError as exc:  # LM diverged, or the covariances are undefined there
-            start_failures.append(f"random start {j}: {exc}")
+            fit_j, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref, covariances=False)
+        except SolverError as exc:  # LM diverged
+            start_failures.append(f"extra start {j}: {exc}")
             continue
         if fit_j.error < best.key:
-            res_j = range_matrix(fit_j.receivers, fit_j.sources) - r
-            ssr_j = float(np.sum(res_j[observed] ** 2))
-            best = SlamRun(
-                ssr_j, fit_j.receivers, fit_j.sources, fit_j, best.completion, res_j, fit_j.error
-            )
-            start = f"random start {j}"
-    return best, start, start_failures
+            lower = lower_minimum(problem, fit_j, best, sigma_ref, f"extra start {j}")
+            if lower is None:
+                start_failures.append(f"extra start {j}: covariances undefined")
+                continue
+            best = lower
+    return best, start_failures
 
 
 def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
@@ -469,9 +562,15 @@ def trajectory_check(problem: SlamProblem, best: SlamRun):
     )
 
 
-def slam_result(
-    problem: SlamProblem, best: SlamRun, attempts: int, start: str, status, message
-) -> SlamResult:
+def answer_sigma(problem: SlamProblem, best: SlamRun) -> float:
+    """The range noise of an answer, metres: ``noise_std``, else its RMS residual over the
+    redundancy (0 without redundancy)."""
+    if problem.noise_std is not None:
+        return problem.noise_std
+    return float(np.sqrt(best.ssr / problem.redundancy)) if problem.redundancy > 0 else 0.0
+
+
+def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, message) -> SlamResult:
     """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated)."""
     m = problem.ranges.shape[0]
     rec_f, src_f, rot = canonical_frame(best.receivers, best.sources)
@@ -480,6 +579,10 @@ def slam_result(
         cov_r, cov_s, cov_traj = rotated_covariances(best.fit, rot)
     pts = best.completion.points
     edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
+    mirrors = landmark_mirrors(
+        rec_f, src_f, problem.ranges, problem.observed, answer_sigma(problem, best),
+        EXACT_RTOL * problem.scale,
+    )  # fmt: skip
     return SlamResult(
         receivers=frozen(rec_f),
         sources=frozen(src_f),
@@ -493,11 +596,14 @@ def slam_result(
         status=status,
         message=message,
         attempts=attempts,
-        start=start,
+        start=best.start,
         eigen_gap=best.completion.eigen_gap,
+        ambiguous_landmarks=frozen(mirrors.ambiguous),
+        landmark_mirrors=frozen(mirrors.mirrors),
     )
 
 
+@single_blas_thread
 def slam(
     ranges: ArrayLike,
     *,
@@ -513,6 +619,7 @@ def slam(
     extra_starts: int = 0,
     fit_weight: float = 10.0,
     max_iterations: int = 50,
+    edm_start: str = "cheap",
     rng: np.random.Generator | int | None = None,
 ) -> SlamResult:
     """Trajectory (M, d) and landmarks (K, d) from the ranges (M, K) of a moving microphone.
@@ -539,13 +646,18 @@ def slam(
             lowest graph cost wins (``SlamResult.start`` says which). Default 0, the EDM answer
             only.
         fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
+        edm_start: "cheap" (default): stop at the first convex-iteration run whose refined
+            answer the verdict accepts, once GTSAM from AGREEMENT_STARTS random starts found no
+            rival and confirmed it (a start that ends clearly lower replaces it), each run also
+            stopped once its rank-d embedding settled; "full": every run to the eigen-gap
+            tolerance until one passes the residual test (the schedule before issue 18).
         rng: Generator or seed for the random restarts.
 
     Raises InvalidInputError for bad input: step bounds of the wrong length, lower > upper,
     negative bounds, bounds the ranges contradict (triangle inequality, named by step), an
     under-determined mask. SolverError when the SDP fails in every run.
     """
-    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, 1e-6)
+    options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, 1e-6, edm_start)
     problem = parse_slam(
         ranges, step_bounds, mask, dim, refine, noise_std, robust, step_sigma, step_prior,
         extra_starts, options,
@@ -558,15 +670,27 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(found.failures)),
         )
-    best, start, start_failures = found.best, "edm", []
+    best, status, message = judged_answer(problem, found, rng)
+    return slam_result(problem, best, found.attempts, status, message)
+
+
+def judged_answer(problem: SlamProblem, found: EdmSearch, rng) -> tuple[SlamRun, Status, str]:
+    """The search's best run after the ``extra_starts``, its verdict, and "restarts agree"
+    (:func:`rival_search`, unless the search already cleared it): a random start that ends
+    clearly lower is judged in its place, a rival of equal cost makes it NOT_IDENTIFIABLE."""
+    best, start_failures = found.best, []
     if problem.refine and problem.extra_starts:
-        best, start, start_failures = try_random_starts(problem, best, found.sigma_ref, rng)
+        best, start_failures = try_random_starts(problem, best, found.sigma_ref, rng)
     status, message = slam_verdict(problem, best, found.failures, start_failures)
-    if status is Status.CONVERGED and problem.refine:
-        rival = rival_minimum(problem, best, found.sigma_ref, rng)
-        if rival:
-            status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
-    return slam_result(problem, best, found.attempts, start, status, message)
+    if status is Status.CONVERGED and problem.refine and best is not found.rival_checked:
+        rivals = rival_search(problem, best, found.sigma_ref, rng)
+        if rivals.best is not best:
+            best = rivals.best
+            status, message = slam_verdict(problem, best, found.failures, start_failures)
+        if rivals.reason and status is Status.CONVERGED:
+            status = Status.NOT_IDENTIFIABLE
+            message = "; ".join(filter(None, (message, rivals.reason)))
+    return best, status, message
 
 
 def trajectory_spread(best: SlamRun, sigma: float) -> float:
@@ -582,28 +706,58 @@ def trajectory_spread(best: SlamRun, sigma: float) -> float:
 AGREEMENT_STARTS = 3
 
 
-def rival_minimum(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> str:
-    """ "Restarts agree": GTSAM from AGREEMENT_STARTS random starts; the reason when one ends
-    with a graph cost within AMBIGUITY_CHI2 / 2 of the answer's (the data cannot tell them
-    apart) but a trajectory more than RIVAL_SPREADS times its RMS standard deviation off (RMS
-    after the best rigid motion with reflection), else "". Lower minima are left to ``extra_starts``."""
+def rival_search(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> RivalSearch:
+    """GTSAM from AGREEMENT_STARTS GTSAM-style random starts (:func:`random_start`), on the graph
+    of ``sigma_ref``, beside the answer ``best``; the graph's cost ranks them all alike.
+
+    A start that ends lower than the answer by more than AMBIGUITY_CHI2 / 2 replaces it (a
+    smaller gain on a trajectory near it is LM's stopping tolerance in the same valley: swapping
+    for it raised the lemniscate's mean NEES / dof from inside its 99% band to 1.15) (refined again from there as an EDM answer is,
+    :func:`edm_run`); one that ends within AMBIGUITY_CHI2 / 2 of it with a trajectory more than
+    RIVAL_SPREADS times its RMS standard deviation off (RMS after the best rigid motion with
+    reflection) is a rival: the data cannot tell them apart; one that ends near it confirms it."""
     r, observed = problem.ranges, problem.observed
     nominal = nominal_steps(problem.bounds, r, observed)
-    spread = trajectory_spread(best, problem.noise_std or sigma_ref or 0.0)
-    far = max(RIVAL_SPREADS * spread, 1e-6 * problem.scale)  # exact data: round-off apart
-    for _ in range(AGREEMENT_STARTS):
-        x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
+    size, margin = float(np.max(r[observed])), 0.5 * AMBIGUITY_CHI2
+    confirmed = False
+    for j in range(AGREEMENT_STARTS):
+        x0, s0 = random_start(nominal, r.shape[1], problem.dim, size, rng)
         try:
-            fit, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref)
+            fit, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref, covariances=False)
         except SolverError:
             continue
-        if not fit.converged or fit.error > best.key + 0.5 * AMBIGUITY_CHI2:
+        if not fit.converged or fit.error > best.key + margin:
             continue
         apart = align(fit.receivers, best.receivers, reflection=True).rmse
-        if apart > far:
-            return (
+        near = apart <= max(
+            RIVAL_SPREADS * trajectory_spread(best, problem.noise_std or sigma_ref or 0.0),
+            1e-6 * problem.scale,  # exact data: round-off apart
+        )
+        if fit.error < best.key - margin:
+            lower = lower_minimum(problem, fit, best, sigma_ref, f"random start {j}")
+            if lower is not None and lower.key < best.key:
+                best, confirmed = lower, near
+            continue
+        if not near:
+            reason = (
                 f"another start fits the data as well (graph cost {fit.error:.4g} against "
                 f"{best.key:.4g}) with a trajectory {apart:.3g} m RMS away: the ranges do not "
                 "decide between them"
             )
-    return ""
+            return RivalSearch(reason, confirmed, best)
+        confirmed = True
+    return RivalSearch("", confirmed, best)
+
+
+def lower_minimum(problem: SlamProblem, fit: GraphFit, replaced: SlamRun, sigma_ref, start: str):
+    """The :class:`SlamRun` of a random start's ``fit`` that ended lower than ``replaced``:
+    refined from there as an EDM answer is (:func:`edm_run`: the noise settled, covariances,
+    ranked on the graph of ``sigma_ref``), named ``start``; None when its covariances are
+    undefined."""
+    try:
+        run = edm_run(problem, replaced.completion, sigma_ref, pts=_stacked(fit))[0]
+    except SolverError:
+        return None
+    # its key: the lower of the two costs on the ranking graph (the refinement settles its own
+    # noise, so its point is optimal on another graph; the basin is ranked by its lowest cost)
+    return dataclasses.replace(run, key=min(run.key, fit.error), start=start)

@@ -420,6 +420,9 @@ class CompletionOptions:
         fit_weight: lambda of eq. (10), on data scaled to unit median distance.
         max_iterations: SDP solves of the convex iteration at most.
         tol: eigen-gap tolerance for convergence.
+        embedding_rtol: the iteration also stops when the rank-``dim`` part of G (its best
+            rank-dim approximation) changed by at most this fraction (Frobenius norm) since the
+            previous solve; 0 never.
     """
 
     method: str
@@ -427,6 +430,7 @@ class CompletionOptions:
     fit_weight: float
     max_iterations: int
     tol: float
+    embedding_rtol: float = 0.0
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -440,6 +444,10 @@ class CompletionOptions:
         if not (isinstance(self.max_iterations, int | np.integer) and self.max_iterations >= 1):
             raise InvalidInputError(
                 f"max_iterations must be a positive integer; got {self.max_iterations!r}"
+            )
+        if not (np.isfinite(self.embedding_rtol) and 0 <= self.embedding_rtol < 1):
+            raise InvalidInputError(
+                f"embedding_rtol must be in [0, 1); got {self.embedding_rtol!r}"
             )
 
 
@@ -506,12 +514,13 @@ def _convex_iteration(
 ) -> tuple[Iterate, list[float]]:
     """Alternate step (i) (the SDP) and step (ii) (Z from the eigenvectors), eq. (10).
 
-    Stops when the gap is below ``tol`` or stalls (no relative progress of 1e-3 over 5
-    iterations); returns the iterate with the smallest gap and the gap after every solve.
+    Stops when the gap is below ``tol``, stalls (no relative progress of 1e-3 over 5
+    iterations) or, with ``embedding_rtol``, once the rank-d part of G has settled; returns the
+    iterate with the smallest gap and the gap after every solve.
     """
     iterations = options.max_iterations if options.method == "convex_iteration" else 1
     gaps: list[float] = []
-    best = None
+    best = top = None
     for _ in range(iterations):
         g, status, used = problem.solve(z)
         gaps.append(eigen_gap(g, options.dim))
@@ -521,8 +530,27 @@ def _convex_iteration(
             break
         if len(gaps) > 5 and gaps[-1] > (1 - 1e-3) * min(gaps[:-5]):
             break  # stalled: the last 5 iterations did not improve on the earlier best
-        z = low_rank_direction(g, options.dim)
+        z, previous = low_rank_direction(g, options.dim), top
+        top = rank_part(g, options.dim)
+        if previous is not None and embedding_settled(previous, top, options.embedding_rtol):
+            # the points embed(G) no longer move: the refinement after the SDP (least squares
+            # or GTSAM) takes them from here; the remaining gap only sharpens the rank
+            break
     return best, gaps
+
+
+def rank_part(gram: np.ndarray, dim: int) -> np.ndarray:
+    """(N, N) the best rank-``dim`` approximation of a symmetric ``gram`` (its top eigenpairs)."""
+    points = embed(gram, dim)
+    return points @ points.T
+
+
+def embedding_settled(previous: np.ndarray, current: np.ndarray, rtol: float) -> bool:
+    """Whether two rank-d parts (N, N) of successive G differ by at most ``rtol`` of the current
+    one's Frobenius norm (never for rtol = 0)."""
+    if rtol <= 0:
+        return False
+    return bool(np.linalg.norm(current - previous) <= rtol * np.linalg.norm(current))
 
 
 def _completion_result(best: Iterate, gaps: list[float], options: CompletionOptions):
@@ -565,6 +593,7 @@ def complete_edm(
     range_groups: ArrayLike | None = None,
     range_model: str = "scale",
     solver_options: dict | None = None,
+    embedding_rtol: float = 0.0,
 ) -> EDMCompletion:
     """Complete a partial EDM with embedding dimension ``dim`` (eq. 8, rank relaxed).
 
@@ -590,12 +619,15 @@ def complete_edm(
             scale and/or offset per group, estimated with G (see :class:`EDMCompletionSDP`);
             the estimates are returned in ``range_scale`` and ``range_offset``.
         solver_options: options for ``solver`` (see :class:`EDMCompletionSDP`).
+        embedding_rtol: also stop the convex iteration once the best rank-``dim`` approximation
+            of G moved by at most this fraction (Frobenius norm) between two solves (the points
+            have settled; a refinement takes them from there); 0 (default) never.
 
     The iteration also stops when the gap stops decreasing (no relative progress of 1e-3 over
     5 iterations); ``converged`` then stays False and the iterate with the smallest gap is
     returned. For trace_min and trace_max ``converged`` is True: they do not target a rank.
     """
-    options = CompletionOptions(method, dim, fit_weight, max_iterations, tol)
+    options = CompletionOptions(method, dim, fit_weight, max_iterations, tol, embedding_rtol)
     problem = _completion_problem(
         mask,
         problem,
