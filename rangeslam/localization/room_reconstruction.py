@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
 from rangeslam._validation import (
     as_flag,
@@ -707,6 +708,7 @@ def _room_result(prob: RoomProblem, fit: JointFit, problems, rms_s: float, hint:
     )
 
 
+@single_blas_thread
 def reconstruct_room(
     mics: ArrayLike,
     ranges: ArrayLike | Sequence[ArrayLike],

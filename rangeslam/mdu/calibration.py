@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
@@ -542,6 +543,7 @@ def calibration_result(
     )
 
 
+@single_blas_thread
 def calibrate(
     ranges: ArrayLike,
     *,
