@@ -197,11 +197,14 @@ def _fit_offset(anchors: np.ndarray, ranges: np.ndarray, weights: np.ndarray) ->
 def _rank_ok(z: np.ndarray, anchors: np.ndarray, weights: np.ndarray) -> tuple[bool, np.ndarray]:
     """Whether the weighted Jacobian has full rank d + 1, and the dop (d + 1,) (inf if not)."""
     jac = np.sqrt(weights)[:, None] * _offset_jacobian(z, anchors)
-    sv = np.linalg.svd(jac, compute_uv=False)
+    if not np.all(np.isfinite(jac)):
+        return False, np.full(jac.shape[1], np.inf)
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     if sv.size < jac.shape[1] or sv[-1] <= RANK_RTOL * sv[0]:
         return False, np.full(jac.shape[1], np.inf)
-    cov = np.linalg.inv(jac.T @ jac)
-    return True, np.sqrt(np.diag(cov))
+    # the diagonal of (J^T J)^-1 = V S^-2 V^T from the SVD (no inverse of the squared matrix: far
+    # anchors made it numerically singular and np.linalg.inv raised)
+    return True, np.sqrt(np.sum((vt.T / sv) ** 2, axis=1))
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,7 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 from rangeslam.localization.emission import RANK_RTOL
 from rangeslam.localization.pseudorange import pseudoranges
@@ -219,11 +220,14 @@ def joint_jacobian(model: ProfiledUnfolding, theta: np.ndarray) -> np.ndarray:
     return np.hstack([jac, model.design[:, 1 : model.m], model.design[:, model.m :]])
 
 
-def clock_verdict(model, fit: ClockFit, corrected, observed, noise_std, need: int):
+def clock_verdict(
+    model, fit: ClockFit, corrected, observed, noise_std, need: int, *, tail: bool = True
+):
     """(status, message) of a fit: the residual test (or, without noise_std, the vote of two runs
     and an RMS below MAX_RELATIVE_RMS of the scene), the redundancy, the rank of the joint
     Jacobian beyond the rigid motions (``need``), then
-    :func:`rangeslam.mdu.core.unfolding_check` with the M - 1 + G offsets as unknowns."""
+    :func:`rangeslam.mdu.core.unfolding_check` with the M - 1 + G offsets as unknowns (``tail``:
+    whether its residual-tail test is made; False on a robust fit's inliers)."""
     scale, m = model.scale, model.m
     n_obs = len(model.t)
     rms = math.sqrt(fit.ssr / n_obs) * scale
@@ -249,7 +253,7 @@ def clock_verdict(model, fit: ClockFit, corrected, observed, noise_std, need: in
     offset_columns = np.hstack([model.design[:, 1:m], model.design[:, m:]])
     check = unfolding_check(
         pts[:m], pts[m:], corrected, observed, noise_std, EXACT_RTOL * scale,
-        offset_columns=offset_columns, what="the calibration", judge_sources="mirror",
+        offset_columns=offset_columns, what="the calibration", judge_sources="mirror", tail=tail,
     )  # fmt: skip
     return check.status, check.reason
 
@@ -321,11 +325,35 @@ def _search_and_judge(model, observed, groups, noise_std, need: int, runs: int, 
     return fit, status, message
 
 
-def calibrate_with_clock_offsets(
-    ranges, groups, *, dim, mask, noise_std, c, runs, rng
-) -> UnknownEmissionCalibration:
-    """:func:`rangeslam.mdu.emission.calibrate_unknown_emission` with ``receiver_offsets=True``
-    (see there; ``runs``: the search runs of :func:`search_clock_offsets`)."""
+def refine_from(model: ProfiledUnfolding, theta0: np.ndarray) -> ClockFit:
+    """Levenberg-Marquardt on the profiled loss to convergence from ``theta0`` (scaled points)."""
+    theta, ssr = _fit(model, theta0, None)
+    return ClockFit(theta, ssr, False, 1)
+
+
+@dataclass(frozen=True)
+class ClockProblem:
+    """The validated inputs of :func:`calibrate_with_clock_offsets`."""
+
+    ranges: np.ndarray  # (M, K) metres, 0 where unobserved
+    observed: np.ndarray  # (M, K) bool
+    groups: np.ndarray  # (K,) 0..G-1
+    dim: int
+    noise_std: float | None
+    c: float | None
+    runs: int
+
+    def need(self, kept: np.ndarray | None = None) -> int:
+        """Unknowns of the events ``kept`` (K,) bool (default all)."""
+        kept = np.ones(len(self.groups), bool) if kept is None else kept
+        n_groups = len(np.unique(self.groups[kept]))
+        return unknowns_with_clock_offsets(
+            self.ranges.shape[0], int(kept.sum()), n_groups, self.dim
+        )
+
+
+def parse_clock_problem(ranges, groups, dim, mask, noise_std, c, runs) -> ClockProblem:
+    """The front door: every input checked once; too few arrivals refused with the count."""
     dim = as_dim(dim)
     shape = as_float_array(ranges, "ranges").shape
     if len(shape) != 2:
@@ -344,16 +372,47 @@ def calibrate_with_clock_offsets(
         )
     noise_std, c = check_noise_std(noise_std), as_speed(c)
     runs = check_int(runs, "random_starts", 1)
-    model = ProfiledUnfolding(r, observed, g, dim, spread_from_arrivals(r, observed))
+    return ClockProblem(r, observed, g, dim, noise_std, c, runs)
+
+
+def calibrate_with_clock_offsets(
+    ranges, groups, *, dim, mask, noise_std, c, runs, rng, robust: bool = False
+) -> UnknownEmissionCalibration:
+    """:func:`rangeslam.mdu.emission.calibrate_unknown_emission` with ``receiver_offsets=True``
+    (see there; ``runs``: the search runs of :func:`clock_candidates`; ``robust``: the outliers
+    found by :mod:`rangeslam.mdu.offset_outliers`)."""
+    problem = parse_clock_problem(ranges, groups, dim, mask, noise_std, c, runs)
+    if robust:
+        return _robust_calibration(problem, as_rng(rng))
+    r, observed, g = problem.ranges, problem.observed, problem.groups
+    model = ProfiledUnfolding(r, observed, g, problem.dim, spread_from_arrivals(r, observed))
     with one_blas_thread():
-        fit, status, message = _search_and_judge(model, observed, g, noise_std, need, runs, rng)
-    a, b = (v * model.scale for v in model.offsets(fit.theta))
-    corrected = np.where(observed, r - a[:, None] - b[g][None, :], 0.0)
+        fit, status, message = _search_and_judge(
+            model, observed, g, problem.noise_std, problem.need(), problem.runs, rng
+        )
+    return clock_result(problem, model, fit, observed, status, message)
+
+
+def clock_result(problem: ClockProblem, model, fit: ClockFit, inliers, status, message):
+    """The :class:`UnknownEmissionCalibration` in metres and the canonical frame, for a fit of
+    ``model`` to the ``inliers`` (M, K) of ``problem``; events without inliers get NaN."""
+    r, observed, dim, m = problem.ranges, problem.observed, problem.dim, problem.ranges.shape[0]
+    kept = inliers.any(axis=0)
+    g_all = problem.groups
+    n_groups = int(g_all.max()) + 1
+    ids, g = np.unique(g_all[kept], return_inverse=True)
+    a, b_kept = (v * model.scale for v in model.offsets(fit.theta))
+    b = np.full(n_groups, np.nan)
+    b[ids] = b_kept
     pts = fit.theta.reshape(-1, dim) * model.scale
-    receivers, sources, _ = canonical_frame(pts[:m], pts[m:])
-    residuals = np.full(shape, np.nan)
-    residuals[observed] = (model.distances(fit.theta) * model.scale) - corrected[observed]
-    n_obs = int(observed.sum())
+    receivers, sources_kept, _ = canonical_frame(pts[:m], pts[m:])
+    sources = np.full((len(g_all), dim), np.nan)
+    sources[kept] = sources_kept
+    fitted = np.full(r.shape, np.nan)
+    fitted[:, kept] = range_matrix(pts[:m], pts[m:]) + a[:, None] + b_kept[g][None, :]
+    residuals = np.where(observed, fitted - r, np.nan)
+    n_obs, need = int(inliers.sum()), problem.need(kept)
+    c = problem.c
     return UnknownEmissionCalibration(
         receivers=frozen(receivers),
         sources=frozen(sources),
@@ -371,4 +430,79 @@ def calibrate_with_clock_offsets(
         attempts=0,
         random_starts=int(fit.runs),
         receiver_offsets=frozen(a),
+        inliers=frozen(inliers.copy()),
     )
+
+
+def _inlier_model(problem: ClockProblem, use: np.ndarray) -> ProfiledUnfolding:
+    """The profiled loss of the inliers ``use`` (M, K) on the events that keep any."""
+    kept = use.any(axis=0)
+    _, g = np.unique(problem.groups[kept], return_inverse=True)
+    r = problem.ranges[:, kept]
+    return ProfiledUnfolding(r, use[:, kept], g, problem.dim, spread_from_arrivals(r, use[:, kept]))
+
+
+def _robust_rounds(problem: ClockProblem, rng):
+    """Steps 2 and 3 of :mod:`rangeslam.mdu.offset_outliers` from the consensus, alternated until
+    the inlier set is stable: (model, fit, inliers, consensus, note). After the first refit the
+    inlier threshold uses the refit's noise estimate (sum of squares over the inliers' redundancy)
+    unless ``noise_std`` is known."""
+    from rangeslam.mdu import offset_outliers as oo
+
+    r, observed, dim, m = problem.ranges, problem.observed, problem.dim, problem.ranges.shape[0]
+    cons = oo.consensus_search(r, observed, dim, oo.MAX_HYPOTHESES, rng)
+    placement, receivers, sigma, last = cons.placement, cons.receivers, problem.noise_std, None
+    for _ in range(oo.MAX_ROUNDS):
+        use, threshold = oo.grow_inliers(placement, observed, dim, sigma)
+        if last is not None and np.array_equal(use, last[2]):
+            return (*last, cons, "")
+        kept = use.any(axis=0)
+        short = _too_few_inliers(problem, use, kept)
+        if short:
+            if last is None:
+                raise SolverError(f"the consensus left too few inliers: {short}")
+            return (*last, cons, f"growth stopped ({short}); ")
+        model = _inlier_model(problem, use)
+        theta0 = np.vstack([receivers, placement.sources[kept]]) / model.scale
+        fit = refine_from(model, theta0.ravel())
+        pts = fit.theta.reshape(-1, dim) * model.scale
+        receivers, a = pts[:m], model.offsets(fit.theta)[0] * model.scale
+        if problem.noise_std is None:
+            sigma = math.sqrt(fit.ssr / (use.sum() - problem.need(kept))) * model.scale
+        placement = oo.place_events(receivers, a, r, observed, threshold, rng)
+        last = (model, fit, use)
+    return (*last, cons, f"inlier set still changing after {oo.MAX_ROUNDS} rounds; ")
+
+
+def _too_few_inliers(problem: ClockProblem, use: np.ndarray, kept: np.ndarray) -> str:
+    """Why the inliers ``use`` (M, K) cannot be fitted with redundancy, or "" when they can."""
+    try:
+        check_determined(use[:, kept], problem.dim, "the inlier set")
+    except InvalidInputError as exc:
+        return str(exc)
+    if use.sum() <= problem.need(kept):
+        return f"{int(use.sum())} inlier arrivals for {problem.need(kept)} unknowns"
+    return ""
+
+
+def _robust_calibration(problem: ClockProblem, rng) -> UnknownEmissionCalibration:
+    """The robust run (:mod:`rangeslam.mdu.offset_outliers`) and its verdict (without
+    ``noise_std``, the vote is the consensus's: :data:`offset_outliers.VOTES` subsets agreed)."""
+    from rangeslam.mdu.offset_outliers import robust_status
+
+    with one_blas_thread():
+        model, fit, use, cons, note = _robust_rounds(problem, rng)
+        fit = ClockFit(fit.theta, fit.ssr, cons.confirmed, cons.subsets)
+        kept = use.any(axis=0)
+        a, b = (v * model.scale for v in model.offsets(fit.theta))
+        _, g = np.unique(problem.groups[kept], return_inverse=True)
+        r = problem.ranges[:, kept]
+        corrected = np.where(use[:, kept], r - a[:, None] - b[g][None, :], 0.0)
+        status, message = clock_verdict(
+            model, fit, corrected, use[:, kept], problem.noise_std, problem.need(kept), tail=False
+        )
+    n_obs = int(problem.observed.sum())
+    status, message = robust_status(
+        status, note + message, n_obs - int(use.sum()), n_obs, n_obs - problem.need()
+    )
+    return clock_result(problem, model, fit, use, status, message)

@@ -20,6 +20,7 @@ from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from rangeslam._validation import (
     as_dim,
+    as_flag,
     as_float_array,
     as_mask,
     as_rng,
@@ -235,6 +236,9 @@ class UnknownEmissionCalibration(HasStatus):
         receiver_offsets: (M,) range offset of each receiver's clock, metres, with mean 0 (the
             gauge: one common shift between these and ``offsets`` is not observable), when
             ``receiver_offsets=True`` was asked for; None otherwise.
+        inliers: (M, K) the arrivals used in the final fit with ``receiver_offsets=True``
+            (``observed`` unless ``robust``; an event with none was dropped as a whole and its
+            source and residuals are NaN); None otherwise.
     """
 
     receivers: np.ndarray
@@ -251,6 +255,7 @@ class UnknownEmissionCalibration(HasStatus):
     attempts: int
     random_starts: int
     receiver_offsets: np.ndarray | None = None
+    inliers: np.ndarray | None = None
 
 
 class _OffsetUnfolding:
@@ -592,6 +597,7 @@ def calibrate_unknown_emission(
     c: float | None = None,
     offsets0: ArrayLike | None = None,
     receiver_offsets: bool = False,
+    robust: bool = False,
     max_attempts: int = 8,
     random_starts: int | None = None,
     fit_weight: float = 10.0,
@@ -631,6 +637,9 @@ def calibrate_unknown_emission(
             projection) and the points found by Levenberg-Marquardt from random starts
             (:mod:`rangeslam.mdu.clock_offsets`); ``offsets0`` must be None and the SDP
             options are not used. Needs at least (M + K) d - d (d + 1) / 2 + G + M - 1 ranges.
+        robust: with ``receiver_offsets=True`` only: drop the arrivals and whole events that do
+            not fit (:mod:`rangeslam.mdu.offset_outliers`; the result's ``inliers``); status as
+            :func:`rangeslam.calibrate` with ``robust=True``.
         random_starts: least-squares runs from random points (offsets from step 1) when no
             convex-iteration run passes (default 20); with ``receiver_offsets``, the search runs
             at most (default :data:`CLOCK_RUNS`).
@@ -640,9 +649,13 @@ def calibrate_unknown_emission(
     otherwise), and the Jacobian must have that rank at the answer (generic configurations do,
     even for one offset shared by all ranges; the far field does not).
     """
-    if receiver_offsets is not False:
-        return _with_receiver_offsets(ranges, groups, dim, mask, noise_std, c, offsets0,
-                                      receiver_offsets, random_starts, rng)  # fmt: skip
+    if clock_mode(receiver_offsets, robust, offsets0):
+        from rangeslam.mdu.clock_offsets import calibrate_with_clock_offsets
+
+        return calibrate_with_clock_offsets(
+            ranges, groups, dim=dim, mask=mask, noise_std=noise_std, c=c, rng=rng,
+            runs=CLOCK_RUNS if random_starts is None else random_starts, robust=robust,
+        )  # fmt: skip
     random_starts = 20 if random_starts is None else random_starts
     rng = as_rng(rng)
     options = ConvexIterationOptions(max_attempts, fit_weight, max_iterations, gap_tol)
@@ -655,23 +668,25 @@ def calibrate_unknown_emission(
     return emission_result(problem, scaled, found, status, message)
 
 
-def _with_receiver_offsets(
-    ranges, groups, dim, mask, noise_std, c, offsets0, receiver_offsets, random_starts, rng
-) -> UnknownEmissionCalibration:
-    """The ``receiver_offsets=True`` branch (:mod:`rangeslam.mdu.clock_offsets`)."""
-    from rangeslam.mdu.clock_offsets import calibrate_with_clock_offsets
-
-    if receiver_offsets is not True:
+def clock_mode(receiver_offsets, robust, offsets0) -> bool:
+    """The door checks of the ``receiver_offsets`` and ``robust`` options of
+    :func:`calibrate_unknown_emission`: whether the receiver-offset model
+    (:mod:`rangeslam.mdu.clock_offsets`) is asked for. Raises InvalidInputError when either is
+    not a bool, when ``robust`` comes without ``receiver_offsets`` and when ``offsets0`` comes
+    with it."""
+    robust = as_flag(robust, "robust")
+    if receiver_offsets is not True and receiver_offsets is not False:
         raise InvalidInputError(f"receiver_offsets must be True or False; got {receiver_offsets!r}")
-    if offsets0 is not None:
+    if robust and not receiver_offsets:
+        raise InvalidInputError(
+            "robust=True needs receiver_offsets=True; got receiver_offsets=False"
+        )
+    if receiver_offsets and offsets0 is not None:
         raise InvalidInputError(
             "offsets0 must be None with receiver_offsets=True (the offsets are eliminated: "
             f"no starting values are used); got {type(offsets0).__name__}"
         )
-    return calibrate_with_clock_offsets(
-        ranges, groups, dim=dim, mask=mask, noise_std=noise_std, c=c,
-        runs=CLOCK_RUNS if random_starts is None else random_starts, rng=rng,
-    )  # fmt: skip
+    return receiver_offsets
 
 
 def _mirror_ambiguities(
