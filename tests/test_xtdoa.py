@@ -78,22 +78,22 @@ def test_authors_protocol_reduced(data):
     """10 random subsets of K = 8 and of K = 11 clean events (the authors' protocol, each event
     its own offset, microphone offsets unknown). The global search reaches the least-squares fit
     started from the truth (microphone error within 1 mm of it) in at least 9 of 10 subsets of
-    each size; the median mean-microphone error after a similarity alignment is at most the
-    authors' published 13.7 cm at K = 8 and the issue's 9 cm at K = 11 (published 9.6 cm). (The
-    issue's 11 cm at K = 8 is for the 200-subset median: the fit from the truth itself has a
-    10-subset median above 11 cm for some draws; benchmarks/bench_xtdoa.py checks it.)"""
+    each size, its median mean-microphone error (similarity alignment) is within 1 mm of that
+    fit's median, and both are under the authors' published medians (13.7 cm at K = 8, 9.6 cm at
+    K = 11). The issue's 11 cm and 9 cm are for the 200-subset medians; a 10-subset median
+    depends on the draw (the fit from the truth ranges over 7-9.3 cm at K = 11), so
+    benchmarks/bench_xtdoa.py checks those."""
     rows = subset_rows(data, [8, 11], 10, seed=2026)
     sources = reference_sources(data)
+    summary = {s["K"]: s for s in summary_rows(rows)}
     for k in (8, 11):
         mine = [r for r in rows if r["K"] == k]
-        same = [
-            abs(r["similarity_error_m"] - fit_from_reference(data, _columns(r), sources)) < 1e-3
-            for r in mine
-        ]
-        assert sum(same) >= 9, (k, same)
-    summary = {s["K"]: s for s in summary_rows(rows)}
-    assert summary[8]["median_similarity_cm"] <= PUBLISHED_MEDIAN_CM[8]
-    assert summary[11]["median_similarity_cm"] <= 9.0
+        floor = np.array([fit_from_reference(data, _columns(r), sources) for r in mine])
+        same = np.abs([r["similarity_error_m"] for r in mine] - floor) < 1e-3
+        assert same.sum() >= 9, (k, same)
+        median_cm = summary[k]["median_similarity_cm"]
+        assert abs(median_cm - 100 * np.median(floor)) <= 0.1, (k, median_cm)
+        assert median_cm <= PUBLISHED_MEDIAN_CM[k], (k, median_cm)
 
 
 def _columns(row: dict) -> np.ndarray:

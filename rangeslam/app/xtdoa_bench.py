@@ -120,15 +120,18 @@ def subset_rows(
     seed: int = 0,
     on_row: Callable[[dict], None] | None = None,
 ) -> list[dict]:
-    """``subsets`` random subsets of K clean events for each K in ``sizes`` (one generator from
-    ``seed`` draws the subsets and the solver's starts), one row each (:func:`solve_subset`)."""
-    rng = np.random.default_rng(seed)
+    """``subsets`` random subsets of K clean events for each K in ``sizes``, one row each
+    (:func:`solve_subset`). One generator from ``seed`` draws the subsets and each solve gets its
+    own child generator, so the subsets drawn do not depend on how many random starts the solves
+    before them used (that count can differ between machines)."""
+    root = np.random.SeedSequence(seed)
+    draw_rng = np.random.default_rng(root)
     clean = data.clean_columns
     rows = []
     for k in sizes:
-        for _ in range(subsets):
-            columns = np.sort(rng.choice(clean, k, replace=False))
-            rows.append(solve_subset(data, columns, rng))
+        for child in root.spawn(subsets):
+            columns = np.sort(draw_rng.choice(clean, k, replace=False))
+            rows.append(solve_subset(data, columns, np.random.default_rng(child)))
             if on_row is not None:
                 on_row(rows[-1])
     return rows
