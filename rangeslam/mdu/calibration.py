@@ -37,14 +37,12 @@ from rangeslam.mdu.core import (
     canonical_frame,
     check_determined,
     checked_options,
-    convex_iteration_runs,
-    mdu_edm,
-    mdu_mask,
     passes_residual_test,
     unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
+from rangeslam.mdu.subsets import core_runs
 from rangeslam.solvers.least_squares import (
     UnfoldingFit,
     refine_unfolding,
@@ -319,15 +317,9 @@ def parse_calibration(
 def starting_points(problem: CalibrationProblem, rng, failures: list[str]):
     """Yield :class:`Start`: the convex-iteration runs (eq. 10), then, with ``refine`` and not
     ``robust``, up to ``random_starts`` random points (not when every SDP run failed)."""
-    # The SDP back end (cvxpy) is imported here, so `import rangeslam` stays light.
-    from rangeslam.solvers.sdp import EDMCompletionSDP
-
-    w = mdu_mask(problem.observed)
-    sdp = EDMCompletionSDP(w, loss="l1" if problem.robust else "l2")
-    d_tilde = mdu_edm(problem.ranges)
-    for completion in convex_iteration_runs(
-        sdp, d_tilde, w, problem.dim, options=problem.options, rng=rng, failures=failures
-    ):
+    loss = "l1" if problem.robust else "l2"
+    for completion in core_runs(problem.ranges, problem.observed, problem.dim, problem.options,
+                                rng, failures, loss=loss):  # fmt: skip
         yield Start(completion.points, completion)
     if len(failures) == problem.options.max_attempts:
         return  # the SDP failed every time: raise below rather than guess
@@ -595,6 +587,10 @@ def calibrate(
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.
+
+    Size: above :data:`rangeslam.mdu.subsets.MAX_SDP_POINTS` receivers plus sources, the SDP
+    holds a random core of them and the others are multilaterated from it
+    (:func:`rangeslam.mdu.subsets.core_runs`); least squares fits every range from there.
 
     Returns a :class:`Calibration`; its ``status`` says why when no attempt passed the check.
     Raises InvalidInputError for bad input or an under-determined mask. An SDP run that fails

@@ -29,10 +29,7 @@ from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
     checked_options,
-    convex_iteration_runs,
     least_steps,
-    mdu_edm,
-    mdu_mask,
     passes_residual_test,
     residual_status,
     rotated_covariances,
@@ -42,6 +39,7 @@ from rangeslam.mdu.core import (
     validated_ranges,
 )
 from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.subsets import keyframe_runs
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
@@ -442,20 +440,10 @@ def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acce
 def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
     """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one is :func:`accepted`;
     the best by its key otherwise."""
-    from rangeslam.solvers.sdp import EDMCompletionSDP
-
-    m = problem.ranges.shape[0]
-    w = mdu_mask(problem.observed)
-    bounded = problem.bounds is not None
-    pairs = np.column_stack([np.arange(m - 1), np.arange(1, m)]) if bounded else None
-    sdp = EDMCompletionSDP(w, bounded_pairs=pairs)
-    bounds = None if problem.bounds is None else (problem.bounds.lower, problem.bounds.upper)
     failures: list[str] = []
     best, attempts, sigma_ref, runs, verdict = None, 0, None, [], None
-    for completion in convex_iteration_runs(
-        sdp, mdu_edm(problem.ranges), w, problem.dim, options=problem.options, rng=rng,
-        failures=failures, bounds=bounds,
-    ):  # fmt: skip
+    for completion in keyframe_runs(problem.ranges, problem.observed, problem.dim,
+                                    problem.bounds, problem.options, rng, failures):  # fmt: skip
         attempts += 1
         run, sigma = edm_run(problem, completion, sigma_ref)
         if sigma is not None and sigma_ref is not None and sigma < sigma_ref:
@@ -652,6 +640,11 @@ def slam(
             stopped once its rank-d embedding settled; "full": every run to the eigen-gap
             tolerance until one passes the residual test (the schedule before issue 18).
         rng: Generator or seed for the random restarts.
+
+    Size: above :data:`rangeslam.mdu.subsets.MAX_SDP_POINTS` steps plus landmarks, the SDP holds
+    keyframes spread along the walk with every landmark, and the steps between them start on
+    the segments joining them (:func:`rangeslam.mdu.subsets.keyframe_runs`); GTSAM fits every
+    range from there.
 
     Raises InvalidInputError for bad input: step bounds of the wrong length, lower > upper,
     negative bounds, bounds the ranges contradict (triangle inequality, named by step), an

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
 from rangeslam._validation import as_mask, as_points, as_ranges, frozen
 from rangeslam.errors import InvalidInputError
@@ -22,6 +23,11 @@ from rangeslam.status import HasStatus, Status
 __all__ = ["UnfoldingFit", "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+#: Unknowns (points x d) from which the fit runs scipy's trust-region method on a sparse
+#: Jacobian (each range involves two points) with LSMR steps instead of MINPACK's dense LM: on
+#: 100 x 60 points in 3-D (480 unknowns) 0.36 s against 14 s to the same fit; 40 x 30, 0.44 s
+#: a fit with MINPACK.
+SPARSE_UNKNOWNS = 150
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,17 @@ def unfolding_jacobian(points: np.ndarray, m: int, pairs: np.ndarray) -> np.ndar
     return jac
 
 
+def sparse_unfolding_jacobian(points: np.ndarray, m: int, pairs: np.ndarray) -> csr_matrix:
+    """:func:`unfolding_jacobian` as a sparse (P, (M + K) d) matrix (2 d entries a row)."""
+    n, d = points.shape
+    diff = points[pairs[:, 0]] - points[m + pairs[:, 1]]
+    u = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-300)[:, None]
+    cols = np.hstack([pairs[:, [0]] * d, (m + pairs[:, [1]]) * d])[:, [0] * d + [1] * d]
+    cols = cols + np.tile(np.arange(d), 2)[None, :]
+    indptr = np.arange(0, 2 * d * len(pairs) + 1, 2 * d)
+    return csr_matrix((np.hstack([u, -u]).ravel(), cols.ravel(), indptr), shape=(len(pairs), n * d))
+
+
 def refine_unfolding(
     receivers: np.ndarray,
     sources: np.ndarray,
@@ -114,15 +131,20 @@ def refine_unfolding(
         return unfolding_jacobian(theta.reshape(-1, d), m, pairs)
 
     tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
+    large = start.size >= SPARSE_UNKNOWNS
     # MINPACK's LM needs at least as many residuals as unknowns; the gauge (a rigid motion) makes
     # fewer enough, and the trust-region method takes those.
-    if loss == "linear" and len(pairs) >= start.size:
+    if loss == "linear" and len(pairs) >= start.size and not large:
         fit = least_squares(fun, start.ravel(), jac=jac, method="lm", max_nfev=max_nfev, **tols)
     else:
+        sparse_jac = {
+            "jac": lambda theta: sparse_unfolding_jacobian(theta.reshape(-1, d), m, pairs),
+            "tr_solver": "lsmr",
+        }
         fit = least_squares(
             fun,
             start.ravel(),
-            jac=jac,
+            **(sparse_jac if large else {"jac": jac}),
             method="trf",
             loss=loss,
             x_scale="jac",

@@ -389,6 +389,12 @@ class EDMCompletionSDP:
             except cp.error.SolverError as exc:
                 statuses.append(f"{label}: error ({str(exc).splitlines()[0]})")
                 continue
+            except MemoryError as exc:
+                # the cone's KKT block grows as N^4: a size the machine cannot hold is reported
+                raise SolverError(
+                    f"EDM completion SDP of {self.n} points ran out of memory",
+                    status=f"{label}: out of memory",
+                ) from exc
             status = self._problem.status
             if status in _USABLE.get(name, ("optimal",)) and self._gram.value is not None:
                 g = self._gram.value
