@@ -89,7 +89,9 @@ def test_keyframes_properties(m, k, dim, seed):
     keys = WalkKeyframes.choose(observed, dim)
     rows = keys.rows
     assert np.all(np.diff(rows) > 0) and rows[0] == 0 and rows[-1] == m - 1
-    assert len(rows) <= max(2, subsets.MAX_SDP_POINTS - k) + k * (dim + 1)
+    n_key = max(2, subsets.MAX_SDP_POINTS - k)
+    # within the SDP's size unless the landmarks alone need more rows than that
+    assert len(rows) <= n_key or len(subsets._keyframe_rows(observed, dim, 2)) > n_key
     heard = observed.sum(axis=0)
     in_keys = observed[rows].sum(axis=0)
     assert np.all(in_keys >= np.minimum(heard, dim + 1))
@@ -123,18 +125,35 @@ def test_core_expand_places_every_point_exactly():
     assert align(full.points, truth).rmse < 1e-9
 
 
-def test_core_expand_names_an_unplaceable_point():
-    """A source that hears fewer than d + 1 placed receivers is refused with its index."""
+def test_core_reaches_points_heard_only_outside_it():
+    """A source heard only by the least-heard receivers (left out of the core) is placed once
+    they are: the placement goes on sweep by sweep; calibrate recovers the array exactly."""
     rng = np.random.default_rng(2)
-    x, s = rng.uniform(0, 1, (40, 3)) * ROOM, rng.uniform(0, 1, (30, 3)) * ROOM
-    observed = np.ones((40, 30), bool)
+    x, s = rng.uniform(0, 1, (40, 3)) * ROOM, rng.uniform(0, 1, (10, 3)) * ROOM
+    observed = np.ones((40, 10), bool)
+    observed[:4, :9] = False  # receivers 0-3 hear only source 9 ...
+    observed[:4, 9] = True
+    observed[4:, 9] = False  # ... which only they hear
+    observed[:4, :5] = True  # (and five more, so that they can be placed)
     core = CalibrationCore.choose(observed, 3, rng)
-    lone = np.setdiff1d(np.arange(30), core.sources)[0]
-    observed[:, lone] = False
-    observed[core.receivers[:3], lone] = True
+    assert core.is_subset and 9 not in core.sources
+    sweeps = subsets.placement_sweeps(observed, core.receivers, core.sources, 3)
+    assert sweeps is not None and len(sweeps) >= 2
     pts = np.vstack([x[core.receivers], s[core.sources]])
-    with pytest.raises(SolverError, match=f"source {lone}: 3 ranges"):
-        core.expand(completion_of(pts), range_matrix(x, s), observed)
+    full = core.expand(completion_of(pts), range_matrix(x, s), observed)
+    assert align(full.points, np.vstack([x, s])).rmse < 1e-9
+    res = calibrate(np.where(observed, range_matrix(x, s), 0.0), mask=observed, rng=rng)
+    assert res.converged, res.message
+    assert align(res.receivers, x, reflection=True).rmse < 1e-6
+
+
+def test_core_unreachable_point_takes_the_whole_problem():
+    """When no core can place every point (a source heard by d receivers only, which the
+    unfolding allows), the SDP is the whole problem rather than a failure."""
+    observed = np.ones((40, 10), bool)
+    observed[3:, 9] = False
+    core = CalibrationCore.choose(observed, 3, np.random.default_rng(3))
+    assert not core.is_subset
 
 
 def test_sdp_out_of_memory_is_the_packages_error():

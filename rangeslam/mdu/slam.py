@@ -78,7 +78,8 @@ class SlamResult(HasStatus):
             trajectory, rank M d - 3 (2-D) or M d - 6 (3-D).
         residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
         edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame (None
-            for methods without an EDM step, such as the EKF baseline).
+            for methods without an EDM step, such as the EKF baseline); for a walk solved on
+            keyframes (:mod:`rangeslam.mdu.subsets`), with the steps between them interpolated.
         edm_sources: (K, d) likewise.
         residual_rms: RMS range residual, metres.
         status: CONVERGED when the answer passed the residual test (chi-square against

@@ -12,8 +12,8 @@ EDM of a subset and hand the refinement (GTSAM for :func:`rangeslam.mdu.slam`, l
   between them (upper: the sum of its steps' upper bounds; lower: its longest lower bound less the
   other steps' upper bounds, at least 0). A step between keyframes starts on the segment that
   joins them.
-- an array (:class:`CalibrationCore`): a random core of receivers and sources; the other sources
-  are multilaterated from the core receivers, then the other receivers from every source.
+- an array (:class:`CalibrationCore`): a random core of receivers and sources; the other points
+  are multilaterated, sweep by sweep, from the placed points they have ranges to.
 
 The refinement fits every range from there; the verdict judges the refined answer as for a full
 SDP.
@@ -31,7 +31,13 @@ import numpy as np
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import gram_to_edm
 from rangeslam.localization.multilateration import multilaterate
-from rangeslam.mdu.core import ConvexIterationOptions, convex_iteration_runs, mdu_edm, mdu_mask
+from rangeslam.mdu.core import (
+    ConvexIterationOptions,
+    check_determined,
+    convex_iteration_runs,
+    mdu_edm,
+    mdu_mask,
+)
 
 if TYPE_CHECKING:  # the SDP back end (cvxpy) is imported where an SDP is solved
     from rangeslam.solvers.sdp import EDMCompletion
@@ -50,6 +56,9 @@ __all__ = [
 #: unfolding in 3-D; benchmarks/README.md, "The EDM start at the sizes people have"); every
 #: problem of the paper's figures is smaller.
 MAX_SDP_POINTS = 32
+#: Random cores drawn at most before the whole problem is taken (a core from which some point
+#: cannot be placed is drawn again).
+CORE_DRAWS = 5
 
 
 def expanded_completion(completion: EDMCompletion, points: np.ndarray) -> EDMCompletion:
@@ -93,22 +102,22 @@ class WalkKeyframes:
 
     @classmethod
     def choose(cls, observed: np.ndarray, dim: int, max_points: int | None = None):
-        """Keyframes of the walk with the (M, K) pattern ``observed``: max_points (default
-        :data:`MAX_SDP_POINTS`) - K of them, evenly spread (every step when that is all of them),
-        plus, for a landmark heard from fewer than d + 1 keyframes, d + 1 of the steps that hear
-        it, spread over them."""
+        """Keyframes of the walk with the (M, K) pattern ``observed``, at most max_points
+        (default :data:`MAX_SDP_POINTS`) - K of them (every step when that is all of them):
+        evenly spread steps, plus, for a landmark heard from fewer than d + 1 of those, d + 1 of
+        the steps that hear it, spread over them; the evenly spread ones are as many as leave
+        room for those (at least the first and last step: a pattern whose landmarks need more
+        rows than that gets them, beyond max_points)."""
         max_points = MAX_SDP_POINTS if max_points is None else max_points
         m, k = observed.shape
         n_key = max(2, max_points - k)
         if m <= n_key:
             return cls(np.arange(m), m)
-        rows = set(np.round(np.linspace(0, m - 1, n_key)).astype(int).tolist())
-        for col in range(k):
-            heard = np.flatnonzero(observed[:, col])
-            if np.count_nonzero(observed[sorted(rows), col]) <= dim and len(heard):
-                picks = np.round(np.linspace(0, len(heard) - 1, min(dim + 1, len(heard))))
-                rows.update(heard[picks.astype(int)].tolist())
-        return cls(np.array(sorted(rows)), m)
+        for n_even in range(n_key, 1, -1):
+            rows = _keyframe_rows(observed, dim, n_even)
+            if len(rows) <= n_key:
+                break
+        return cls(rows, m)
 
     @property
     def is_subset(self) -> bool:
@@ -118,8 +127,8 @@ class WalkKeyframes:
     def bounds(self, bounds) -> tuple[np.ndarray, np.ndarray] | None:
         """eq. (11) bounds (lower, upper) between consecutive keyframes, from the step bounds
         (a StepBounds or None)."""
-        if bounds is None:
-            return None
+        if bounds is None or not self.is_subset:
+            return None if bounds is None else (bounds.lower, bounds.upper)
         return path_bounds(np.asarray(bounds.lower), np.asarray(bounds.upper), self.rows)
 
     def expand(self, completion: EDMCompletion) -> EDMCompletion:
@@ -151,42 +160,90 @@ class CalibrationCore:
     @classmethod
     def choose(cls, observed: np.ndarray, dim: int, rng: np.random.Generator,
                max_points: int | None = None):  # fmt: skip
-        """A random core of at most ``max_points`` (default :data:`MAX_SDP_POINTS`) points,
-        split between receivers and sources in proportion to M and K (at least d + 2 of each),
-        among the receivers and sources with the most observed ranges; the whole problem when
-        it fits."""
+        """A random core of ``max_points`` (default :data:`MAX_SDP_POINTS`) points, split
+        between receivers and sources in proportion to M and K (at least d + 2 of each, which
+        may exceed ``max_points``), drawn among the receivers and sources with the most observed
+        ranges, from which every other point can be placed (:func:`placement_sweeps`; up to
+        :data:`CORE_DRAWS` draws). The whole problem when it fits, or when no draw can place
+        every point (the SDP is then the full one)."""
         max_points = MAX_SDP_POINTS if max_points is None else max_points
         m, k = observed.shape
+        whole = cls(np.arange(m), np.arange(k), (m, k))
         if m + k <= max_points:
-            return cls(np.arange(m), np.arange(k), (m, k))
+            return whole
         m0 = int(np.clip(round(max_points * m / (m + k)), min(m, dim + 2), m))
         k0 = int(np.clip(max_points - m0, min(k, dim + 2), k))
-        receivers = _heard_most(observed, m0, rng)
-        sources = _heard_most(observed[receivers].T, k0, rng)
-        return cls(np.sort(receivers), np.sort(sources), (m, k))
+        for _ in range(CORE_DRAWS):
+            receivers = np.sort(_heard_most(observed, m0, rng))
+            sources = np.sort(_heard_most(observed[receivers].T, k0, rng))
+            try:
+                check_determined(observed[np.ix_(receivers, sources)], dim, "the core")
+            except InvalidInputError:
+                continue
+            if placement_sweeps(observed, receivers, sources, dim) is not None:
+                return cls(receivers, sources, (m, k))
+        return whole
 
     @property
     def is_subset(self) -> bool:
         """Whether some points are left out of the SDP."""
         return len(self.receivers) + len(self.sources) < sum(self.shape)
 
-    def expand(self, completion: EDMCompletion, ranges: np.ndarray, observed: np.ndarray):
-        """The completion of the core as one of every point (M + K, d): each other source
-        multilaterated (:func:`rangeslam.localization.multilaterate`) from the core receivers
-        that hear it, then each other receiver from every source it hears. Raises SolverError
-        when a point cannot be placed (fewer than d + 1 placed points range to it, or they do
-        not span the space)."""
+    def expand(self, completion: EDMCompletion, ranges: np.ndarray, observed: np.ndarray, *,
+               robust: bool = False, rng: np.random.Generator | None = None):  # fmt: skip
+        """The completion of the core as one of every point (M + K, d): the other points placed
+        in the sweeps of :func:`placement_sweeps`, each multilaterated
+        (:func:`rangeslam.localization.multilaterate`; ``robust``: with its outlier search, when
+        d + 2 ranges allow it) from every placed point it has a range to. Raises SolverError
+        when a point cannot be placed (its placed anchors do not span the space)."""
         m, k = self.shape
-        m0 = len(self.receivers)
-        pts_r = np.full((m, completion.points.shape[1]), np.nan)
-        pts_s = np.full((k, completion.points.shape[1]), np.nan)
+        m0, dim = len(self.receivers), completion.points.shape[1]
+        pts_r, pts_s = np.full((m, dim), np.nan), np.full((k, dim), np.nan)
         pts_r[self.receivers] = completion.points[:m0]
         pts_s[self.sources] = completion.points[m0:]
-        for j in np.setdiff1d(np.arange(k), self.sources):
-            pts_s[j] = _placed(pts_r, ranges[:, j], observed[:, j], f"source {j}")
-        for i in np.setdiff1d(np.arange(m), self.receivers):
-            pts_r[i] = _placed(pts_s, ranges[i], observed[i], f"receiver {i}")
+        sweeps = placement_sweeps(observed, self.receivers, self.sources, dim) or []
+        for new_r, new_s in sweeps:
+            for j in new_s:
+                pts_s[j] = _placed(pts_r, ranges[:, j], observed[:, j], f"source {j}", robust, rng)
+            for i in new_r:
+                pts_r[i] = _placed(pts_s, ranges[i], observed[i], f"receiver {i}", robust, rng)
+        if np.isnan(pts_r).any() or np.isnan(pts_s).any():
+            raise SolverError("the EDM start could not place every point from the core")
         return expanded_completion(completion, np.vstack([pts_r, pts_s]))
+
+
+def placement_sweeps(observed: np.ndarray, receivers: np.ndarray, sources: np.ndarray, dim: int):
+    """The order in which the points outside a core (``receivers``, ``sources`` placed) are
+    placed from the (M, K) pattern ``observed``: a list of sweeps (receivers, sources), each
+    point of a sweep ranging to at least d + 1 points placed before it; None when some point is
+    never reached."""
+    m, k = observed.shape
+    placed_r, placed_s = np.zeros(m, bool), np.zeros(k, bool)
+    placed_r[receivers], placed_s[sources] = True, True
+    sweeps = []
+    while not (placed_r.all() and placed_s.all()):
+        new_s = ~placed_s & (observed[placed_r].sum(axis=0) > dim)
+        new_r = ~placed_r & (observed[:, placed_s].sum(axis=1) > dim)
+        if not (new_s.any() or new_r.any()):
+            return None
+        sweeps.append((np.flatnonzero(new_r), np.flatnonzero(new_s)))
+        placed_r |= new_r
+        placed_s |= new_s
+    return sweeps
+
+
+def _keyframe_rows(observed: np.ndarray, dim: int, n_even: int) -> np.ndarray:
+    """(n,) sorted rows: ``n_even`` evenly spread over the M steps, and d + 1 of the steps that
+    hear each landmark heard from fewer than d + 1 of those."""
+    m, k = observed.shape
+    rows = set(np.round(np.linspace(0, m - 1, n_even)).astype(int).tolist())
+    even = sorted(rows)
+    for col in range(k):
+        heard = np.flatnonzero(observed[:, col])
+        if np.count_nonzero(observed[even, col]) <= dim and len(heard):
+            picks = np.round(np.linspace(0, len(heard) - 1, min(dim + 1, len(heard))))
+            rows.update(heard[picks.astype(int)].tolist())
+    return np.array(sorted(rows))
 
 
 def _heard_most(observed: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -196,17 +253,13 @@ def _heard_most(observed: np.ndarray, count: int, rng: np.random.Generator) -> n
     return order[:count]
 
 
-def _placed(anchors: np.ndarray, ranges: np.ndarray, heard: np.ndarray, what: str) -> np.ndarray:
+def _placed(anchors, ranges, heard, what: str, robust: bool, rng) -> np.ndarray:
     """(d,) a point multilaterated from the placed ``anchors`` (A, d; NaN rows not yet placed)
-    that it ``heard`` (A,) at ``ranges`` (A,), metres."""
+    that it ``heard`` (A,) at ``ranges`` (A,), metres (``robust``: with the outlier search)."""
     use = heard & np.isfinite(anchors[:, 0])
-    if use.sum() <= anchors.shape[1]:
-        raise SolverError(
-            f"the EDM start could not place {what}: {int(use.sum())} ranges to placed points "
-            f"(needs {anchors.shape[1] + 1})"
-        )
+    robust = robust and use.sum() >= anchors.shape[1] + 2
     try:
-        return multilaterate(anchors[use], ranges[use]).position
+        return multilaterate(anchors[use], ranges[use], robust=robust, rng=rng).position
     except (DegenerateGeometryError, InvalidInputError) as exc:
         raise SolverError(f"the EDM start could not place {what}: {exc}") from exc
 
@@ -254,6 +307,8 @@ def core_runs(
             yield completion
             continue
         try:
-            yield core.expand(completion, ranges, observed)
+            completion = core.expand(completion, ranges, observed, robust=loss == "l1", rng=rng)
         except SolverError as exc:
             failures.append(str(exc))
+            continue
+        yield completion

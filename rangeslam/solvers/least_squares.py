@@ -102,7 +102,8 @@ def refine_unfolding(
 
     ``ranges`` (M, K) metres, ``mask`` (M, K) True for the ranges to fit. ``loss`` is scipy's
     robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt; the others by a trust-region
-    reflective method, as is the Gaussian case with fewer ranges than coordinates),
+    reflective method, as is the Gaussian case with fewer ranges than coordinates, and every case
+    from :data:`SPARSE_UNKNOWNS` unknowns on, there on a sparse Jacobian with LSMR steps),
     ``loss_scale`` its inlier scale in metres. The problem is scaled to unit median range before
     scipy sees it.
     """
