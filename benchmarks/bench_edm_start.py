@@ -34,8 +34,8 @@ from rangeslam.app.experiments import calibration_experiment, gtsam_style_start
 from rangeslam.errors import SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.slam import slam
-from rangeslam.sim.scenes import add_range_noise, random_convex_room, random_points_in_room
-from rangeslam.sim.trajectories import random_walk, step_lengths
+from rangeslam.sim.scenes import add_range_noise, walk_in_random_room
+from rangeslam.sim.trajectories import step_lengths
 from rangeslam.solvers import sdp
 from rangeslam.solvers.gtsam_graph import refine_graph
 
@@ -56,13 +56,7 @@ def count_solves() -> None:
 def walk_scene(m: int, sigma: float, rng: np.random.Generator):
     """(trajectory (M, 3), landmarks (7, 3), noisy ranges (M, 7)): a smooth random walk in a
     random convex room, the loudspeaker and its 6 first-order images nearest the walk."""
-    room = random_convex_room(3, 6, rng=rng)
-    start = random_points_in_room(room, 1, margin=0.5, rng=rng)[0]
-    traj = random_walk(m, start=start, step_length=0.3, turn_std=0.5, room=room, rng=rng)
-    speaker = random_points_in_room(room, 1, margin=0.3, rng=rng)[0]
-    images = room.image_sources(speaker, 1).positions
-    near = np.argsort(np.linalg.norm(images - traj.mean(axis=0), axis=1))[:6]
-    landmarks = np.vstack([speaker, images[near]])
+    traj, landmarks = walk_in_random_room(m, rng=rng)
     ranges = add_range_noise(range_matrix(traj, landmarks), sigma, rng=rng)
     return traj, landmarks, ranges
 

@@ -32,8 +32,8 @@ from rangeslam.evaluation.metrics import rms_against_bound
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu import subsets
 from rangeslam.mdu.slam import slam
-from rangeslam.sim.scenes import add_range_noise, random_convex_room, random_points_in_room
-from rangeslam.sim.trajectories import random_walk, step_lengths
+from rangeslam.sim.scenes import add_range_noise, walk_in_random_room
+from rangeslam.sim.trajectories import step_lengths
 
 SIGMA = 0.01
 ROOM = np.array([5.0, 4.0, 3.0])
@@ -41,13 +41,7 @@ ROOM = np.array([5.0, 4.0, 3.0])
 
 def walk_trial(m: int, rng: np.random.Generator) -> tuple[float, float, bool]:
     """One slam solve on a random walk of ``m`` steps: (error m, RMS bound m, converged)."""
-    room = random_convex_room(3, 6, rng=rng)
-    start = random_points_in_room(room, 1, margin=0.5, rng=rng)[0]
-    traj = random_walk(m, start=start, step_length=0.3, turn_std=0.5, room=room, rng=rng)
-    speaker = random_points_in_room(room, 1, margin=0.3, rng=rng)[0]
-    images = room.image_sources(speaker, 1).positions
-    near = np.argsort(np.linalg.norm(images - traj.mean(axis=0), axis=1))[:6]
-    landmarks = np.vstack([speaker, images[near]])
+    traj, landmarks = walk_in_random_room(m, rng=rng)
     ranges = add_range_noise(range_matrix(traj, landmarks), SIGMA, rng=rng)
     steps = step_lengths(traj)
     bounds = (0.8 * steps, 1.2 * steps)

@@ -288,3 +288,17 @@ def test_echo_ranges_refuse_receivers_outside_the_room():
     room = Room.shoebox([4.0, 3.0, 2.0])
     with pytest.raises(InvalidInputError, match="receiver 1 is not"):
         echo_ranges(room, [[1.0, 1.0, 1.0], [5.0, 1.0, 1.0]], [2.0, 1.5, 1.0])
+
+
+def test_walk_in_random_room():
+    """A walk of M steps of the given length, the loudspeaker and its n nearest first-order
+    images as landmarks (off the walk), the same for the same seed."""
+    from rangeslam.sim.scenes import walk_in_random_room
+    from rangeslam.sim.trajectories import step_lengths
+
+    traj, landmarks = walk_in_random_room(30, n_images=4, step_length=0.2, rng=7)
+    assert traj.shape == (30, 3) and landmarks.shape == (5, 3)
+    np.testing.assert_allclose(step_lengths(traj), 0.2, rtol=1e-9)
+    assert np.min(np.linalg.norm(traj[:, None] - landmarks[None], axis=2)) > 0
+    again, _ = walk_in_random_room(30, n_images=4, step_length=0.2, rng=7)
+    np.testing.assert_array_equal(traj, again)

@@ -17,23 +17,11 @@ from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu import subsets
 from rangeslam.mdu.slam import slam
 from rangeslam.mdu.subsets import CalibrationCore, WalkKeyframes, path_bounds
-from rangeslam.sim.scenes import add_range_noise, random_convex_room, random_points_in_room
-from rangeslam.sim.trajectories import random_walk, step_lengths
+from rangeslam.sim.scenes import add_range_noise, walk_in_random_room
+from rangeslam.sim.trajectories import step_lengths
 from rangeslam.solvers.sdp import EDMCompletion, EDMCompletionSDP, complete_edm
 
 ROOM = np.array([5.0, 4.0, 3.0])
-
-
-def walk_scene(m: int, rng):
-    """A smooth random 3-D walk of ``m`` 0.3 m steps in a random convex room; the loudspeaker and
-    its 6 first-order images nearest the walk (7 landmarks)."""
-    room = random_convex_room(3, 6, rng=rng)
-    start = random_points_in_room(room, 1, margin=0.5, rng=rng)[0]
-    traj = random_walk(m, start=start, step_length=0.3, turn_std=0.5, room=room, rng=rng)
-    speaker = random_points_in_room(room, 1, margin=0.3, rng=rng)[0]
-    images = room.image_sources(speaker, 1).positions
-    near = np.argsort(np.linalg.norm(images - traj.mean(axis=0), axis=1))[:6]
-    return traj, np.vstack([speaker, images[near]])
 
 
 def completion_of(points: np.ndarray) -> EDMCompletion:
@@ -170,7 +158,7 @@ def test_sdp_out_of_memory_is_the_packages_error():
 def test_long_walk_exact_recovery():
     """80 steps (keyframes in the SDP), exact ranges: the walk recovered to round-off."""
     rng = np.random.default_rng(3)
-    traj, landmarks = walk_scene(80, rng)
+    traj, landmarks = walk_in_random_room(80, rng=rng)
     steps = step_lengths(traj)
     res = slam(range_matrix(traj, landmarks), step_bounds=(0.8 * steps, 1.2 * steps), rng=rng)
     assert res.converged, res.message
@@ -183,7 +171,7 @@ def test_long_walk_at_the_bound():
     rng = np.random.default_rng(4)
     errors, bounds = [], []
     for _ in range(6):
-        traj, landmarks = walk_scene(80, rng)
+        traj, landmarks = walk_in_random_room(80, rng=rng)
         steps = step_lengths(traj)
         box = (0.8 * steps, 1.2 * steps)
         ranges = add_range_noise(range_matrix(traj, landmarks), 0.01, rng=rng)

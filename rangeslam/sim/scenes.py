@@ -22,6 +22,7 @@ __all__ = [
     "random_mask",
     "random_points_in_room",
     "range_matrix",
+    "walk_in_random_room",
 ]
 
 
@@ -206,3 +207,30 @@ def random_convex_room(
     raise InvalidInputError(
         f"could not draw a bounded room with {n_walls} non-redundant walls in {dim}-D"
     )
+
+
+def walk_in_random_room(
+    m: int,
+    *,
+    n_images: int = 6,
+    step_length: float = 0.3,
+    turn_std: float = 0.5,
+    rng=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth random non-planar 3-D walk of ``m`` steps of ``step_length`` metres (turn std
+    ``turn_std`` rad, :func:`rangeslam.sim.trajectories.random_walk`) in a random convex room of
+    6 walls, and its landmarks: a loudspeaker uniform in the room and its ``n_images``
+    first-order image sources nearest the walk. Returns (trajectory (M, 3), landmarks
+    (1 + n_images, 3)), metres."""
+    from rangeslam.sim.trajectories import random_walk
+
+    rng = as_rng(rng)
+    room = random_convex_room(3, 6, rng=rng)
+    start = random_points_in_room(room, 1, margin=0.5, rng=rng)[0]
+    traj = random_walk(
+        m, start=start, step_length=step_length, turn_std=turn_std, room=room, rng=rng
+    )
+    speaker = random_points_in_room(room, 1, margin=0.3, rng=rng)[0]
+    images = room.image_sources(speaker, 1).positions
+    near = np.argsort(np.linalg.norm(images - traj.mean(axis=0), axis=1))[:n_images]
+    return traj, np.vstack([speaker, images[near]])
