@@ -373,19 +373,18 @@ def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | 
     ``sigma_ref`` (the first run's; None: this run's)."""
     m = problem.ranges.shape[0]
     pts = completion.points if pts is None else pts
-    fit, sigma, key = None, None, None
+    fit, sigma = None, None
     if problem.refine:
         fit, sigma = refine_run(problem, pts)
         rec, src = fit.receivers, fit.sources
-        key = fit.error
-        if sigma_ref is not None and sigma != sigma_ref:
-            key = graph_fit(problem, _stacked(fit), sigma_ref, max_iterations=0).error
     else:
         rec, src = pts[:m], pts[m:]
     res = range_matrix(rec, src) - problem.ranges
     ssr = float(np.sum(res[problem.observed] ** 2))
-    key = ssr if key is None else key
-    return SlamRun(ssr, rec, src, fit, completion, res, key), sigma
+    run = SlamRun(ssr, rec, src, fit, completion, res, ssr if fit is None else fit.error)
+    if sigma_ref is not None and sigma != sigma_ref:
+        run = rekeyed(problem, run, sigma_ref)  # ranked on the reference graph
+    return run, sigma
 
 
 def rekeyed(problem: SlamProblem, run: SlamRun | None, sigma: float) -> SlamRun | None:

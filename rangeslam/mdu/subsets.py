@@ -151,11 +151,14 @@ class CalibrationCore:
         receivers: (m0,) sorted receiver indices.
         sources: (k0,) sorted source indices.
         shape: (M, K) of the whole problem.
+        sweeps: the other points in the order they are placed (:func:`placement_sweeps`; empty
+            for the whole problem).
     """
 
     receivers: np.ndarray
     sources: np.ndarray
     shape: tuple[int, int]
+    sweeps: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
     @classmethod
     def choose(cls, observed: np.ndarray, dim: int, rng: np.random.Generator,
@@ -180,8 +183,9 @@ class CalibrationCore:
                 check_determined(observed[np.ix_(receivers, sources)], dim, "the core")
             except InvalidInputError:
                 continue
-            if placement_sweeps(observed, receivers, sources, dim) is not None:
-                return cls(receivers, sources, (m, k))
+            sweeps = placement_sweeps(observed, receivers, sources, dim)
+            if sweeps is not None:
+                return cls(receivers, sources, (m, k), tuple(sweeps))
         return whole
 
     @property
@@ -192,7 +196,7 @@ class CalibrationCore:
     def expand(self, completion: EDMCompletion, ranges: np.ndarray, observed: np.ndarray, *,
                robust: bool = False, rng: np.random.Generator | None = None):  # fmt: skip
         """The completion of the core as one of every point (M + K, d): the other points placed
-        in the sweeps of :func:`placement_sweeps`, each multilaterated
+        in the core's ``sweeps``, each multilaterated
         (:func:`rangeslam.localization.multilaterate`; ``robust``: with its outlier search, when
         d + 2 ranges allow it) from every placed point it has a range to. Raises SolverError
         when a point cannot be placed (its placed anchors do not span the space)."""
@@ -201,14 +205,11 @@ class CalibrationCore:
         pts_r, pts_s = np.full((m, dim), np.nan), np.full((k, dim), np.nan)
         pts_r[self.receivers] = completion.points[:m0]
         pts_s[self.sources] = completion.points[m0:]
-        sweeps = placement_sweeps(observed, self.receivers, self.sources, dim) or []
-        for new_r, new_s in sweeps:
+        for new_r, new_s in self.sweeps:
             for j in new_s:
                 pts_s[j] = _placed(pts_r, ranges[:, j], observed[:, j], f"source {j}", robust, rng)
             for i in new_r:
                 pts_r[i] = _placed(pts_s, ranges[i], observed[i], f"receiver {i}", robust, rng)
-        if np.isnan(pts_r).any() or np.isnan(pts_s).any():
-            raise SolverError("the EDM start could not place every point from the core")
         return expanded_completion(completion, np.vstack([pts_r, pts_s]))
 
 
