@@ -15,7 +15,7 @@ from rangeslam.app.calibration_regimes import (
     run_calibration_trial,
 )
 from rangeslam.app.cli import main
-from rangeslam.app.regime_map import regime_map, regime_tables
+from rangeslam.app.regime_map import criterion_table, regime_map, regime_tables
 from rangeslam.app.regimes import (
     REGIME_METHODS,
     RegimeCell,
@@ -162,6 +162,24 @@ def test_tables_compute_each_figure_of_merit():
     assert ratio[2] == f"{np.sqrt((0.02**2 + 0.2**2) / 2) / 0.01:.2f}x"
     (flag,) = tables["flagged by its own verdict, or failed"]
     assert flag[2] == "failed 50%" and flag[3] == "50%"  # EDM only has no verdict
+
+
+def test_the_criterion_names_what_fails_in_each_cell():
+    lead_wins = [fake_row(6, e, 0.01) for e in (0.01, 0.02, 0.03)]
+    rows = [{**r, "regime": "a"} for r in lead_wins]
+    worse = [fake_row(6, e, 0.01) for e in (0.01, 0.02, 0.3)]  # one lead trial fails ...
+    for r in worse:
+        r.update(regime="b", gtsam_k_error_m=0.01, gtsam_k_success=True)
+    worse[2].update(edm_gtsam_success=False)
+    tie = [fake_row(6, 0.02, 0.01) for _ in range(3)]  # same minimum up to LM's tolerance
+    for r in tie:
+        r.update(regime="c", gtsam_k_error_m=0.02 * (1 - 1e-3))
+    header, table = criterion_table(rows + worse + tie)
+    assert header[-1] == "meets" and [t[0] for t in table] == ["a", "b", "c"]
+    assert table[0][-1] == "yes" and table[2][-1] == "yes"
+    assert table[1][2] == "67%" and table[1][3].startswith("100%")
+    assert "success below" in table[1][-1] and "90th percentile above" in table[1][-1]
+    assert table[1][4] == f"{100 * np.quantile([0.01, 0.02, 0.3], 0.9):.2f}"
 
 
 def test_the_map_runs_over_processes_in_order():

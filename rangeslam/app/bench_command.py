@@ -202,7 +202,7 @@ def run_regimes_bench(args: argparse.Namespace) -> int:
         calibration_cells,
         run_calibration_trial,
     )
-    from rangeslam.app.regime_map import MERITS, regime_tables
+    from rangeslam.app.regime_map import MERITS, criterion_table, regime_tables
     from rangeslam.app.regime_plot import plot_regimes
     from rangeslam.app.regimes import REGIME_STEPS, regime_cells
     from rangeslam.app.reports import markdown
@@ -214,8 +214,11 @@ def run_regimes_bench(args: argparse.Namespace) -> int:
     cal_rows = _map_with_progress(args, cal_cells, "regimes_calibration", run_calibration_trial)
     wall = time.perf_counter() - t0
     cal_merits = [t for t in MERITS if "landmark" not in t]
-    sections = [("SLAM", regime_tables(slam_rows))]
-    sections.append(("Calibration", regime_tables(cal_rows, CALIBRATION_METHODS, cal_merits)))
+    criterion = "does the EDM start lead? (success, 90th percentile)"
+    sections = [("SLAM", [(criterion, *criterion_table(slam_rows)), *regime_tables(slam_rows)])]
+    cal_criterion = criterion_table(cal_rows, "calibrate", CALIBRATION_METHODS, "ls_k")
+    cal_tables = regime_tables(cal_rows, CALIBRATION_METHODS, cal_merits)
+    sections.append(("Calibration", [(criterion, *cal_criterion), *cal_tables]))
     text = "\n\n".join(
         f"### {name}: {t}\n\n" + markdown(h, tab)
         for name, tables in sections

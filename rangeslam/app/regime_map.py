@@ -21,7 +21,14 @@ import numpy as np
 from rangeslam.app.regimes import MAX_RANDOM_STARTS, REGIME_METHODS, RegimeCell, run_regime_trial
 from rangeslam.errors import InvalidInputError
 
-__all__ = ["MERITS", "METHOD_LABELS", "cell_of_row", "regime_map", "regime_tables"]
+__all__ = [
+    "MERITS",
+    "METHOD_LABELS",
+    "cell_of_row",
+    "criterion_table",
+    "regime_map",
+    "regime_tables",
+]
 
 METHOD_LABELS = {
     "calibrate": "calibrate (EDM + LS)",
@@ -183,3 +190,51 @@ def regime_tables(
         ]
         out.append((title, header, table))
     return out
+
+
+#: Two 90th percentiles within this relative (and :data:`P90_TIE_M` absolute) margin are one:
+#: methods that reach the same minimum differ by LM's tolerance, not by a better answer.
+P90_TIE_RTOL = 0.01
+P90_TIE_M = 1e-4
+
+
+def criterion_row(label: str, rows: list[dict], lead: str, peers: Sequence[str], rival: str):
+    """One cell of :func:`criterion_table`: the lead's success against the best peer's, its
+    90th percentile of the error against ``rival``'s, and what fails."""
+    success = {m: float(np.mean([r[f"{m}_success"] for r in rows])) for m in (lead, *peers)}
+    best = max(peers, key=lambda m: success[m])
+    p90 = {m: finite([r[f"{m}_error_m"] for r in rows]) for m in (lead, rival)}
+    q = {m: float(np.quantile(v, 0.9)) if v.size else np.inf for m, v in p90.items()}
+    fails = []
+    if success[lead] < success[best]:
+        fails.append(f"success below {METHOD_LABELS[best]}'s")
+    if q[lead] > q[rival] * (1 + P90_TIE_RTOL) + P90_TIE_M:
+        fails.append(f"90th percentile above {METHOD_LABELS[rival]}'s")
+    text = {m: "-" if not np.isfinite(v) else f"{100 * v:.2f}" for m, v in q.items()}
+    return [
+        label, str(len(rows)), f"{100 * success[lead]:.0f}%",
+        f"{100 * success[best]:.0f}% ({METHOD_LABELS[best]})", text[lead], text[rival],
+        "yes" if not fails else "no: " + "; ".join(fails),
+    ]  # fmt: skip
+
+
+def criterion_table(
+    rows: Sequence[dict],
+    lead: str = "edm_gtsam",
+    methods: Sequence[str] = REGIME_METHODS,
+    rival: str = "gtsam_k",
+) -> tuple[list[str], list[list[str]]]:
+    """Issue 18's test of each cell: does ``lead`` (EDM + GTSAM) succeed at least as often as
+    every other method of ``methods``, with a 90th percentile of the error at most ``rival``'s
+    (GTSAM best of k at equal time; ties within :data:`P90_TIE_RTOL` + :data:`P90_TIE_M`)?
+    Returns (header, a row per cell of the finished trials)."""
+    peers = [m for m in methods if m != lead]
+    header = [
+        "regime", "trials", f"{METHOD_LABELS[lead]} success", "best other success",
+        f"{METHOD_LABELS[lead]} p90 [cm]", f"{METHOD_LABELS[rival]} p90 [cm]", "meets",
+    ]  # fmt: skip
+    table = [
+        criterion_row(label, cell_rows, lead, peers, rival)
+        for label, cell_rows in rows_by_cell(rows).items()
+    ]
+    return header, table
