@@ -109,9 +109,14 @@ def finite(values) -> np.ndarray:
     return v[np.isfinite(v)]
 
 
+def success_share(rows: list[dict], method: str) -> float:
+    """Share of the trials in which ``method`` succeeded (error under the success threshold)."""
+    return float(np.mean([r[f"{method}_success"] for r in rows]))
+
+
 def success_text(rows: list[dict], method: str) -> str:
     """Share of trials with a trajectory error under 10 cm, percent."""
-    return f"{100 * np.mean([r[f'{method}_success'] for r in rows]):.0f}%"
+    return f"{100 * success_share(rows, method):.0f}%"
 
 
 def bound_text(rows: list[dict], method: str) -> str:
@@ -125,11 +130,17 @@ def bound_text(rows: list[dict], method: str) -> str:
     return text + (f" ({c.unidentifiable} n.i.)" if c.unidentifiable else "")
 
 
-def quantile_text(rows: list[dict], key: str, q: float, scale: float, fmt: str) -> str:
-    """The ``q`` quantile of a column (its finite values) times ``scale``; "-" when none (or
-    when the rows have no such column: calibration has no landmark error)."""
+def column_quantile(rows: list[dict], key: str, q: float) -> float:
+    """The ``q`` quantile of a column's finite values; NaN when there are none (or when the rows
+    have no such column: calibration has no landmark error)."""
     v = finite([r.get(key, np.nan) for r in rows])
-    return "-" if v.size == 0 else format(scale * float(np.quantile(v, q)), fmt)
+    return float(np.quantile(v, q)) if v.size else float("nan")
+
+
+def quantile_text(rows: list[dict], key: str, q: float, scale: float, fmt: str) -> str:
+    """:func:`column_quantile` times ``scale``, formatted; "-" when there is none."""
+    value = column_quantile(rows, key, q)
+    return "-" if np.isnan(value) else format(scale * value, fmt)
 
 
 #: The methods that judge their own answer (a status); the others only fail or not.
@@ -201,16 +212,16 @@ P90_TIE_M = 1e-4
 def criterion_row(label: str, rows: list[dict], lead: str, peers: Sequence[str], rival: str):
     """One cell of :func:`criterion_table`: the lead's success against the best peer's, its
     90th percentile of the error against ``rival``'s, and what fails."""
-    success = {m: float(np.mean([r[f"{m}_success"] for r in rows])) for m in (lead, *peers)}
+    success = {m: success_share(rows, m) for m in (lead, *peers)}
     best = max(peers, key=lambda m: success[m])
-    p90 = {m: finite([r[f"{m}_error_m"] for r in rows]) for m in (lead, rival)}
-    q = {m: float(np.quantile(v, 0.9)) if v.size else np.inf for m, v in p90.items()}
+    p90 = {m: column_quantile(rows, f"{m}_error_m", 0.9) for m in (lead, rival)}
+    p90 = {m: np.inf if np.isnan(v) else v for m, v in p90.items()}  # no answer: worst
     fails = []
     if success[lead] < success[best]:
         fails.append(f"success below {METHOD_LABELS[best]}'s")
-    if q[lead] > q[rival] * (1 + P90_TIE_RTOL) + P90_TIE_M:
+    if p90[lead] > p90[rival] * (1 + P90_TIE_RTOL) + P90_TIE_M:
         fails.append(f"90th percentile above {METHOD_LABELS[rival]}'s")
-    text = {m: "-" if not np.isfinite(v) else f"{100 * v:.2f}" for m, v in q.items()}
+    text = {m: "-" if not np.isfinite(v) else f"{100 * v:.2f}" for m, v in p90.items()}
     return [
         label, str(len(rows)), f"{100 * success[lead]:.0f}%",
         f"{100 * success[best]:.0f}% ({METHOD_LABELS[best]})", text[lead], text[rival],
