@@ -39,8 +39,9 @@ def damped_system(linear, dims: dict[int, int], models: dict, lam: float):
 
     damped = linear.clone()
     root = np.sqrt(lam)
+    blocks = {d: (root * np.eye(d), np.zeros(d)) for d in models}  # the factors copy them
     for key, d in dims.items():
-        damped.add(gtsam.JacobianFactor(key, root * np.eye(d), np.zeros(d), models[d]))
+        damped.add(gtsam.JacobianFactor(key, *blocks[d], models[d]))
     return damped
 
 
