@@ -97,3 +97,36 @@ def test_robust_must_be_a_bool(value):
     t = np.zeros((12, 12))
     with pytest.raises(InvalidInputError, match="robust"):
         calibrate_unknown_emission(t, np.arange(12), receiver_offsets=True, robust=value)
+
+
+def test_ranking_puts_wrong_events_last():
+    """rank_events on a scene with 4 whole wrong events among 24 (and 4 wrong arrivals): the rough
+    fit is not the answer, but its largest residual per event ranks every wrong event in the
+    worse half, so the consensus draws its first subsets from clean events."""
+    from rangeslam.mdu.offset_outliers import rank_events
+
+    for seed in (3, 4):
+        rng = np.random.default_rng(seed)
+        _, t, clean = _scene(rng, bad_events=4)
+        ranked = rank_events(t, np.ones(t.shape, bool), 3, rng)
+        assert sorted(ranked.tolist()) == list(range(t.shape[1]))
+        wrong = np.flatnonzero(~clean.any(axis=0))
+        position = np.argsort(ranked)  # rank of each event
+        assert np.all(position[wrong] >= t.shape[1] // 2), (seed, position[wrong])
+
+
+def test_guided_subsets_widen_from_the_best():
+    """The first draws come from the best 2n events; the pool grows by one every second draw
+    until every usable event (d + 2 observed arrivals) can be drawn; unusable ones never are."""
+    from rangeslam.mdu.offset_outliers import guided_subsets
+
+    k, n = 30, 4
+    ranked = np.arange(k)[::-1]  # event 29 best
+    observed = np.ones((12, k), bool)
+    observed[:, 0] = False  # never usable
+    draws = guided_subsets(ranked, observed, 3, n, np.random.default_rng(0))
+    first = np.concatenate([next(draws) for _ in range(2)])
+    assert set(first) <= set(ranked[: 2 * n].tolist())
+    later = np.concatenate([next(draws) for _ in range(400)])
+    assert 0 not in later and set(later) == set(range(1, k))
+    assert all(len(set(next(draws))) == n for _ in range(5))

@@ -212,6 +212,33 @@ def _refined(model: ProfiledUnfolding, best, confirmed: bool, runs: int) -> Cloc
     return ClockFit(theta, ssr, confirmed, runs)
 
 
+def rough_fit(
+    arrivals: np.ndarray,
+    observed: np.ndarray,
+    dim: int,
+    runs: int,
+    max_nfev: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest of ``runs`` capped least-squares runs (``max_nfev`` evaluations each) of the
+    profiled loss, one event offset per column, from random starts: (receivers (M, d), receiver
+    offsets (M,)), metres. Not an estimate (no search to convergence, no verdict): a fit of all
+    the data, outliers included, whose residuals rank the events for a consensus
+    (:func:`rangeslam.mdu.offset_outliers.rank_events`)."""
+    m, k = arrivals.shape
+    scale = spread_from_arrivals(arrivals, observed)
+    model = ProfiledUnfolding(arrivals, observed, np.arange(k), dim, scale)
+    best = None
+    for _ in range(runs):
+        theta, ssr = _fit(model, rng.uniform(-1.0, 1.0, (m + k) * dim), max_nfev)
+        if np.all(np.isfinite(theta)) and (best is None or ssr < best[1]):
+            best = (theta, ssr)
+    if best is None:
+        raise SolverError(f"every one of {runs} least-squares runs diverged")
+    pts = best[0].reshape(-1, dim) * scale
+    return pts[:m], model.offsets(best[0])[0] * scale
+
+
 def joint_jacobian(model: ProfiledUnfolding, theta: np.ndarray) -> np.ndarray:
     """(P, (M + K) d + M - 1 + G) Jacobian of (C1)'s residuals in points, receiver offsets a_1..
     a_{M-1} (a_0 held: the common shift removed) and event offsets, scaled units."""

@@ -5,8 +5,10 @@ data hold wrong arrivals (a reflection picked instead of the direct path) and wh
 fit no source (a sound the model does not describe); the xtdoa data's authors mark them by hand.
 Here they are found without that mark, in three steps:
 
-1. Consensus (RANSAC with a least-median score; Fischler and Bolles 1981, Rousseeuw 1984): small
-   random subsets of :data:`SUBSET_EVENTS` events are solved by the plain estimator
+1. Consensus (RANSAC with a least-median score; Fischler and Bolles 1981, Rousseeuw 1984): the
+   events are ranked by a rough fit of all of them (:func:`rank_events`), and random subsets of
+   :data:`SUBSET_EVENTS` events, drawn from the best-ranked first (:func:`guided_subsets`, PROSAC),
+   are solved by the plain estimator
    (:func:`rangeslam.mdu.clock_offsets.calibrate_with_clock_offsets`); each answer (receivers and
    their offsets) places every event of the data by a robust pseudorange multilateration
    (:func:`rangeslam.localization.pseudorange.multilaterate_with_offset`: one source and one
@@ -47,8 +49,10 @@ __all__ = [
     "EventPlacement",
     "consensus_search",
     "grow_inliers",
+    "guided_subsets",
     "min_event_inliers",
     "place_events",
+    "rank_events",
 ]
 
 #: Events in a consensus subset: K = 8 of the xtdoa data gave a median microphone error of 9 cm
@@ -72,6 +76,10 @@ INLIER_K = 3.0
 #: with 3 of 12 arrivals wrong, a subset of 5 is clean with probability 0.16, and 50 draws miss
 #: every clean one with probability 2e-4.
 PLACEMENT_SUBSETS = 50
+#: Capped runs of the rough fit that ranks the events (:func:`rank_events`): two runs of 300
+#: evaluations each took 40 s on the 65 xtdoa events.
+RANK_RUNS = 2
+RANK_NFEV = 300
 #: Consensus subsets at most.
 MAX_HYPOTHESES = 30
 #: Rounds of growth and refit at most.
@@ -152,12 +160,39 @@ def _score(placement: EventPlacement, observed: np.ndarray) -> float:
     return float(np.median(res[observed]))
 
 
-def _subsets(observed: np.ndarray, dim: int, n: int, rng: np.random.Generator):
-    """Random sets of ``n`` events (column indices, sorted) with d + 2 observed arrivals each."""
-    usable = np.flatnonzero(observed.sum(axis=0) >= dim + 2)
+def rank_events(
+    arrivals: np.ndarray, observed: np.ndarray, dim: int, rng: np.random.Generator
+) -> np.ndarray:
+    """(K,) event indices, most consistent first: a rough fit of all the events
+    (:func:`rangeslam.mdu.clock_offsets.rough_fit`, :data:`RANK_RUNS` runs), every event placed
+    against its receivers by robust pseudorange multilateration, ranked by its largest |residual|
+    (unplaced events last). The fit itself is wrong when the data hold outliers, but it ranks the
+    clean events first: on the xtdoa data (23 of 65 events clean) 10-12 of the best 16 are clean."""
+    from rangeslam.mdu.clock_offsets import rough_fit
+
+    receivers, offsets = rough_fit(arrivals, observed, dim, RANK_RUNS, RANK_NFEV, rng)
+    placement = place_events(receivers, offsets, arrivals, observed, None, rng)
+    residuals = np.where(observed, np.abs(placement.residuals), np.nan)
+    residuals = np.where(observed & np.isnan(residuals), np.inf, residuals)  # unplaced: last
+    worst = np.max(np.where(observed, residuals, -np.inf), axis=0)
+    worst[~observed.any(axis=0)] = np.inf
+    return np.argsort(worst, kind="stable")
+
+
+def guided_subsets(ranked: np.ndarray, observed: np.ndarray, dim: int, n: int, rng):
+    """Random sets of ``n`` events (sorted) drawn from the best of the ``ranked`` events, the
+    pool growing from 2 n by one event every second draw (PROSAC, Chum and Matas 2005: the
+    hypotheses most likely clean are tried first, and every event is reachable in the end);
+    only events with d + 2 observed arrivals."""
+    usable = ranked[observed[:, ranked].sum(axis=0) >= dim + 2]
     n = min(n, len(usable))
+    pool = min(2 * n, len(usable))
+    draws = 0
     while True:
-        yield np.sort(rng.choice(usable, n, replace=False))
+        yield np.sort(rng.choice(usable[:pool], n, replace=False))
+        draws += 1
+        if draws % 2 == 0:
+            pool = min(pool + 1, len(usable))
 
 
 def consensus_search(
@@ -174,7 +209,8 @@ def consensus_search(
     from rangeslam.mdu.clock_offsets import calibrate_with_clock_offsets
 
     best, hits, n = None, 0, 0
-    for cols in _subsets(observed, dim, SUBSET_EVENTS, rng):
+    ranked = rank_events(arrivals, observed, dim, rng)
+    for cols in guided_subsets(ranked, observed, dim, SUBSET_EVENTS, rng):
         n += 1
         try:
             sub = calibrate_with_clock_offsets(
