@@ -209,7 +209,8 @@ def consensus_search(
     from rangeslam.mdu.clock_offsets import calibrate_with_clock_offsets
 
     best, hits, n = None, 0, 0
-    ranked = rank_events(arrivals, observed, dim, rng)
+    few = observed.shape[1] <= SUBSET_EVENTS  # the one subset of all: nothing to rank
+    ranked = np.arange(observed.shape[1]) if few else rank_events(arrivals, observed, dim, rng)
     for cols in guided_subsets(ranked, observed, dim, SUBSET_EVENTS, rng):
         n += 1
         try:
@@ -228,7 +229,7 @@ def consensus_search(
                 hits += 1
             elif best is None or score < best.score:
                 best, hits = Consensus(sub.receivers, sub.receiver_offsets, score, placement, n), 1
-        if hits >= VOTES or n >= hypotheses or observed.shape[1] <= SUBSET_EVENTS:
+        if hits >= VOTES or n >= hypotheses or few:
             break
     if best is None:
         raise InvalidInputError(
