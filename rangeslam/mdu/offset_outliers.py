@@ -153,11 +153,16 @@ def place_events(
     return EventPlacement(sources, offsets, residuals, inliers)
 
 
+def observed_misfit(placement: EventPlacement, observed: np.ndarray) -> np.ndarray:
+    """(M, K) |residual| of the observed arrivals, infinite where the event was not placed,
+    NaN where unobserved."""
+    res = np.where(observed, np.abs(placement.residuals), np.nan)
+    return np.where(observed & ~np.isfinite(res), np.inf, res)
+
+
 def _score(placement: EventPlacement, observed: np.ndarray) -> float:
     """Median |residual| over all observed arrivals (unplaced events count as infinite)."""
-    res = np.where(observed, np.abs(placement.residuals), np.nan)
-    res = np.where(observed & ~np.isfinite(res), np.inf, res)
-    return float(np.median(res[observed]))
+    return float(np.median(observed_misfit(placement, observed)[observed]))
 
 
 def rank_events(
@@ -172,10 +177,9 @@ def rank_events(
 
     receivers, offsets = rough_fit(arrivals, observed, dim, RANK_RUNS, RANK_NFEV, rng)
     placement = place_events(receivers, offsets, arrivals, observed, None, rng)
-    residuals = np.where(observed, np.abs(placement.residuals), np.nan)
-    residuals = np.where(observed & np.isnan(residuals), np.inf, residuals)  # unplaced: last
-    worst = np.max(np.where(observed, residuals, -np.inf), axis=0)
-    worst[~observed.any(axis=0)] = np.inf
+    misfit = np.where(observed, observed_misfit(placement, observed), -np.inf)
+    worst = np.max(misfit, axis=0)
+    worst[~observed.any(axis=0)] = np.inf  # nothing heard: last
     return np.argsort(worst, kind="stable")
 
 
