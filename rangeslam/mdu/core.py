@@ -35,13 +35,19 @@ from rangeslam.solvers.least_squares import (
 from rangeslam.status import Status
 from rangeslam.verdicts import (
     PASSED,
+    PROBE_DIRECTIONS,
+    PROBE_FROM,
+    PROBE_SPREADS,
     Check,
     consistency_check,
     first_failure,
     flatness_check,
+    gauge_free_covariance,
     information_check,
     noise_upper_bound,
     point_check,
+    rms_precision,
+    weak_moves,
 )
 
 __all__ = [
@@ -66,6 +72,7 @@ __all__ = [
     "mdu_mask",
     "passes_residual_test",
     "points_check",
+    "region_check",
     "residual_status",
     "rotated_covariances",
     "step_prior_rows",
@@ -433,21 +440,70 @@ def unfolding_check(
     source_check, sources_note = sources_verdict(
         receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
     )
-    information = information_check(
-        info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
+    information = first_failure(
+        information_check(
+            info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
+        ),
+        region_check(receivers, sources, pairs, prior_jac, offset_columns, sigma, scale, what),
     )
     receivers_check = PASSED
     if prior_jac is None:  # priors tie the receivers to each other: not judged one by one
         receivers_check = points_check(
             receivers, sources, ranges, observed, sigma, exact_rms, "receiver"
         )
-    check = first_failure(
-        flatness_check(points, sigma, scale, what),
-        information,
-        source_check,
-        receivers_check,
-    )
+    check = first_failure(flatness_check(points, sigma, scale, what), information, source_check,
+                          receivers_check)  # fmt: skip
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
+
+
+def region_check(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    pairs: np.ndarray,
+    prior_jac: np.ndarray | None,
+    offset_columns: np.ndarray | None,
+    sigma: float | None,
+    scale: float,
+    what: str,
+) -> Check:
+    """The receivers' precision test of :func:`rangeslam.verdicts.information_check` repeated at
+    the answer moved PROBE_SPREADS standard deviations along its PROBE_DIRECTIONS weakest
+    receiver directions (:func:`rangeslam.verdicts.weak_moves`), when the answer's own RMS
+    standard deviation exceeds PROBE_FROM of ``scale``; the prior rows ``prior_jac`` are held at
+    the answer. ``pairs`` (P, 2) are the observed (receiver, source) index pairs; ``sigma`` and
+    ``scale`` metres. The first moved answer that fails the test fails the check; without
+    ``sigma`` or with a singular information (information_check's to report) it passes."""
+    if not sigma:
+        return PASSED
+    m, d = receivers.shape
+    points = np.vstack([receivers, sources])
+    rows = np.arange(m * d)
+    info_jac, gauge, projection = information_model(
+        receivers, sources, unfolding_jacobian(points, m, pairs), prior_jac, offset_columns
+    )
+    cov, _ = gauge_free_covariance(info_jac, gauge)
+    if cov is None:
+        return PASSED
+    cov = projection @ cov @ projection.T
+    own = rms_precision(cov, sigma, d, rows)
+    if own <= PROBE_FROM * scale:
+        return PASSED
+    for move in weak_moves(cov, sigma, rows, PROBE_DIRECTIONS, PROBE_SPREADS):
+        moved = points + move[: points.size].reshape(-1, d)
+        info_jac, gauge, projection = information_model(
+            moved[:m], moved[m:], unfolding_jacobian(moved, m, pairs), prior_jac, offset_columns
+        )
+        check = information_check(
+            info_jac, gauge, sigma, scale, what, dim=d, rows=rows, projection=projection
+        )
+        if not check.passed:
+            return Check(
+                check.status,
+                f"{check.reason}, {PROBE_SPREADS:g} standard deviations from the answer along "
+                f"one of its weakest directions (at the answer: {own:.3g} m); the precision "
+                "holds only at the answer itself",
+            )
+    return PASSED
 
 
 def sources_verdict(
