@@ -38,6 +38,7 @@ from rangeslam.verdicts import (
     PROBE_DIRECTIONS,
     PROBE_FROM,
     PROBE_SPREADS,
+    PROBE_UNKNOWNS,
     Check,
     consistency_check,
     first_failure,
@@ -468,8 +469,9 @@ def region_check(
 ) -> Check:
     """The receivers' precision test of :func:`rangeslam.verdicts.information_check` repeated at
     the answer moved PROBE_SPREADS standard deviations along its PROBE_DIRECTIONS weakest
-    receiver directions (:func:`rangeslam.verdicts.weak_moves`), when the answer's own RMS
-    standard deviation exceeds PROBE_FROM of ``scale``; the prior rows ``prior_jac`` are held at
+    receiver directions (:func:`rangeslam.verdicts.weak_moves`), for problems of at most
+    PROBE_UNKNOWNS unknowns or when the answer's own RMS standard deviation exceeds PROBE_FROM
+    of ``scale``; the prior rows ``prior_jac`` are held at
     the answer. ``pairs`` (P, 2) are the observed (receiver, source) index pairs; ``sigma`` and
     ``scale`` metres. The first moved answer that fails the test fails the check; without
     ``sigma`` or with a singular information (information_check's to report) it passes."""
@@ -486,7 +488,7 @@ def region_check(
         return PASSED
     cov = projection @ cov @ projection.T
     own = rms_precision(cov, sigma, d, rows)
-    if own <= PROBE_FROM * scale:
+    if len(cov) > PROBE_UNKNOWNS and own <= PROBE_FROM * scale:
         return PASSED
     for move in weak_moves(cov, sigma, rows, PROBE_DIRECTIONS, PROBE_SPREADS):
         moved = points + move[: points.size].reshape(-1, d)
