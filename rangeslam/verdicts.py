@@ -61,6 +61,7 @@ __all__ = [
     "mirror_point",
     "noise_upper_bound",
     "point_check",
+    "probed_failure",
     "rms_precision",
     "weak_moves",
 ]
@@ -247,6 +248,17 @@ def weak_moves(
         move = spreads * sigma * (cov[:, rows] @ u) / np.sqrt(value)
         moves += [move, -move]
     return moves
+
+
+def probed_failure(check: Check, own: float) -> Check:
+    """``check`` (a failed precision test at an answer moved by :func:`weak_moves`) with its
+    reason saying so; ``own`` is the RMS standard deviation at the answer itself, metres."""
+    return Check(
+        check.status,
+        f"{check.reason}, {PROBE_SPREADS:g} standard deviations from the answer along one of its "
+        f"weakest directions (at the answer: {own:.3g} m); the precision holds only at the "
+        "answer itself",
+    )
 
 
 def consistency_check(

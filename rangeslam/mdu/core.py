@@ -47,6 +47,7 @@ from rangeslam.verdicts import (
     information_check,
     noise_upper_bound,
     point_check,
+    probed_failure,
     rms_precision,
     weak_moves,
 )
@@ -499,12 +500,7 @@ def region_check(
             info_jac, gauge, sigma, scale, what, dim=d, rows=rows, projection=projection
         )
         if not check.passed:
-            return Check(
-                check.status,
-                f"{check.reason}, {PROBE_SPREADS:g} standard deviations from the answer along "
-                f"one of its weakest directions (at the answer: {own:.3g} m); the precision "
-                "holds only at the answer itself",
-            )
+            return probed_failure(check, own)
     return PASSED
 
 
