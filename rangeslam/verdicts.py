@@ -81,10 +81,11 @@ PRECISION_FRACTION = 0.05
 #: bounds: 6 answers 1-4% of the scene fixed at the answer, 11-40% at the truth).
 PROBE_SPREADS = 2.0
 PROBE_DIRECTIONS = 6
-#: Problems of at most PROBE_UNKNOWNS unknowns are always probed (12 small SVDs); larger ones
-#: (one SVD of 6000 x 474 takes 0.35 s) only when the answer's own RMS standard deviation
-#: exceeds PROBE_FROM of the scene size. A lemniscate walk of 4 steps without bounds, singular
-#: at the truth, was fixed to 0.6% of the scene at its answer and to 1.4 m two deviations away.
+#: Problems of at most PROBE_UNKNOWNS unknowns are always probed (up to 13 more SVDs of their
+#: Jacobian); larger ones (one SVD of 6000 x 474 takes 0.35 s) only when the answer's own RMS
+#: standard deviation exceeds PROBE_FROM of the scene size. A lemniscate walk of 4 steps without
+#: bounds, singular at the truth, was fixed to 0.6% of the scene at its answer and to 1.4 m two
+#: deviations away: a large problem that near a singular point would pass unprobed.
 PROBE_UNKNOWNS = 300
 PROBE_FROM = 0.01
 #: Significance of the chi-square test when the noise level is given.
@@ -235,15 +236,17 @@ def rms_precision(
 def weak_moves(
     cov: np.ndarray, sigma: float, rows: np.ndarray, count: int, spreads: float
 ) -> list[np.ndarray]:
-    """(p,) moves of all p unknowns by ``spreads`` standard deviations along the ``count``
-    weakest directions of the unknowns ``rows`` (the largest eigenvalues of their block of
-    ``sigma``^2 ``cov``), each carrying the other unknowns along by their regression on those
-    rows (the conditional mean: cov[:, rows] u / lambda per unit move u), both signs."""
+    """Up to 2 ``count`` moves, each (p,), of all p unknowns by ``spreads`` standard deviations
+    (``sigma`` times the square root of an eigenvalue lambda of the unit-noise ``cov`` (p, p)
+    restricted to ``rows``) along the ``count`` weakest directions u of the unknowns ``rows``,
+    both signs; each move carries the other unknowns along by their regression on those rows
+    (the conditional mean: cov[:, rows] u / lambda per unit move along u). Eigenvalues under
+    RANK_RTOL of the largest (the gauge's round-off) give no move."""
     block = cov[np.ix_(rows, rows)]
     eigenvalues, vectors = np.linalg.eigh(block)
     moves = []
     for value, u in zip(eigenvalues[::-1][:count], vectors.T[::-1][:count], strict=True):
-        if value <= 0:
+        if value <= RANK_RTOL * eigenvalues[-1]:
             break
         move = spreads * sigma * (cov[:, rows] @ u) / np.sqrt(value)
         moves += [move, -move]

@@ -65,27 +65,30 @@ def test_information_rank_and_precision():
 
 
 def test_weak_moves_follow_the_largest_spread_and_carry_the_rest(rng):
-    """The moves go PROBE spreads along the largest eigenvectors of the judged block, both signs,
-    and move the other unknowns by their regression on it (the conditional mean)."""
+    """The moves go ``spreads`` standard deviations along the largest eigenvectors of the judged
+    block, both signs, and move the other unknowns by their regression on it (the conditional
+    mean)."""
     a = rng.standard_normal((5, 5))
     cov = a @ a.T
     rows = np.array([0, 1, 2])
-    moves = weak_moves(cov, 0.5, rows, 2, 2.0)
+    sigma, spreads = 0.3, 2.5
+    moves = weak_moves(cov, sigma, rows, 2, spreads)
     assert len(moves) == 4
     np.testing.assert_allclose(moves[1], -moves[0])
     values, vectors = np.linalg.eigh(cov[np.ix_(rows, rows)])
-    u = vectors[:, -1]
-    np.testing.assert_allclose(abs(moves[0][rows] @ u), 2.0 * 0.5 * np.sqrt(values[-1]))
-    np.testing.assert_allclose(
-        moves[0], 2.0 * 0.5 * cov[:, rows] @ u / np.sqrt(values[-1]) * np.sign(moves[0][rows] @ u)
+    for move, value, u in (
+        (moves[0], values[-1], vectors[:, -1]),
+        (moves[2], values[-2], vectors[:, -2]),
+    ):
+        sign = np.sign(move[rows] @ u)
+        np.testing.assert_allclose(move[rows] @ u, sign * spreads * sigma * np.sqrt(value))
+        np.testing.assert_allclose(move, sign * spreads * sigma * cov[:, rows] @ u / np.sqrt(value))
+    assert rms_precision(cov, sigma, 1, rows) == pytest.approx(
+        sigma * np.sqrt(np.trace(cov[:3, :3]) / 3)
     )
-    np.testing.assert_allclose(
-        moves[2][rows] @ vectors[:, -2],
-        np.sign(moves[2][rows] @ vectors[:, -2]) * np.sqrt(values[-2]),
-    )
-    assert rms_precision(cov, 0.5, 1, rows) == pytest.approx(
-        0.5 * np.sqrt(np.trace(cov[:3, :3]) / 3)
-    )
+    # A rank-deficient block (a gauge direction) gives no move along its zero eigenvalue.
+    flat = np.diag([4.0, 1.0, 0.0])
+    assert len(weak_moves(flat, 1.0, np.arange(3), 3, 2.0)) == 4
 
 
 def test_slam_precision_must_hold_beyond_the_answer(rng):

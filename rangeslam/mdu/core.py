@@ -413,7 +413,8 @@ def unfolding_check(
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
     information's rank beyond the rigid motions and the receivers' precision (in the receiver
-    gauge: errors after aligning the receivers, as :func:`rangeslam.mdu_crlb` bounds them), each
+    gauge: errors after aligning the receivers, as :func:`rangeslam.mdu_crlb` bounds them; also
+    along the weakest directions, :func:`region_check`), each
     point against its partners held fixed (its precision, and its mirror image through their
     plane: a point heard by d partners, or by nearly coplanar ones, is fixed only up to it;
     receivers only without priors, which tie them to each other).
@@ -442,12 +443,12 @@ def unfolding_check(
     source_check, sources_note = sources_verdict(
         receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
     )
-    information = first_failure(
-        information_check(
-            info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
-        ),
-        region_check(receivers, sources, pairs, prior_jac, offset_columns, sigma, scale, what),
+    information = information_check(
+        info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
     )
+    if information.passed:
+        model = (info_jac, gauge, projection, prior_jac, offset_columns)
+        information = region_check(receivers, sources, pairs, model, sigma, scale, what)
     receivers_check = PASSED
     if prior_jac is None:  # priors tie the receivers to each other: not judged one by one
         receivers_check = points_check(
@@ -462,8 +463,7 @@ def region_check(
     receivers: np.ndarray,
     sources: np.ndarray,
     pairs: np.ndarray,
-    prior_jac: np.ndarray | None,
-    offset_columns: np.ndarray | None,
+    model: tuple,
     sigma: float | None,
     scale: float,
     what: str,
@@ -472,21 +472,26 @@ def region_check(
     the answer moved PROBE_SPREADS standard deviations along its PROBE_DIRECTIONS weakest
     receiver directions (:func:`rangeslam.verdicts.weak_moves`), for problems of at most
     PROBE_UNKNOWNS unknowns or when the answer's own RMS standard deviation exceeds PROBE_FROM
-    of ``scale``; the prior rows ``prior_jac`` are held at
-    the answer. ``pairs`` (P, 2) are the observed (receiver, source) index pairs; ``sigma`` and
-    ``scale`` metres. The first moved answer that fails the test fails the check; without
-    ``sigma`` or with a singular information (information_check's to report) it passes."""
-    if not sigma:
+    of ``scale``.
+
+    Args:
+        receivers, sources: (M, d), (K, d) the answer, metres.
+        pairs: (P, 2) the observed (receiver, source) index pairs.
+        model: the answer's (info_jac, gauge, projection) of :func:`information_model`, then
+            its ``prior_jac`` and ``offset_columns`` (the prior rows are held at the answer;
+            the offsets' columns do not depend on the points).
+        sigma, scale: range noise and scene size, metres.
+
+    The first moved answer that fails the test fails the check; without ``sigma`` or with a
+    singular information (information_check's to report) it passes.
+    """
+    info_jac, gauge, projection, prior_jac, offset_columns = model
+    cov, _ = gauge_free_covariance(info_jac, gauge)
+    if not sigma or cov is None:
         return PASSED
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
     rows = np.arange(m * d)
-    info_jac, gauge, projection = information_model(
-        receivers, sources, unfolding_jacobian(points, m, pairs), prior_jac, offset_columns
-    )
-    cov, _ = gauge_free_covariance(info_jac, gauge)
-    if cov is None:
-        return PASSED
     cov = projection @ cov @ projection.T
     own = rms_precision(cov, sigma, d, rows)
     if len(cov) > PROBE_UNKNOWNS and own <= PROBE_FROM * scale:
