@@ -179,6 +179,7 @@ def information_check(
     dim: int,
     rows: np.ndarray | None = None,
     projection: np.ndarray | None = None,
+    covariance: tuple[np.ndarray | None, int] | None = None,
 ) -> Check:
     """Rank of the information beyond the gauge, then the precision it implies.
 
@@ -195,8 +196,10 @@ def information_check(
         rows: (q,) indices of the unknowns whose precision is judged, d per point (default all).
         projection: (p, p) map of an error to the gauge those unknowns are judged in (e.g.
             :func:`rangeslam.geometry.rigid_motion.receiver_gauge_projection`), or None.
+        covariance: :func:`gauge_free_covariance` of ``jac`` and ``gauge_basis`` when the
+            caller already has it (else computed here).
     """
-    cov, n_zero = gauge_free_covariance(jac, gauge_basis)
+    cov, n_zero = covariance or gauge_free_covariance(jac, gauge_basis)
     if cov is None:
         return Check(
             Status.NOT_IDENTIFIABLE,

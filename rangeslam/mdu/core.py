@@ -443,11 +443,12 @@ def unfolding_check(
     source_check, sources_note = sources_verdict(
         receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
     )
-    information = information_check(
-        info_jac, gauge, sigma, scale, what, dim=d, rows=np.arange(m * d), projection=projection
-    )
+    covariance = gauge_free_covariance(info_jac, gauge)
+    information = information_check(info_jac, gauge, sigma, scale, what, dim=d,
+                                    rows=np.arange(m * d), projection=projection,
+                                    covariance=covariance)  # fmt: skip
     if information.passed:
-        model = (info_jac, gauge, projection, prior_jac, offset_columns)
+        model = (covariance[0], projection, prior_jac, offset_columns)
         information = region_check(receivers, sources, pairs, model, sigma, scale, what)
     receivers_check = PASSED
     if prior_jac is None:  # priors tie the receivers to each other: not judged one by one
@@ -477,16 +478,17 @@ def region_check(
     Args:
         receivers, sources: (M, d), (K, d) the answer, metres.
         pairs: (P, 2) the observed (receiver, source) index pairs.
-        model: the answer's (info_jac, gauge, projection) of :func:`information_model`, then
-            its ``prior_jac`` and ``offset_columns`` (the prior rows are held at the answer;
-            the offsets' columns do not depend on the points).
+        model: the answer's gauge-free covariance for unit noise (:func:`rangeslam.verdicts.
+            gauge_free_covariance`, None when singular) and receiver-gauge projection
+            (:func:`information_model`), then its ``prior_jac`` and ``offset_columns`` (the
+            prior rows are held at the answer; the offsets' columns do not depend on the
+            points).
         sigma, scale: range noise and scene size, metres.
 
     The first moved answer that fails the test fails the check; without ``sigma`` or with a
     singular information (information_check's to report) it passes.
     """
-    info_jac, gauge, projection, prior_jac, offset_columns = model
-    cov, _ = gauge_free_covariance(info_jac, gauge)
+    cov, projection, prior_jac, offset_columns = model
     if not sigma or cov is None:
         return PASSED
     m, d = receivers.shape
