@@ -42,6 +42,7 @@ from rangeslam.mdu.core import (
     unknowns_up_to_rigid_motion,
     validated_ranges,
 )
+from rangeslam.mdu.landmark_mirrors import landmark_mirrors
 from rangeslam.mdu.subsets import core_runs
 from rangeslam.solvers.least_squares import (
     UnfoldingFit,
@@ -91,6 +92,12 @@ class Calibration(HasStatus):
             when the answer came from a random start).
         sdp_status: solver status of that SDP solve ("" for a random start).
         solver: the solver that produced it ("" for a random start).
+        ambiguous_sources: (K,) bool, the sources whose mirror image through the receivers that
+            hear them fits the inlier ranges within the noise (receivers heard in one plane, or
+            only d of them): the data fix them only up to that reflection, and the receivers fit
+            the same either way (:mod:`rangeslam.mdu.landmark_mirrors`).
+        source_mirrors: (K, d) the other position of each ambiguous source, same frame, metres
+            (NaN elsewhere).
     """
 
     receivers: np.ndarray
@@ -110,6 +117,8 @@ class Calibration(HasStatus):
     eigen_gap: float
     sdp_status: str
     solver: str
+    ambiguous_sources: np.ndarray
+    source_mirrors: np.ndarray
 
     @property
     def n_outliers(self) -> int:
@@ -497,7 +506,7 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
             noise_std,
             problem.exact_rms,
             what="the calibration",
-            judge_sources="mirror",
+            judge_sources="none",
             tail=not problem.robust,
         )
         status, message = check.status, message + check.reason
@@ -514,6 +523,10 @@ def calibration_result(
     redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
     comp = best.completion
+    noise = problem.noise_std or (np.sqrt(best.ssr / redundancy) if redundancy > 0 else 0.0)
+    mirrors = landmark_mirrors(
+        receivers, sources, problem.ranges, best.inliers, float(noise), problem.exact_rms
+    )
     return Calibration(
         receivers=frozen(receivers),
         sources=frozen(sources),
@@ -532,6 +545,8 @@ def calibration_result(
         eigen_gap=np.nan if comp is None else comp.eigen_gap,
         sdp_status="" if comp is None else comp.status,
         solver="" if comp is None else comp.solver,
+        ambiguous_sources=frozen(mirrors.ambiguous),
+        source_mirrors=frozen(mirrors.mirrors),
     )
 
 

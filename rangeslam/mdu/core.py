@@ -406,9 +406,9 @@ def unfolding_check(
             to G unknown range offsets the model also fitted (emission times), or None.
         what: what the points are, for the reason.
         judge_sources: "all": a source that is weakly determined or has a mirror image fails
-            the check; "mirror": only its mirror image fails it, its precision is noted (a
-            calibrated array: sources in the receivers' plane flag a flat scene); "none": both
-            only noted (SLAM's trajectory: on a planar walk every landmark has its mirror image).
+            the check; "none": both only noted (the receivers are what is judged: a calibrated
+            array or SLAM's trajectory fit the same either side of a source's mirror, and a
+            planar walk or array gives every source one; the result reports them).
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
@@ -417,7 +417,8 @@ def unfolding_check(
     along the weakest directions, :func:`region_check`), each
     point against its partners held fixed (its precision, and its mirror image through their
     plane: a point heard by d partners, or by nearly coplanar ones, is fixed only up to it;
-    receivers only without priors, which tie them to each other).
+    receivers only without priors, which tie them to each other); and, for flat receivers,
+    whether a flat scene fits as well (:func:`flat_rival_check`).
     """
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
@@ -455,8 +456,13 @@ def unfolding_check(
         receivers_check = points_check(
             receivers, sources, ranges, observed, sigma, exact_rms, "receiver"
         )
-    check = first_failure(flatness_check(points, sigma, scale, what), information, source_check,
-                          receivers_check)  # fmt: skip
+    check = first_failure(
+        flatness_check(points, sigma, scale, what),
+        flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
+        information,
+        source_check,
+        receivers_check,
+    )
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 
 
@@ -526,12 +532,7 @@ def sources_verdict(
     note = "" if full.passed else f"noted: {full.reason}"
     if judge_sources == "all":
         return full, ""
-    if judge_sources == "none":
-        return PASSED, note
-    mirror = points_check(
-        sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source", precision=False
-    )
-    return mirror, note if mirror.passed else ""
+    return PASSED, note
 
 
 def information_model(
@@ -610,6 +611,45 @@ def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndar
 
 #: Significance of the F-test that finds 3-D data fitted with dim=2.
 DIMENSION_LEVEL = 0.999
+
+
+def flat_rival_check(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    redundancy: int,
+    sigma: float | None,
+    scale: float,
+) -> Check:
+    """NOT_IDENTIFIABLE when a 3-D answer whose receivers are flat (:func:`flatness_check`)
+    fits its ranges no better than the flat configuration refined from its projection into
+    the receivers' plane (the F-test of :func:`dimension_check` at DIMENSION_LEVEL, read the
+    other way): a flat scene fitted in 3-D folds its sources out of the plane at no cost, while
+    sources truly off a flat array cannot be flattened. ``receivers`` (M, 3), ``sources``
+    (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres."""
+    m, d = receivers.shape
+    extra = m + len(sources) - 3  # one coordinate per point, less 3-D's three extra motions
+    if d != 3 or redundancy <= 0 or flatness_check(receivers, sigma, scale, "").passed:
+        return PASSED
+    points = np.vstack([receivers, sources])
+    pairs = np.argwhere(observed)
+    residuals = unfolding_residuals(points, m, ranges[observed], pairs)
+    ssr3 = float(residuals @ residuals)
+    centre = receivers.mean(axis=0)
+    flat = (points - centre) @ np.linalg.svd(receivers - centre)[2][:2].T
+    fit = refine_unfolding(flat[:m], flat[m:], ranges, observed)
+    ssr2 = float(np.sum(fit.residuals[observed] ** 2))
+    stat = ((ssr2 - ssr3) / extra) / max(ssr3 / redundancy, 1e-300)
+    if np.isfinite(ssr2) and stat <= f_dist.ppf(DIMENSION_LEVEL, extra, redundancy):
+        return Check(
+            Status.NOT_IDENTIFIABLE,
+            f"the receivers are flat and a flat configuration fits the ranges as well (residual "
+            f"sum of squares {ssr2:.3g} against {ssr3:.3g} m^2, F = {stat:.3g} on {extra} and "
+            f"{redundancy} degrees of freedom): the sources' sides of their plane are not "
+            "determined (fit with dim=2?)",
+        )
+    return PASSED
 
 
 def dimension_check(
