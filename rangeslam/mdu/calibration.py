@@ -92,12 +92,9 @@ class Calibration(HasStatus):
             when the answer came from a random start).
         sdp_status: solver status of that SDP solve ("" for a random start).
         solver: the solver that produced it ("" for a random start).
-        ambiguous_sources: (K,) bool, the sources whose mirror image through the receivers that
-            hear them fits the inlier ranges within the noise (receivers heard in one plane, or
-            only d of them): the data fix them only up to that reflection, and the receivers fit
-            the same either way (:mod:`rangeslam.mdu.landmark_mirrors`).
-        source_mirrors: (K, d) the other position of each ambiguous source, same frame, metres
-            (NaN elsewhere).
+        ambiguous_sources: (K,) bool, sources whose mirror image through the (coplanar, or d)
+            receivers hearing them fits as well; the receivers fit the same either way.
+        source_mirrors: (K, d) their other positions, same frame, metres (NaN elsewhere).
     """
 
     receivers: np.ndarray
@@ -518,15 +515,13 @@ def calibration_result(
 ) -> Calibration:
     """The :class:`Calibration` of the best candidate, in the canonical frame."""
     best, observed = outcome.best, problem.observed
-    fit = best.fit
+    fit, comp = best.fit, best.completion
     n_in = int(best.inliers.sum())
     redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
-    comp = best.completion
-    noise = problem.noise_std or (np.sqrt(best.ssr / redundancy) if redundancy > 0 else 0.0)
-    mirrors = landmark_mirrors(
-        receivers, sources, problem.ranges, best.inliers, float(noise), problem.exact_rms
-    )
+    estimate = float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan")
+    mirrors = landmark_mirrors(receivers, sources, problem.ranges, best.inliers,
+                               problem.noise_std or np.nan_to_num(estimate), problem.exact_rms)  # fmt: skip
     return Calibration(
         receivers=frozen(receivers),
         sources=frozen(sources),
@@ -534,7 +529,7 @@ def calibration_result(
         observed=frozen(observed),
         inliers=frozen(best.inliers.copy()),
         residual_rms=float(np.sqrt(best.ssr / n_in)),
-        noise_estimate=float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan"),
+        noise_estimate=estimate,
         redundancy=int(redundancy),
         status=status,
         message=message,

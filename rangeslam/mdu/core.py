@@ -451,22 +451,34 @@ def unfolding_check(
     if information.passed:
         model = (covariance[0], projection, prior_jac, offset_columns)
         information = region_check(receivers, sources, pairs, model, sigma, scale, what)
-    receivers_check = PASSED
-    if prior_jac is None:  # priors tie the receivers to each other: not judged one by one
-        receivers_check = points_check(
-            receivers, sources, ranges, observed, sigma, exact_rms, "receiver"
+    flat_rival, receivers_check = (PASSED, PASSED)
+    if prior_jac is None:
+        flat_rival, receivers_check = priorless_checks(
+            receivers, sources, ranges, observed, redundancy, sigma, exact_rms
         )
-    check = first_failure(
-        flatness_check(points, sigma, scale, what),
-        # with step priors the ranges alone cannot say whether a flat scene fits as well
-        PASSED
-        if prior_jac is not None
-        else flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
-        information,
-        source_check,
-        receivers_check,
-    )
+    check = first_failure(flatness_check(points, sigma, scale, what), flat_rival, information,
+                          source_check, receivers_check)  # fmt: skip
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
+
+
+def priorless_checks(
+    receivers: np.ndarray,
+    sources: np.ndarray,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    redundancy: int,
+    sigma: float | None,
+    exact_rms: float,
+) -> tuple[Check, Check]:
+    """The checks of :func:`unfolding_check` made only without step priors: (the flat rival,
+    :func:`flat_rival_check`, which compares range residuals alone and so cannot judge a flat
+    scene a prior holds; each receiver against its sources, :func:`points_check`: priors tie
+    the receivers to each other, so they are not judged one by one)."""
+    scale = float(np.median(ranges[observed]))
+    return (
+        flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
+        points_check(receivers, sources, ranges, observed, sigma, exact_rms, "receiver"),
+    )
 
 
 def region_check(
