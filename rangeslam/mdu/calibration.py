@@ -51,7 +51,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, consistency_check
+from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, consistency_check, noise_upper_bound
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -514,14 +514,14 @@ def calibration_result(
     outcome: SearchOutcome, problem: CalibrationProblem, status: Status, message: str
 ) -> Calibration:
     """The :class:`Calibration` of the best candidate, in the canonical frame."""
-    best, observed = outcome.best, problem.observed
+    best, observed, n_in = outcome.best, problem.observed, int(outcome.best.inliers.sum())
     fit, comp = best.fit, best.completion
-    n_in = int(best.inliers.sum())
     redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
     estimate = float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan")
-    mirrors = landmark_mirrors(receivers, sources, problem.ranges, best.inliers,
-                               problem.noise_std or np.nan_to_num(estimate), problem.exact_rms)  # fmt: skip
+    sigma = problem.noise_std or noise_upper_bound(best.ssr, redundancy)  # the verdict's noise
+    mirrors = landmark_mirrors(receivers, sources, problem.ranges, best.inliers, sigma,
+                               problem.exact_rms)  # fmt: skip
     return Calibration(
         receivers=frozen(receivers),
         sources=frozen(sources),

@@ -543,6 +543,8 @@ def sources_verdict(
 ) -> tuple[Check, str]:
     """The sources' :func:`points_check` as judged (see :func:`unfolding_check`'s
     ``judge_sources``) and the note on what was only noted ("" if nothing)."""
+    if judge_sources not in ("all", "none"):
+        raise InvalidInputError(f'judge_sources must be "all" or "none"; got {judge_sources!r}')
     full = points_check(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
     note = "" if full.passed else f"noted: {full.reason}"
     if judge_sources == "all":
@@ -584,25 +586,15 @@ def points_check(
     sigma: float | None,
     exact_rms: float,
     kind: str,
-    *,
-    precision: bool = True,
 ) -> Check:
     """:func:`rangeslam.verdicts.point_check` of each of ``points`` (N, d) against the
     ``partners`` (P, d) it is ranged to (``ranges`` and ``observed`` (N, P), metres); the first
-    failure, its reason naming ``kind`` and the index. ``precision=False``: rank and mirror
-    image only."""
+    failure, its reason naming ``kind`` and the index."""
     scale = float(np.median(ranges[observed]))
     for i, point in enumerate(points):
         obs = observed[i]
         check = point_check(
-            point,
-            partners[obs],
-            ranges[i, obs],
-            sigma,
-            exact_rms,
-            scale,
-            f"{kind} {i}",
-            precision=precision,
+            point, partners[obs], ranges[i, obs], sigma, exact_rms, scale, f"{kind} {i}"
         )
         if not check.passed:
             return check
@@ -642,7 +634,9 @@ def flat_rival_check(
     the receivers' plane (the F-test of :func:`dimension_check` at DIMENSION_LEVEL, read the
     other way): a flat scene fitted in 3-D folds its sources out of the plane at no cost, while
     sources truly off a flat array cannot be flattened. ``receivers`` (M, 3), ``sources``
-    (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres."""
+    (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres. Ranges already
+    corrected by fitted offsets (emission times, clock offsets) keep those offsets in the flat
+    fit, which can only make it worse: a folded scene with offsets may pass unseen here."""
     m, d = receivers.shape
     extra = m + len(sources) - 3  # one coordinate per point, less 3-D's three extra motions
     if d != 3 or redundancy <= 0 or flatness_check(receivers, sigma, scale, "").passed:
@@ -653,7 +647,8 @@ def flat_rival_check(
     ssr3 = float(residuals @ residuals)
     centre = receivers.mean(axis=0)
     flat = (points - centre) @ np.linalg.svd(receivers - centre)[2][:2].T
-    fit = refine_unfolding(flat[:m], flat[m:], ranges, observed)
+    # offset-corrected ranges can dip below 0 (a source at a receiver)
+    fit = refine_unfolding(flat[:m], flat[m:], np.maximum(ranges, 0.0), observed)
     ssr2 = float(np.sum(fit.residuals[observed] ** 2))
     stat = ((ssr2 - ssr3) / extra) / max(ssr3 / redundancy, 1e-300)
     if np.isfinite(ssr2) and stat <= f_dist.ppf(DIMENSION_LEVEL, extra, redundancy):
