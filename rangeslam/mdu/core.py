@@ -454,7 +454,7 @@ def unfolding_check(
     flat_rival, receivers_check = (PASSED, PASSED)
     if prior_jac is None:
         flat_rival, receivers_check = priorless_checks(
-            receivers, sources, ranges, observed, redundancy, sigma, exact_rms
+            receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale
         )
     check = first_failure(flatness_check(points, sigma, scale, what), flat_rival, information,
                           source_check, receivers_check)  # fmt: skip
@@ -469,12 +469,13 @@ def priorless_checks(
     redundancy: int,
     sigma: float | None,
     exact_rms: float,
+    scale: float,
 ) -> tuple[Check, Check]:
     """The checks of :func:`unfolding_check` made only without step priors: (the flat rival,
     :func:`flat_rival_check`, which compares range residuals alone and so cannot judge a flat
     scene a prior holds; each receiver against its sources, :func:`points_check`: priors tie
-    the receivers to each other, so they are not judged one by one)."""
-    scale = float(np.median(ranges[observed]))
+    the receivers to each other, so they are not judged one by one). ``scale``: the median
+    observed range, metres, as :func:`unfolding_check` computed it."""
     return (
         flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
         points_check(receivers, sources, ranges, observed, sigma, exact_rms, "receiver"),
