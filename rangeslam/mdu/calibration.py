@@ -23,19 +23,17 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._blas import single_blas_thread
-from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
+from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.localization.multilateration import multilaterate
 from rangeslam.mdu.core import (
     EXACT_RTOL,
     MAX_RELATIVE_RMS,
     SAME_RTOL,
     ConvexIterationOptions,
     canonical_frame,
-    check_determined,
     checked_options,
     passes_residual_test,
     unfolding_check,
@@ -43,11 +41,11 @@ from rangeslam.mdu.core import (
     validated_ranges,
 )
 from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.robust_unfolding import embedding_fit, reject_outliers, robust_refit
 from rangeslam.mdu.subsets import core_runs
 from rangeslam.solvers.least_squares import (
     UnfoldingFit,
     refine_unfolding,
-    unfolding_jacobian,
     unfolding_residuals,
 )
 from rangeslam.status import HasStatus, Status
@@ -61,8 +59,6 @@ __all__ = ["Calibration", "calibrate"]
 # An RMS residual below this fraction of the median range is exact data (round-off only). The SDP
 # alone (refine=False) is accurate to about 1e-6 of the scale with Clarabel's tolerances.
 _EXACT_RTOL = {True: EXACT_RTOL, False: 1e-4}
-# Outlier test on studentized residuals, in standard deviations.
-_INLIER_K = 3.0
 
 
 @dataclass(frozen=True)
@@ -138,114 +134,6 @@ class Candidate:
     def edm(self) -> np.ndarray:
         """(M + K, M + K) squared distances of the fitted points."""
         return edm(np.vstack([self.fit.receivers, self.fit.sources]))
-
-
-def _embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
-    """The SDP's points as an UnfoldingFit (used when refine=False)."""
-    residuals = np.where(mask, range_matrix(points[:m], points[m:]) - ranges, np.nan)
-    return UnfoldingFit(
-        receivers=points[:m],
-        sources=points[m:],
-        residuals=residuals,
-        rms=float(np.sqrt(np.mean(residuals[mask] ** 2))),
-        status=Status.CONVERGED,
-        message="",
-        nfev=0,
-    )
-
-
-def _reject_outliers(fit, ranges, mask, dim, noise_std):
-    """Studentized-residual test (3 sigma), refit without the outliers, until the set is stable.
-
-    sigma is ``noise_std`` when given, else 1.4826 MAD of the studentized residuals. Ranges are
-    only dropped while every point keeps at least ``dim`` of them and the data stay redundant.
-    """
-    m = mask.shape[0]
-    use = mask.copy()
-    pairs = np.argwhere(mask)
-    seen: list[np.ndarray] = []
-    for _ in range(20):
-        pts = np.vstack([fit.receivers, fit.sources])
-        abs_res = np.abs(unfolding_residuals(pts, m, ranges[mask], pairs))
-        stud = studentized(abs_res, unfolding_jacobian(pts, m, pairs), use[mask])
-        sigma = noise_std if noise_std else mad_sigma(stud)
-        new = mask.copy()
-        new[mask] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay in
-        try:
-            check_determined(new, dim, "the inlier set")
-        except InvalidInputError:
-            return fit, use, "outlier rejection stopped: dropping more ranges would leave too few; "
-        if int(new.sum()) <= unknowns_up_to_rigid_motion(sum(mask.shape), dim):
-            return fit, use, "outlier rejection stopped: no redundancy left; "
-        if np.array_equal(new, use) or any(np.array_equal(new, old) for old in seen):
-            return fit, use, ""
-        seen.append(use)
-        use = new
-        fit = refine_unfolding(fit.receivers, fit.sources, ranges, use)
-    return fit, use, "inlier set still changing after 20 re-fits; "
-
-
-def _agreeing(p, anchors, r, obs, threshold: float) -> int:
-    """How many observed ranges ``r`` from ``anchors`` a point p (d,) meets within threshold."""
-    return int(np.sum(np.abs(np.linalg.norm(anchors[obs] - p, axis=1) - r[obs]) <= threshold))
-
-
-def _repair_points(fit: UnfoldingFit, ranges, observed, dim: int, threshold: float, rng):
-    """Resection: move each point to where a robust multilateration from the others puts it, when
-    more of its ranges then agree (within ``threshold``). Returns (fit, number of points moved).
-
-    A robust loss lets a single misplaced point (a receiver or source folded to the wrong side)
-    shed its ranges as outliers at a small cost; this step finds and fixes such points.
-    """
-    m = len(fit.receivers)
-    points = np.vstack([fit.receivers, fit.sources])
-    moved = 0
-    for i in range(len(points)):
-        is_receiver = i < m
-        anchors = points[m:] if is_receiver else points[:m]
-        r = ranges[i] if is_receiver else ranges[:, i - m]
-        obs = observed[i] if is_receiver else observed[:, i - m]
-        if obs.sum() < dim + 2:
-            continue
-
-        try:
-            cand = multilaterate(
-                anchors,
-                r,
-                mask=obs,
-                robust=True,
-                inlier_threshold=threshold,
-                max_hypotheses=200,
-                rng=rng,
-            )
-        except (DegenerateGeometryError, InvalidInputError):
-            continue
-        if _agreeing(cand.position, anchors, r, obs, threshold) > _agreeing(
-            points[i], anchors, r, obs, threshold
-        ):
-            points[i] = cand.position
-            moved += 1
-    if moved:
-        fit = _embedding_fit(points, m, ranges, observed)
-    return fit, moved
-
-
-def _robust_refit(fit: UnfoldingFit, ranges, observed, dim: int, scale: float, rng):
-    """Cauchy-loss least squares straight from the SDP's points (a Gaussian step first would be
-    pulled by the outliers), alternated with resection of misplaced points; ends refined."""
-    note = ""
-    for _ in range(3):
-        fit = refine_unfolding(
-            fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
-        )
-        fit, moved = _repair_points(fit, ranges, observed, dim, 3 * scale, rng)
-        if not moved:
-            return fit, note
-        note += f"{moved} points re-placed by resection; "
-    fit = refine_unfolding(
-        fit.receivers, fit.sources, ranges, observed, loss="cauchy", loss_scale=scale
-    )
-    return fit, note
 
 
 @dataclass(frozen=True)
@@ -349,11 +237,11 @@ def fit_start(
     """Refine one start: Gaussian least squares, or the robust refit and outlier rejection;
     None when the fit diverged."""
     r, observed, m = problem.ranges, problem.observed, problem.ranges.shape[0]
-    fit = _embedding_fit(start.points, m, r, observed)
+    fit = embedding_fit(start.points, m, r, observed)
     inliers, note = observed, ""
     if problem.robust:
-        fit, note = _robust_refit(fit, r, observed, problem.dim, cauchy_scale, rng)
-        fit, inliers, rejection_note = _reject_outliers(
+        fit, note = robust_refit(fit, r, observed, problem.dim, cauchy_scale, rng)
+        fit, inliers, rejection_note = reject_outliers(
             fit, r, observed, problem.dim, problem.noise_std
         )
         note += rejection_note
@@ -385,7 +273,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         else:
             starts += 1
         if problem.robust and cauchy_scale is None:
-            fit0 = _embedding_fit(
+            fit0 = embedding_fit(
                 start.points, problem.ranges.shape[0], problem.ranges, problem.observed
             )
             cauchy_scale = robust_cauchy_scale(fit0, problem)
@@ -409,9 +297,10 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
             break
         if problem.auto_robust and heavy_tail(cand, problem, (Status.OUTLIERS,)):
             break  # wrong picks: robust="auto" goes on robustly rather than search further
-    if problem.robust and best is not None:
-        best, extra = lowest_on_inliers(best, problem, cauchy_scale, rng)
-        starts += extra
+    if problem.robust and best is not None:  # a lower minimum found there is a new answer
+        lowest, extra = lowest_on_inliers(best, problem, cauchy_scale, rng)
+        confirmed = confirmed if lowest is best else _same(lowest, best, problem, spread(lowest))
+        best, starts = lowest, starts + extra
     return SearchOutcome(best, confirmed, attempts, iterations, starts, tuple(failures))
 
 
@@ -472,6 +361,13 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
             f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
             f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
             "fit by dropping enough ranges); "
+        )
+    elif problem.robust and not outcome.confirmed:
+        status = Status.NO_AGREEMENT
+        message += (
+            f"no other start of {n_starts} reached the lowest robust configuration: dropping "
+            "ranges lets a wrong configuration fit them, so a robust answer must be reached "
+            "twice (raise max_attempts); "
         )
     elif (
         rms <= problem.exact_rms
@@ -583,8 +479,10 @@ def calibrate(
             ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
             until the set is stable. Runs are ranked by their Cauchy cost over all ranges; the
             best one's inliers are then fitted from up to 30 random points, and a lower minimum
-            found there is refitted robustly. ``"auto"`` (the default): least squares on all
-            ranges first; as soon as a fit's residuals carry a heavy tail (wrong picks), or when
+            found there is refitted robustly. A robust answer is converged only when two
+            starts reached it: dropping ranges lets a wrong configuration pass the residual
+            test, so one start's answer is NO_AGREEMENT. ``"auto"`` (the default): least
+            squares on all ranges first; as soon as a fit's residuals carry a heavy tail (wrong picks), or when
             the search ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, the robust fit (the message
             says so), provided there are at least as many redundant ranges as unknowns (with
             fewer, wrong picks are reported, not searched for). ``False``: never robust.
@@ -676,7 +574,7 @@ def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
     if start is None:
         return False
     m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
-    fit0 = _embedding_fit(start.points, m, r, observed)
+    fit0 = embedding_fit(start.points, m, r, observed)
     cand = fit_start(start, probe, problem.noise_std or robust_cauchy_scale(fit0, probe), rng)
     if cand is None:
         return False
