@@ -29,7 +29,8 @@ INLIER_K = 3.0
 
 
 def embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
-    """The SDP's points as an UnfoldingFit (used when refine=False)."""
+    """``points`` (M + K, d) metres, the first ``m`` receivers, as an UnfoldingFit with their
+    residuals on the (M, K) ``ranges`` where ``mask`` holds (NaN elsewhere); no refinement."""
     residuals = np.where(mask, range_matrix(points[:m], points[m:]) - ranges, np.nan)
     return UnfoldingFit(
         receivers=points[:m],
