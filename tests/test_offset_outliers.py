@@ -99,6 +99,11 @@ def test_robust_must_be_a_bool(value):
         calibrate_unknown_emission(t, np.arange(12), receiver_offsets=True, robust=value)
 
 
+@pytest.mark.xfail(
+    strict=False,
+    reason="issue 17, open: with numpy 2.4.6 / scipy 1.17.1 (a fresh install on 2026-11-24) seed 4 "
+    "ranks one of the 4 wrong events third of 24; it passed in CI on 2026-11-23",
+)
 def test_ranking_puts_wrong_events_last():
     """rank_events on a scene with 4 whole wrong events among 24 (and 4 wrong arrivals): the rough
     fit is not the answer, but its largest residual per event ranks every wrong event in the
