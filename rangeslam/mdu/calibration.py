@@ -335,8 +335,9 @@ def lowest_on_inliers(
 
 def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> tuple[Status, str]:
     """Status and message of the best candidate: NOT_IDENTIFIABLE without redundancy, OUTLIERS
-    when robust dropped over half the redundant ranges, INCONSISTENT / NO_AGREEMENT when no start
-    passed the residual test / the vote, SOLVER_FAILED when least squares failed."""
+    when robust dropped over half the redundant ranges, NO_AGREEMENT when a robust answer was
+    reached by one start only, INCONSISTENT / NO_AGREEMENT when no start passed the residual test
+    / the vote, SOLVER_FAILED when least squares failed."""
     best, observed, noise_std = outcome.best, problem.observed, problem.noise_std
     unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     n_in = int(best.inliers.sum())
