@@ -96,27 +96,23 @@ def test_a_wrong_pick_against_the_bounds_is_left_to_the_robust_kernel(rng):
     assert not out.converged or align(out.receivers, traj, reflection=True).rmse < 0.01
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 17, open: with numpy 2.4.6 / scipy 1.17.1 (a fresh install on 2026-11-24), at "
-    "the suite seed and noise_std=None slam converges 4.3 mm off on exact ranges (the step prior "
-    "pulls it); seeds 1-2 and noise_std=0 are exact; it passed in CI on 2026-11-23",
-)
 def test_exact_recovery_with_bounds_off_centre(rng):
     """Exact ranges and bounds that do not centre on the true steps: the step prior must not pull
     the answer (the ranges are weighed as exact once the noise is found to be nil), whether the
-    noise is given as 0 or left unknown."""
-    traj, landmarks = _scene(rng, 10)
-    steps = step_lengths(traj)
-    for noise_std in (0.0, None):
-        out = slam(
-            range_matrix(traj, landmarks),
-            step_bounds=(0.9 * steps, 1.3 * steps),
-            noise_std=noise_std,
-            rng=rng,
-        )
-        assert out.converged, out.message
-        assert align(out.receivers, traj, reflection=True).rmse < 1e-6
+    noise is given as 0 or left unknown. Three draws: the unknown-noise path once stopped a few %
+    above the floor and answered 4.3 mm off, converged."""
+    for _ in range(3):
+        traj, landmarks = _scene(rng, 10)
+        steps = step_lengths(traj)
+        for noise_std in (0.0, None):
+            out = slam(
+                range_matrix(traj, landmarks),
+                step_bounds=(0.9 * steps, 1.3 * steps),
+                noise_std=noise_std,
+                rng=rng,
+            )
+            assert out.converged, out.message
+            assert align(out.receivers, traj, reflection=True).rmse < 1e-6
 
 
 def test_trajectory_covariance(rng):
