@@ -99,25 +99,25 @@ def test_robust_must_be_a_bool(value):
         calibrate_unknown_emission(t, np.arange(12), receiver_offsets=True, robust=value)
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 17, open: with numpy 2.4.6 / scipy 1.17.1 (a fresh install on 2026-11-24) seed 4 "
-    "ranks one of the 4 wrong events third of 24; it passed in CI on 2026-11-23",
-)
-def test_ranking_puts_wrong_events_last():
-    """rank_events on a scene with 4 whole wrong events among 24 (and 4 wrong arrivals): the rough
-    fit is not the answer, but its largest residual per event ranks every wrong event in the
-    worse half, so the consensus draws its first subsets from clean events."""
+def test_ranking_puts_wrong_events_last(rng):
+    """rank_events on scenes with 4 whole wrong events among 24 (and 4 wrong arrivals): the rough
+    fit is not the answer, but its largest residual per event ranks the wrong events in the worse
+    half, so the consensus draws its first subsets from clean events. A heuristic order, judged as
+    a rate over 12 draws (48 wrong events): at most 7 in the better half (100 draws, seeds 0-99:
+    22 of 400, 5.5%; 19 draws had one there, so no single draw is asserted)."""
     from rangeslam.mdu.offset_outliers import rank_events
 
-    for seed in (3, 4):
-        rng = np.random.default_rng(seed)
+    in_better_half, n_wrong = 0, 0
+    for _ in range(12):
         _, t, clean = _scene(rng, bad_events=4)
         ranked = rank_events(t, np.ones(t.shape, bool), 3, rng)
         assert sorted(ranked.tolist()) == list(range(t.shape[1]))
         wrong = np.flatnonzero(~clean.any(axis=0))
-        position = np.argsort(ranked)  # rank of each event
-        assert np.all(position[wrong] >= t.shape[1] // 2), (seed, position[wrong])
+        position = np.argsort(ranked)  # rank of each event, 0 the most consistent
+        in_better_half += int(np.sum(position[wrong] < t.shape[1] // 2))
+        n_wrong += len(wrong)
+    assert n_wrong == 48
+    assert in_better_half <= 7, f"{in_better_half} of {n_wrong} wrong events in the better half"
 
 
 def test_guided_subsets_widen_from_the_best():
