@@ -6,7 +6,7 @@ itself and a reduced run over every simulated estimator.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -58,6 +58,38 @@ def _case(identifiable: bool, bound: float = 0.01) -> VerdictCase:
 def test_classify_the_four_outcomes(identifiable, status, position, expected):
     """Right = identifiable and error <= 3 x bound; flagged = any status but CONVERGED."""
     assert classify(_case(identifiable), _Result(status, position)) == expected
+
+
+@pytest.mark.parametrize(
+    ("status", "position", "expected"),
+    [
+        (Status.INCONSISTENT, 0.02, "flagged-inconsistent-call"),  # the right flag
+        (Status.OUTLIERS, 0.02, "flagged-wrong"),  # any other flag is still a false alarm
+        (Status.CONVERGED, 0.02, "converged-right"),
+        (Status.INCONSISTENT, 0.5, "flagged-right"),
+        (Status.CONVERGED, 0.5, "converged-wrong"),
+    ],
+)
+def test_classify_a_call_whose_noise_std_is_too_small(status, position, expected):
+    """With noise_std a third of the truth's, INCONSISTENT on a right estimate is a right flag of
+    the call, counted apart from the false alarms; nothing else changes."""
+    case = replace(_case(True), noise_std_too_small=True)
+    assert classify(case, _Result(status, position)) == expected
+
+
+def test_only_the_third_noise_regimes_contradict_the_call():
+    """make_case marks the "noise_std /3" regimes, and no other, as calls with too small a
+    noise_std."""
+    marked = {
+        (e, r)
+        for e, regimes in REGIMES.items()
+        for r in regimes
+        if make_case(e, r, 3).noise_std_too_small
+    }
+    assert marked == {
+        (e, r) for e, regimes in REGIMES.items() for r in regimes if r.endswith("noise_std /3")
+    }
+    assert marked  # multilaterate's and slam's
 
 
 def test_classify_a_package_error():

@@ -13,6 +13,11 @@ with the truth it was built from. The TRUTH, never the estimator, decides what i
 - *right*: identifiable and the estimate's error (RMS over the points the bound is about, after
   the same alignment) at most :data:`BOUND_FACTOR` times that RMS bound plus :data:`EXACT_SLACK`
   of the scene size. Real data use stated tolerances instead (see the ``real_*`` builders).
+- *the call contradicted*: the ``noise_std`` passed is a third of the noise drawn ("noise_std
+  /3"), so the residuals contradict the model the caller declared, and INCONSISTENT is what
+  issue 17 asks the chi-square test to say. A right estimate flagged INCONSISTENT there is
+  "flagged-inconsistent-call", counted apart from the false alarms (the issue's own count adds
+  them to the false alarms; the benchmark prints both).
 
 :func:`classify` turns a case and what the estimator returned (a result or a package error) into
 one of :data:`OUTCOMES`. ``flagged`` means a status other than CONVERGED, or a package error.
@@ -58,7 +63,13 @@ BOUND_FACTOR = 3.0
 #: ... plus this fraction of the scene size (exact data: the bound is 0).
 EXACT_SLACK = 1e-6
 #: The four classes, in table order.
-OUTCOMES = ("converged-right", "converged-wrong", "flagged-right", "flagged-wrong")
+OUTCOMES = (
+    "converged-right",
+    "converged-wrong",
+    "flagged-right",
+    "flagged-wrong",
+    "flagged-inconsistent-call",
+)
 
 _ROOM_SIZE = (5.1, 3.7, 2.6)  # the Fig. 3 shoebox, metres
 _FIG5_ROOM = (5.0, 4.0, 2.6)  # the Fig. 5 shoebox, metres
@@ -83,6 +94,8 @@ class VerdictCase:
         reason: why the truth is not identifiable ("" when it is).
         seed: the integer the case's data were drawn from (``make_case(estimator, regime, seed)``
             draws them again), or None for real data.
+        noise_std_too_small: the ``noise_std`` passed is below the noise drawn (a third of it),
+            so a right estimate flagged INCONSISTENT is a right flag (module docstring).
     """
 
     estimator: str
@@ -94,6 +107,7 @@ class VerdictCase:
     identifiable: bool
     reason: str = ""
     seed: int | None = None
+    noise_std_too_small: bool = False
 
 
 @dataclass(frozen=True)
@@ -126,6 +140,9 @@ def classify(case: VerdictCase, result: Any) -> str:
     right = case.identifiable and _judged(case, result)[1]
     if result.converged:
         return "converged-right" if right else "converged-wrong"
+    status = getattr(result.status, "name", str(result.status))
+    if right and case.noise_std_too_small and status == "INCONSISTENT":
+        return "flagged-inconsistent-call"
     return "flagged-wrong" if right else "flagged-right"
 
 
@@ -573,8 +590,9 @@ def make_case(estimator: str, regime: str, seed: int) -> VerdictCase:
         raise InvalidInputError(
             f"estimator and regime must be one of REGIMES; got {estimator!r}, {regime!r}"
         )
-    builder = _BUILDERS[estimator][0]
-    return builder(regime, np.random.default_rng(seed), seed)
+    builder, specs = _BUILDERS[estimator]
+    case = builder(regime, np.random.default_rng(seed), seed)
+    return replace(case, noise_std_too_small=specs[regime].get("noise") == "/3")
 
 
 def draw_cases(
