@@ -1,6 +1,7 @@
 """The cheap EDM start and the honestly chosen start of the graph (issue 18, items 1 and 2)."""
 
 import importlib
+import re
 
 import numpy as np
 import pytest
@@ -10,8 +11,10 @@ from rangeslam import InvalidInputError, align, calibrate
 from rangeslam._blas import one_blas_thread
 from rangeslam.app.regimes import RegimeCell, draw_scene, run_random_starts
 from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.room import Room
 from rangeslam.mdu import slam
 from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.sim.scenes import random_points_in_room
 from rangeslam.sim.trajectories import lemniscate, step_lengths
 
 slam_module = importlib.import_module("rangeslam.mdu.slam")
@@ -82,6 +85,25 @@ def test_landmarks_of_a_planar_walk_are_reported_with_their_mirror_images(rng):
     for k in range(len(landmarks)):  # one of the two positions is the truth, the other its mirror
         pair = {tuple(np.round(got[k], 5)), tuple(np.round(other[k], 5))}
         assert pair == {tuple(np.round(landmarks[k], 5)), tuple(np.round(mirrored[k], 5))}
+
+
+def test_the_message_notes_every_ambiguous_landmark(rng):
+    """A noisy planar walk in the Fig. 5 room (the loudspeaker and its 6 images): the message's
+    note names every landmark that ``ambiguous_landmarks`` reports (it named only the first),
+    judged on the same ranges at the same noise."""
+    room = Room.shoebox([5.0, 4.0, 2.6])
+    traj = lemniscate(8, step=0.3, phase=rng.uniform(0, 2 * np.pi))
+    source = random_points_in_room(room, 1, rng=rng)[0]
+    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
+    steps = step_lengths(traj)
+    for noise_std in (0.01, None):
+        ranges = range_matrix(traj, landmarks) + 0.01 * rng.standard_normal((8, 7))
+        out = slam(ranges, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=noise_std, rng=rng)
+        first = re.findall(r"noted: source (\d+) ", out.message)
+        also = re.findall(r"also noted: sources ([0-9, ]+)", out.message)
+        noted = {int(i) for i in first} | {int(i) for g in also for i in g.split(",")}
+        assert out.ambiguous_landmarks.sum() >= 2, out.ambiguous_landmarks
+        assert set(np.flatnonzero(out.ambiguous_landmarks)) <= noted, out.message
 
 
 def test_landmarks_of_a_non_planar_walk_are_not_ambiguous(rng):

@@ -546,11 +546,15 @@ def sources_verdict(
     ``judge_sources``) and the note on what was only noted ("" if nothing)."""
     if judge_sources not in ("all", "none"):
         raise InvalidInputError(f'judge_sources must be "all" or "none"; got {judge_sources!r}')
-    full = points_check(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
-    note = "" if full.passed else f"noted: {full.reason}"
     if judge_sources == "all":
-        return full, ""
-    return PASSED, note
+        return points_check(
+            sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source"
+        ), ""
+    failed = points_failures(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
+    if not failed:
+        return PASSED, ""
+    also = f" (also noted: sources {', '.join(str(i) for i, _ in failed[1:])})"
+    return PASSED, f"noted: {failed[0][1].reason}" + (also if len(failed) > 1 else "")
 
 
 def information_model(
@@ -591,15 +595,25 @@ def points_check(
     """:func:`rangeslam.verdicts.point_check` of each of ``points`` (N, d) against the
     ``partners`` (P, d) it is ranged to (``ranges`` and ``observed`` (N, P), metres); the first
     failure, its reason naming ``kind`` and the index."""
+    failed = points_failures(points, partners, ranges, observed, sigma, exact_rms, kind, first=True)
+    return failed[0][1] if failed else PASSED
+
+
+def points_failures(points, partners, ranges, observed, sigma, exact_rms, kind, *, first=False):
+    """[(index, failed Check)] of :func:`points_check`'s per-point checks, in index order (only
+    the first when ``first``)."""
     scale = float(np.median(ranges[observed]))
+    failed = []
     for i, point in enumerate(points):
         obs = observed[i]
         check = point_check(
             point, partners[obs], ranges[i, obs], sigma, exact_rms, scale, f"{kind} {i}"
         )
         if not check.passed:
-            return check
-    return PASSED
+            failed.append((i, check))
+            if first:
+                break
+    return failed
 
 
 def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:

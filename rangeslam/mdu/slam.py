@@ -44,7 +44,7 @@ from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS
+from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, noise_upper_bound
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -521,19 +521,26 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
     return status, message.rstrip("; ")
 
 
-def trajectory_check(problem: SlamProblem, best: SlamRun):
-    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows;
-    with a robust kernel only the ranges it kept (within 4 robust standard deviations)."""
+def judged_ranges(problem: SlamProblem, best: SlamRun) -> tuple[np.ndarray, np.ndarray, int]:
+    """What the verdict judges ``best`` on: the (M, K) ranges (all observed ones; with a robust
+    kernel only those it kept, within 4 robust standard deviations), their residuals (metres) and
+    their redundancy."""
     observed = problem.observed
     residuals = best.residuals
     if problem.robust:
         res = np.abs(residuals[observed])
         sigma = problem.noise_std or MAD_TO_STD * float(np.median(res))
         observed = observed & (np.abs(np.nan_to_num(residuals, nan=np.inf)) <= 4 * sigma)
-    res = residuals[observed]
     redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(
         sum(problem.ranges.shape), problem.dim
     )
+    return observed, residuals[observed], redundancy
+
+
+def trajectory_check(problem: SlamProblem, best: SlamRun):
+    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
+    the :func:`judged_ranges`."""
+    observed, res, redundancy = judged_ranges(problem, best)
     sigma = problem.noise_std or (float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0)
     n_points = sum(problem.ranges.shape)
     return unfolding_check(
@@ -553,12 +560,16 @@ def trajectory_check(problem: SlamProblem, best: SlamRun):
     )
 
 
-def answer_sigma(problem: SlamProblem, best: SlamRun) -> float:
-    """The range noise of an answer, metres: ``noise_std``, else its RMS residual over the
-    redundancy (0 without redundancy)."""
-    if problem.noise_std is not None:
-        return problem.noise_std
-    return float(np.sqrt(best.ssr / problem.redundancy)) if problem.redundancy > 0 else 0.0
+def landmark_ambiguity(problem: SlamProblem, best: SlamRun, receivers, sources):
+    """:func:`landmark_mirrors` of the answer (``receivers`` (M, d), ``sources`` (K, d) in the
+    frame reported) on the ranges and at the noise the verdict's note used (the
+    :func:`judged_ranges`; ``noise_std``, else the largest noise their residuals allow), so the
+    result's ``ambiguous_landmarks`` and the message's "noted" agree."""
+    observed, res, redundancy = judged_ranges(problem, best)
+    sigma = problem.noise_std or noise_upper_bound(float(res @ res), redundancy)
+    return landmark_mirrors(
+        receivers, sources, problem.ranges, observed, sigma, EXACT_RTOL * problem.scale
+    )
 
 
 def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, message) -> SlamResult:
@@ -570,10 +581,7 @@ def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, mess
         cov_r, cov_s, cov_traj = rotated_covariances(best.fit, rot)
     pts = best.completion.points
     edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
-    mirrors = landmark_mirrors(
-        rec_f, src_f, problem.ranges, problem.observed, answer_sigma(problem, best),
-        EXACT_RTOL * problem.scale,
-    )  # fmt: skip
+    mirrors = landmark_ambiguity(problem, best, rec_f, src_f)
     return SlamResult(
         receivers=frozen(rec_f),
         sources=frozen(src_f),
