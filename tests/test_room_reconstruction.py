@@ -154,6 +154,28 @@ def test_mostly_wrong_direct_path_is_outvoted_by_the_echoes(rng):
     assert not res.inliers[0, :7, 0].any()
 
 
+def test_one_loudspeaker_placed_by_d_plus_1_direct_paths_is_unverified(rng):
+    """One loudspeaker whose direct path has only d + 1 = 4 right picks of 12: its echoes fit
+    any place (with the bisector walls through its images), so nothing verifies the place the 4
+    give. Not converged, naming the direct paths, over three draws; with 9 right picks of 12 it
+    converges within 1 cm."""
+    room = Room.shoebox([5.1, 3.7, 2.6])
+    for _ in range(3):
+        mics, _, ranges = _scene(rng, room, n_mics=12, n_sources=1)
+        r = add_range_noise(ranges[0], 1e-3, rng=rng)
+        wrong = rng.permutation(12)
+        few = r.copy()
+        few[wrong[:8], 0] += rng.uniform(0.3, 2.0, 8)
+        res = reconstruct_room(mics, [few], rng=rng)
+        assert not res.converged
+        assert "of its 12 direct paths agree with the fit" in res.message, res.message
+        most = r.copy()
+        most[wrong[:3], 0] += rng.uniform(0.3, 2.0, 3)
+        res = reconstruct_room(mics, [most], rng=rng)
+        assert res.converged, res.message
+        assert wall_errors(room, res.wall_normals, res.wall_offsets)[0].max() < 0.01
+
+
 def test_mostly_wrong_loudspeaker_is_reported(rng):
     """If most of one loudspeaker's ranges (direct path and echoes) are wrong, the result says so
     (converged False, with what to try) instead of returning a wrong room as good."""
