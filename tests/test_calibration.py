@@ -251,3 +251,22 @@ def test_under_determined_point_is_named():
     mask[:6, 4] = False  # source 4 keeps 2 ranges
     with pytest.raises(InvalidInputError, match="source 4 has 2 observed ranges"):
         calibrate(np.ones((8, 6)), mask=mask)
+
+
+def test_a_receiver_that_kept_half_its_ranges_is_outvoted():
+    """outvoted_receivers: a robust answer that keeps at most half of a receiver's observed ranges
+    places it against the other half (past the 50% breakdown point); unobserved ranges do not
+    count."""
+    from rangeslam.mdu.calibration import outvoted_receivers
+
+    observed = np.ones((4, 6), bool)
+    observed[2, :2] = False  # receiver 2 heard by 4 sources
+    inliers = observed.copy()
+    inliers[0, :2] = False  # 4 of 6 kept
+    assert outvoted_receivers(inliers, observed) == ""
+    inliers[2, 2:4] = False  # 2 of its 4 kept: half
+    text = outvoted_receivers(inliers, observed)
+    assert text.startswith("receiver 2: only 2 of its 4 ranges agree with the fit")
+    inliers[0, 2] = False  # 3 of 6 kept
+    assert "receiver 0: only 3 of its 6 ranges" in outvoted_receivers(inliers, observed)
+    assert "(and 1 more)" in outvoted_receivers(inliers, observed)

@@ -156,8 +156,8 @@ def test_truth_by_construction(rng):
 #: Fast regimes per estimator and cases per regime. Left out (run only in the full benchmark, for
 #: time): calibrate with 20% wrong picks, without noise_std and at dim=2 (10-70 s a case), slam
 #: without noise_std. Also left out: "noise_std /3" (a noise level given three times too small),
-#: which the truth counts as right and every estimator rightly rejects as inconsistent with that
-#: noise: a false alarm only by the definition, reported in the full benchmark's table.
+#: which every estimator rightly rejects as inconsistent with that noise: counted apart as
+#: "flagged-inconsistent-call" in the full benchmark's table.
 REDUCED = {
     "multilaterate": ([r for r in REGIMES["multilaterate"] if r != "noise_std /3"], 2),
     "calibrate": (
