@@ -151,6 +151,27 @@ def test_truth_by_construction(rng):
         assert not case.identifiable and case.reason, (est, regime)
 
 
+def test_truth_of_a_room_heard_from_a_table(rng):
+    """Microphones on a table (z spread 1 mm) hear the room and its mirror image through the
+    table within the noise: the truth says not identifiable (the estimator rightly flags it);
+    microphones spread through the room do not, and the mirror's gap is exactly 0 for a flat
+    array."""
+    from rangeslam.evaluation.verdict_cases import mirror_room_gap
+    from rangeslam.geometry.room import Room
+
+    for _ in range(3):
+        table = make_case("reconstruct_room", "mics on a table", int(rng.integers(2**31)))
+        assert not table.identifiable and "mirror image" in table.reason
+        spread = make_case("reconstruct_room", "shoebox 1 mm", int(rng.integers(2**31)))
+        assert spread.identifiable, spread.reason
+    room = Room.shoebox([5.0, 4.0, 2.6])
+    flat = np.column_stack([rng.uniform(0.5, 4.5, (6, 2)), np.full(6, 0.9)])
+    source = np.array([[2.0, 1.5, 1.7]])
+    assert mirror_room_gap(room, flat, source) == pytest.approx(0.0, abs=1e-20)
+    flat[:, 2] += rng.uniform(-0.5, 0.5, 6)
+    assert mirror_room_gap(room, flat, source) > 1e-3
+
+
 # --- the reduced benchmark ----------------------------------------------------------------------
 
 #: Fast regimes per estimator and cases per regime. Left out (run only in the full benchmark, for
