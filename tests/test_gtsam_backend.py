@@ -174,21 +174,31 @@ def test_zero_iterations_evaluate_the_graph(rng):
     assert moved.initial_error == fit.error and moved.error < fit.error
 
 
-def test_iteration_limit_fails_only_short_of_the_minimum(rng):
+@pytest.mark.parametrize("model", ["gaussian", "huber", "violated bounds"])
+def test_iteration_limit_fails_only_short_of_the_minimum(rng, model):
     """LM stopped by its iteration limit: SOLVER_FAILED while a Gauss-Newton step would still
     lower the cost by more than STATIONARY_CHI2 noise variances (one iteration from 20 cm off);
-    converged, with a note, when the start is already within it (one iteration from the answer
-    of a full run: the last step's predicted decrease is far below one variance)."""
+    converged, with a note, when the start is already within it (one iteration from 0.1 mm off
+    the answer of a full run: the predicted decrease is far below one variance). Also with a
+    robust kernel and two wrong ranges, and with step bounds the answer breaks (dead-zone and
+    uniform-prior factors), whose nonlinear error is not the linearised model's value."""
     x, s = _scene(rng)
     z = range_matrix(x, s) + 0.01 * rng.standard_normal((len(x), len(s)))
-    far = refine_graph(x + 0.2 * rng.standard_normal(x.shape), s, z, noise_std=0.01,
-                       max_iterations=1, covariances=False)  # fmt: skip
+    options = {"noise_std": 0.01, "covariances": False}
+    if model == "huber":
+        z[0, 0] += 0.5
+        z[3, 2] -= 0.4
+        options["robust"] = "huber"
+    if model == "violated bounds":
+        steps = np.linalg.norm(np.diff(x, axis=0), axis=1)
+        options["step_bounds"] = (0.5 * steps, 0.7 * steps)
+    far = refine_graph(x + 0.2 * rng.standard_normal(x.shape), s, z, max_iterations=1, **options)
     assert far.status is Status.SOLVER_FAILED
     assert "hit the limit of 1 iterations short of the minimum" in far.message
-    full = refine_graph(x, s, z, noise_std=0.01, covariances=False)
+    full = refine_graph(x, s, z, **options)
     assert full.converged and full.iterations > 1
-    near = refine_graph(full.receivers, full.sources, z, noise_std=0.01, max_iterations=1,
-                        covariances=False)  # fmt: skip
+    nudged = full.receivers + 1e-4 * rng.standard_normal(x.shape)  # so that LM takes a step
+    near = refine_graph(nudged, full.sources, z, max_iterations=1, **options)
     assert near.iterations == 1 and near.converged, near.message
     assert near.message.startswith("noted: Levenberg-Marquardt hit the limit of 1 iterations (")
     predicted = float(near.message.split("decrease of ")[1].split(" noise")[0])

@@ -413,15 +413,17 @@ def run_levenberg_marquardt(
 
 def predicted_decrease(gtsam, graph, values) -> float:
     """The decrease of the graph's cost a Gauss-Newton step from ``values`` predicts, in noise
-    variances (twice GTSAM's error: chi-square units); inf when the linearised system cannot be
+    variances (twice GTSAM's error: chi-square units): that of the linearised graph from the zero
+    step to its minimiser (robust and dead-zone factors enter reweighted, as LM sees them; their
+    nonlinear error is not the model's value at zero). inf when the linearised system cannot be
     solved. Under 1 the point is within one standard deviation of the minimum along every
     direction (a quadratic cost), however flat the valley LM was creeping along."""
-    linear = graph.linearize(values)
     try:
+        linear = graph.linearize(values)
         delta = linear.optimize()
     except RuntimeError:  # gtsam: an indeterminant linear system
         return float("inf")
-    return float(2.0 * (graph.error(values) - linear.error(delta)))
+    return float(2.0 * (linear.error(gtsam.VectorValues.Zero(delta)) - linear.error(delta)))
 
 
 def build_graph(gtsam, problem: GraphProblem, keys: list[int]):
