@@ -99,6 +99,7 @@ def test_the_message_notes_every_ambiguous_landmark(rng):
     for noise_std in (0.01, None):
         ranges = range_matrix(traj, landmarks) + 0.01 * rng.standard_normal((8, 7))
         out = slam(ranges, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=noise_std, rng=rng)
+        assert out.converged, out.message  # the note is the converged verdict's
         first = re.findall(r"noted: source (\d+) ", out.message)
         also = re.findall(r"also noted: sources ([0-9, ]+)", out.message)
         noted = {int(i) for i in first} | {int(i) for g in also for i in g.split(",")}

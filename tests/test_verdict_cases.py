@@ -55,7 +55,7 @@ def _case(identifiable: bool, bound: float = 0.01) -> VerdictCase:
         (True, Status.OUTLIERS, 0.01, "flagged-wrong"),
     ],
 )
-def test_classify_the_four_outcomes(identifiable, status, position, expected):
+def test_classify_the_outcomes(identifiable, status, position, expected):
     """Right = identifiable and error <= 3 x bound; flagged = any status but CONVERGED."""
     assert classify(_case(identifiable), _Result(status, position)) == expected
 

@@ -96,7 +96,8 @@ class VerdictCase:
         seed: the integer the case's data were drawn from (``make_case(estimator, regime, seed)``
             draws them again), or None for real data.
         noise_std_too_small: the ``noise_std`` passed is below the noise drawn (a third of it),
-            so a right estimate flagged INCONSISTENT is a right flag (module docstring).
+            so a right estimate flagged INCONSISTENT is a right flag (module docstring); set by
+            :func:`make_case` from the regime.
     """
 
     estimator: str
@@ -492,7 +493,7 @@ def room_case(regime: str, rng: np.random.Generator, seed: int | None = None):
     scale = float(np.median(np.concatenate([t.ravel() for t in true_r])))
     bound, angle_bound = _wall_bound(room, mics, sources, sigma, np.stack(clean))
     reason = ""
-    if mirror_room_gap(room, mics, sources) < AMBIGUITY_CHI2 * sigma**2:
+    if mirror_room_gap(room, mics, sources) <= AMBIGUITY_CHI2 * sigma**2:
         reason = "the room's mirror image through the microphones' plane fits within the noise"
     ok, why = _identifiable(bound, scale, reason)
     run = partial(reconstruct_room, mics, ranges, rng=rng)

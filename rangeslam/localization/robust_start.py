@@ -11,6 +11,9 @@ system. Every subset's point is scored on all anchors by the h-th smallest squar
 known threshold, by the truncated squared residuals (MSAC, Torr and Zisserman 2000), which
 tolerates more than half wrong ranges when the wrong ones disagree among themselves.
 
+With a threshold, the best hypotheses are refitted on the ranges near them and scored again
+(LO-RANSAC, :func:`locally_optimised`): a minimal subset's point carries its few ranges' noise.
+
 :func:`refine_inliers` then repeats threshold-and-refit (reweighted least squares, Rousseeuw and
 Leroy 1987) from that start until the inlier set repeats.
 """

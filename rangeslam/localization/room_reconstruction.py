@@ -608,10 +608,11 @@ def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_sca
     # A loudspeaker whose ranges mostly disagree with the fit was not located (beyond the 50%
     # breakdown point of the robust estimators): say so rather than return it as converged.
     # Its echoes say where its images are, not where it is (any point and the bisector walls
-    # through its images fit them all): alone, its direct path is what places it, so more than
-    # d + 1 of its direct paths must agree, or nothing verifies the place (40% wrong picks: the
-    # fit kept 4 direct paths, 1-2 of them right, placed it 0.5 m off and every wall with it,
-    # and said converged). Walls shared with other loudspeakers can place it too.
+    # through its images fit them all): alone, its direct path is what places it, so when more
+    # than d + 1 were observed, more than d + 1 must agree, or nothing verifies the place (40%
+    # wrong picks: the fit kept 4 direct paths, 1-2 of them right, placed it 0.5 m off and every
+    # wall with it, and said converged); d + 1 observed determine it, unverified, as for a wall.
+    # Walls shared with other loudspeakers can place it too.
     for j in range(j_n):
         n_obs, n_in = int(observed[j].sum()), int(use[j].sum())
         if 2 * n_in < n_obs:
@@ -620,9 +621,9 @@ def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_sca
                 "(more than half mis-picked?); "
             )
             problems.append((Status.OUTLIERS, text))
-        n_obs, n_in = int(observed[j, :, 0].sum()), int(use[j, :, 0].sum())
-        if j_n == 1 and n_in < min(d + 2, n_obs):
-            text = f"loudspeaker {j}: only {n_in} of its {n_obs} direct paths agree with the fit; "
+        heard, kept = int(observed[j, :, 0].sum()), int(use[j, :, 0].sum())
+        if j_n == 1 and kept < min(d + 2, heard):
+            text = f"loudspeaker {j}: only {kept} of its {heard} direct paths agree with the fit; "
             problems.append((Status.OUTLIERS, text))
     return problems, rms_s
 
