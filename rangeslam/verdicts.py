@@ -62,6 +62,8 @@ __all__ = [
     "noise_upper_bound",
     "point_check",
     "probed_failure",
+    "range_gauss_newton",
+    "reflected",
     "rms_precision",
     "weak_moves",
 ]
@@ -358,16 +360,34 @@ def ambiguity_check(cost_gap: float, sigma: float | None, exact_rms: float, what
     return PASSED
 
 
-def _gauss_newton(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, steps: int = 20):
-    """A few Gauss-Newton steps on the range residuals of a point (d,) from ``x``."""
+def range_gauss_newton(
+    z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, *, offset: bool = False, steps=20
+) -> np.ndarray:
+    """Up to ``steps`` Gauss-Newton steps on the range residuals ||x - a_m|| [+ b] - r_m from
+    ``z`` = x (d,), or (x, b) (d + 1,) with ``offset``; anchors (N, d), ranges (N,). Stops once a
+    step is below 1e-12 of the largest distance."""
     for _ in range(steps):
+        x = z[:-1] if offset else z
         diff = x - anchors
         dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-300)
-        step = np.linalg.lstsq(diff / dist[:, None], ranges - dist, rcond=None)[0]
-        x = x + step
+        jac = diff / dist[:, None]
+        res = dist - ranges
+        if offset:
+            jac = np.hstack([jac, np.ones((len(anchors), 1))])
+            res = res + z[-1]
+        step = np.linalg.lstsq(jac, -res, rcond=None)[0]
+        z = z + step
         if np.linalg.norm(step) <= 1e-12 * max(float(np.max(dist)), 1e-300):
             break
-    return x
+    return z
+
+
+def reflected(points: np.ndarray, anchors: np.ndarray) -> np.ndarray:
+    """``points`` (P, d) reflected through the best-fit plane (line in 2-D) of ``anchors``
+    (N, d): the other side, for anchors that cannot tell the sides apart."""
+    centre = anchors.mean(axis=0)
+    normal = np.linalg.svd(anchors - centre)[2][-1]
+    return points - 2.0 * ((points - centre) @ normal)[:, None] * normal
 
 
 def mirror_point(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
@@ -377,11 +397,8 @@ def mirror_point(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> 
     anchors (no plane to reflect through)."""
     if len(anchors) < point.size:
         return None
-    centre = anchors.mean(axis=0)
-    centred = anchors - centre
-    normal = np.linalg.svd(centred)[2][-1]
-    mirror = point - 2.0 * float((point - centre) @ normal) * normal
-    mirror = _gauss_newton(mirror, anchors, ranges)
+    mirror = range_gauss_newton(reflected(point[None], anchors)[0], anchors, ranges)
+    centred = anchors - anchors.mean(axis=0)
     spread = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
     if np.linalg.norm(mirror - point) < 1e-2 * spread:
         return None

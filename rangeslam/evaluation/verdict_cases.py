@@ -42,7 +42,7 @@ from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 from rangeslam.geometry.room import Room
 from rangeslam.sim.scenes import add_outliers, echo_ranges, random_points_in_room
-from rangeslam.verdicts import AMBIGUITY_CHI2, PRECISION_FRACTION, mirror_gap
+from rangeslam.verdicts import AMBIGUITY_CHI2, PRECISION_FRACTION, mirror_gap, reflected
 
 __all__ = [
     "BOUND_FACTOR",
@@ -452,10 +452,8 @@ def mirror_room_gap(room: Room, mics: np.ndarray, sources: np.ndarray) -> float:
     through the microphones' best-fit plane: the mirrored room (reflection is an isometry, so it
     is a room) without refitting, an upper bound on how much worse it fits. Microphones on a
     table hear both rooms alike."""
-    centre = mics.mean(axis=0)
-    normal = np.linalg.svd(mics - centre)[2][-1]
     points = np.vstack([np.vstack([s, room.image_sources(s).positions]) for s in sources])
-    mirrored = points - 2.0 * ((points - centre) @ normal)[:, None] * normal
+    mirrored = reflected(points, mics)
     return float(np.sum((range_matrix(mics, mirrored) - range_matrix(mics, points)) ** 2))
 
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_scalar
+from rangeslam.verdicts import range_gauss_newton
 
 __all__ = [
     "INLIER_K",
@@ -122,23 +123,27 @@ def minimal_subsets(candidates: np.ndarray, p: int, max_subsets: int, rng) -> np
     return candidates[np.argsort(rng.random((max_subsets, len(candidates))), axis=1)[:, :p]]
 
 
+def linearised_system(anchors: np.ndarray, ranges: np.ndarray, offset: bool):
+    """The linearised range equations (module docstring) of anchors (..., p, d) and ranges
+    (..., p): the matrix (..., p, q + 1) with columns [-2 a, (2 r), 1] for unknowns (x, (b), t)
+    and the right-hand side r^2 - ||a||^2 (..., p)."""
+    cols = [-2.0 * anchors]
+    if offset:
+        cols.append(2.0 * ranges[..., None])
+    cols.append(np.ones((*anchors.shape[:-1], 1)))
+    rhs = ranges**2 - np.einsum("...d,...d->...", anchors, anchors)
+    return np.concatenate(cols, axis=-1), rhs
+
+
 def subset_solutions(
     anchors: np.ndarray, ranges: np.ndarray, subsets: np.ndarray, offset: bool
 ) -> np.ndarray:
-    """(H', q) exact solutions of the linearised range equations of each (H, p) subset.
-
-    Columns [-2 a, (2 r), 1] for unknowns (x, (b), t); q = d (+1 with ``offset``). Affinely
-    dependent subsets (smallest singular value below 1e-8 of the largest) are skipped.
+    """(H', q) exact solutions of the linearised range equations of each (H, p) subset
+    (:func:`linearised_system`); q = d (+1 with ``offset``). Affinely dependent subsets
+    (smallest singular value below 1e-8 of the largest) are skipped.
     """
     d = anchors.shape[1]
-    p = subsets.shape[1]
-    a_sub = anchors[subsets]
-    cols = [-2.0 * a_sub]
-    if offset:
-        cols.append(2.0 * ranges[subsets][..., None])
-    cols.append(np.ones((len(subsets), p, 1)))
-    mat = np.concatenate(cols, axis=2)
-    rhs = ranges[subsets] ** 2 - np.einsum("hpd,hpd->hp", a_sub, a_sub)
+    mat, rhs = linearised_system(anchors[subsets], ranges[subsets], offset)
     sv = np.linalg.svd(mat, compute_uv=False)
     ok = sv[:, -1] > 1e-8 * sv[:, 0]
     return np.linalg.solve(mat[ok], rhs[ok][..., None])[..., 0][:, : d + int(offset)]
@@ -182,9 +187,11 @@ def robust_start(
     z = subset_solutions(anchors, ranges, subsets, offset)
     if len(z) == 0:
         return None
-    if threshold is not None:
-        z = np.vstack([z, locally_optimised(z, anchors, ranges, offset, threshold)])
     res2 = offset_range_residuals(z, anchors, ranges, offset) ** 2
+    if threshold is not None:
+        refits = locally_optimised(z, res2, anchors, ranges, offset, threshold)
+        z = np.vstack([z, refits])
+        res2 = np.vstack([res2, offset_range_residuals(refits, anchors, ranges, offset) ** 2])
     h = (n + p + 1) // 2  # Rousseeuw's order statistic for the highest breakdown point
     lmeds = np.partition(res2, h - 1, axis=1)[:, h - 1]
     score = lmeds if threshold is None else np.minimum(res2, threshold**2).sum(axis=1)
@@ -195,55 +202,32 @@ def robust_start(
 
 
 def locally_optimised(
-    z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, offset: bool, threshold: float
+    z: np.ndarray,
+    res2: np.ndarray,
+    anchors: np.ndarray,
+    ranges: np.ndarray,
+    offset: bool,
+    threshold: float,
 ) -> np.ndarray:
     """(H', q) the best :data:`LO_HYPOTHESES` of the hypotheses ``z`` (H, q) by their MSAC score
     at LO_FACTOR x ``threshold`` (a point a few thresholds off still scores its true inliers
-    there), each refitted by linear least squares (the linearised range equations of
-    :func:`subset_solutions`) on the anchors whose range it fits within that (when those are
-    more than the unknowns and not affinely dependent)."""
-    res2 = offset_range_residuals(z, anchors, ranges, offset) ** 2
+    there; ``res2`` (H, N) their squared range residuals), each refitted on the anchors whose
+    range it fits within that (when those are more than the unknowns and not affinely
+    dependent): linear least squares on the linearised range equations, then 5 Gauss-Newton
+    steps on the ranges (the linearised equations weigh far anchors more: their solution on 6
+    right ranges of 1 mm noise was 7 mm off, after these 1 mm)."""
     loose2 = (LO_FACTOR * threshold) ** 2
     top = np.argsort(np.minimum(res2, loose2).sum(axis=1), kind="stable")[:LO_HYPOTHESES]
     refits = []
     for h in top:
         near = np.flatnonzero(res2[h] <= loose2)
         if len(near) > z.shape[1] + 1:
-            refit = linear_least_squares(anchors[near], ranges[near], offset)
-            if refit is not None:
-                refits.append(gauss_newton(refit, anchors[near], ranges[near], offset))
+            near_a, near_r = anchors[near], ranges[near]
+            mat, rhs = linearised_system(near_a, near_r, offset)
+            sol, _, rank, _ = np.linalg.lstsq(mat, rhs, rcond=None)
+            if rank == mat.shape[1]:
+                refits.append(range_gauss_newton(sol[:-1], near_a, near_r, offset=offset, steps=5))
     return np.array(refits).reshape(-1, z.shape[1])
-
-
-def gauss_newton(z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, offset: bool, steps=5):
-    """``z`` (q,) after ``steps`` Gauss-Newton steps on the range residuals of
-    :func:`offset_range_residuals` (the linearised equations weigh far anchors more: their
-    solution on 6 right ranges of 1 mm noise was 7 mm off, after these 1 mm)."""
-    for _ in range(steps):
-        x = z[:-1] if offset else z
-        diff = x - anchors
-        dist = np.linalg.norm(diff, axis=1)
-        if np.any(dist == 0):
-            break
-        jac = diff / dist[:, None]
-        if offset:
-            jac = np.hstack([jac, np.ones((len(anchors), 1))])
-        step = np.linalg.lstsq(jac, -offset_range_residuals(z, anchors, ranges, offset))[0]
-        z = z + step
-    return z
-
-
-def linear_least_squares(anchors: np.ndarray, ranges: np.ndarray, offset: bool):
-    """(q,) the least-squares solution of the linearised range equations of all ``anchors``
-    (P, d) (x, or (x, b) with ``offset``), or None when they are affinely dependent."""
-    cols = [-2.0 * anchors]
-    if offset:
-        cols.append(2.0 * ranges[:, None])
-    cols.append(np.ones((len(anchors), 1)))
-    mat = np.hstack(cols)
-    rhs = ranges**2 - np.einsum("pd,pd->p", anchors, anchors)
-    sol, _, rank, _ = np.linalg.lstsq(mat, rhs, rcond=None)
-    return None if rank < mat.shape[1] else sol[: mat.shape[1] - 1]
 
 
 def refine_inliers(
