@@ -254,19 +254,40 @@ def test_under_determined_point_is_named():
 
 
 def test_a_receiver_that_kept_half_its_ranges_is_outvoted():
-    """outvoted_receivers: a robust answer that keeps at most half of a receiver's observed ranges
+    """breakdown_check: a robust answer that keeps at most half of a receiver's observed ranges
     places it against the other half (past the 50% breakdown point); unobserved ranges do not
-    count."""
-    from rangeslam.mdu.calibration import outvoted_receivers
+    count; sources are judged only when asked."""
+    from rangeslam.verdict.breakdown import breakdown_check
 
     observed = np.ones((4, 6), bool)
     observed[2, :2] = False  # receiver 2 heard by 4 sources
     inliers = observed.copy()
     inliers[0, :2] = False  # 4 of 6 kept
-    assert outvoted_receivers(inliers, observed) == ""
+    assert breakdown_check(inliers, observed, 100, judge_sources=False).passed
     inliers[2, 2:4] = False  # 2 of its 4 kept: half
-    text = outvoted_receivers(inliers, observed)
-    assert text.startswith("receiver 2: only 2 of its 4 ranges agree with the fit")
+    check = breakdown_check(inliers, observed, 100, judge_sources=False)
+    assert check.status is Status.OUTLIERS
+    assert check.reason.startswith("receiver 2: only 2 of its 4 ranges agree with the fit")
     inliers[0, 2] = False  # 3 of 6 kept
-    assert "receiver 0: only 3 of its 6 ranges" in outvoted_receivers(inliers, observed)
-    assert "(and 1 more)" in outvoted_receivers(inliers, observed)
+    reason = breakdown_check(inliers, observed, 100, judge_sources=False).reason
+    assert "receiver 0: only 3 of its 6 ranges" in reason
+    assert "(and 1 more)" in reason
+
+
+def test_a_robust_answer_past_its_breakdown_point_is_outliers():
+    """breakdown_check: more than half the redundant ranges left out is OUTLIERS whatever the
+    points kept; a source column kept at most half is judged with ``judge_sources``."""
+    from rangeslam.verdict.breakdown import breakdown_check
+
+    observed = np.ones((6, 6), bool)
+    kept = observed.copy()
+    kept[np.arange(6), np.arange(6)] = False  # one range of each point: 6 left out
+    assert breakdown_check(kept, observed, 12, judge_sources=True).passed
+    check = breakdown_check(kept, observed, 11, judge_sources=True)
+    assert check.status is Status.OUTLIERS
+    assert check.reason.startswith("6 of the 36 ranges were left out as wrong, more than half")
+    kept = observed.copy()
+    kept[:3, 5] = False  # source 5 keeps 3 of its 6
+    assert breakdown_check(kept, observed, 100, judge_sources=False).passed
+    check = breakdown_check(kept, observed, 100, judge_sources=True, names=("step", "landmark"))
+    assert check.reason.startswith("landmark 5: only 3 of its 6 ranges")

@@ -7,7 +7,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rangeslam import InvalidInputError
-from rangeslam.evaluation.crlb import mdu_crlb
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.clock_offsets import (
@@ -17,6 +16,7 @@ from rangeslam.mdu.clock_offsets import (
     unknowns_with_clock_offsets,
 )
 from rangeslam.mdu.emission import calibrate_unknown_emission
+from rangeslam.verdict.crlb import mdu_crlb
 
 ROOM = np.array([10.0, 10.0, 3.0])  # metres: the simulated room
 

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from rangeslam import DegenerateGeometryError, InvalidInputError, align
-from rangeslam.evaluation.crlb import mdu_crlb
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection
 from rangeslam.geometry.room import Room
 from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.verdict.crlb import mdu_crlb
 
 SIGMA = 1e-3
 

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from rangeslam import DegenerateGeometryError, InvalidInputError, align
-from rangeslam.evaluation.crlb import mdu_crlb
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import rigid_motion_basis
 from rangeslam.solvers.least_squares import refine_unfolding
+from rangeslam.verdict.crlb import mdu_crlb
 
 
 def _scene(rng, dim, m=8, k=8):

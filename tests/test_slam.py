@@ -84,7 +84,8 @@ def test_bounds_that_contradict_the_ranges_are_reported(rng):
 def test_a_wrong_pick_against_the_bounds_is_left_to_the_robust_kernel(rng):
     """One wrong echo (1 m) that the triangle inequality puts at odds with the step bounds: the
     bounds are refused without a robust kernel (naming 1 of 7 landmarks), and with one the
-    range is the kernel's business: no refusal, and an answer said converged is right."""
+    range is the kernel's business: no refusal, converged and right, the wrong range the one
+    left out."""
     traj, landmarks = _scene(rng, 10)
     steps = step_lengths(traj)
     r = range_matrix(traj, landmarks)
@@ -93,7 +94,10 @@ def test_a_wrong_pick_against_the_bounds_is_left_to_the_robust_kernel(rng):
     with pytest.raises(InvalidInputError, match=r"at step [23]: .*1 of 7 landmarks"):
         slam(r, step_bounds=bounds, noise_std=1e-3, max_attempts=1)
     out = slam(r, step_bounds=bounds, noise_std=1e-3, robust="cauchy", rng=rng)
-    assert not out.converged or align(out.receivers, traj, reflection=True).rmse < 0.01
+    # judged on the ranges the kernel kept: the discounted one is not held against the answer
+    assert out.converged, out.message
+    assert align(out.receivers, traj, reflection=True).rmse < 0.01
+    assert out.n_outliers == 1 and not out.inliers[3, 4]
 
 
 def test_exact_recovery_with_bounds_off_centre(rng):
@@ -210,3 +214,28 @@ def test_bad_options_refused_at_the_door(rng, kwargs, match):
     traj, landmarks = _scene(rng, 8)
     with pytest.raises(InvalidInputError, match=match):
         slam(range_matrix(traj, landmarks), **kwargs)
+
+
+def test_exact_ranges_with_a_wrong_pick_are_exact_to_the_robust_verdict(rng):
+    """noise_std=0 means exact data to the kernel's kept ranges as to the residual test: exact
+    ranges with one wrong pick (0.7 m), robust="cauchy": converged, the trajectory to 1e-6 m,
+    the wrong range the one left out."""
+    traj, landmarks = _scene(rng, 10)
+    steps = step_lengths(traj)
+    r = range_matrix(traj, landmarks)
+    r[6, 2] += 0.7
+    out = slam(r, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=0.0, robust="cauchy", rng=rng)
+    assert out.converged, out.message
+    assert align(out.receivers, traj, reflection=True).rmse < 1e-6
+    assert out.n_outliers == 1 and out.outliers[6, 2]
+
+
+def test_noise_std_zero_is_exact_to_every_verdict():
+    """verdict_noise: None is unknown (the residuals' estimate), 0 is exact (the round-off
+    floor), a positive value is itself."""
+    from rangeslam.verdict import verdict_noise
+
+    assert verdict_noise(None, 0.004, 1e-8) == 0.004
+    assert verdict_noise(None, None, 1e-8) is None
+    assert verdict_noise(0.0, 0.004, 1e-8) == 1e-8
+    assert verdict_noise(0.002, 0.004, 1e-8) == 0.002

@@ -1,4 +1,4 @@
-"""The checks behind every verdict (rangeslam.verdicts) and the cases of issue 17 that used to
+"""The checks behind every verdict (rangeslam.verdict) and the cases of issue 17 that used to
 say converged on wrong answers."""
 
 from __future__ import annotations
@@ -7,14 +7,13 @@ import numpy as np
 import pytest
 
 import rangeslam
-from rangeslam.evaluation.crlb import multilateration_crlb
 from rangeslam.evaluation.verdict_cases import make_case
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import flat_rival_check
 from rangeslam.solvers.least_squares import refine_unfolding
 from rangeslam.status import Status
-from rangeslam.verdicts import (
+from rangeslam.verdict import (
     ambiguity_check,
     consistency_check,
     flatness_check,
@@ -23,6 +22,7 @@ from rangeslam.verdicts import (
     rms_precision,
     weak_moves,
 )
+from rangeslam.verdict.crlb import multilateration_crlb
 
 
 def test_consistency_chi_square_and_false_alarms(rng):
@@ -304,7 +304,7 @@ def test_calibrate_auto_robust_on_wrong_picks(rng):
     """10% wrong picks (+0.2 to 1 m) on 16 x 10 ranges, defaults: robust="auto" notices the tail
     and refits robustly; a converged answer is within 3x the bound of the clean ranges. With
     fewer redundant ranges than unknowns (8 x 7) it stays with least squares and flags them."""
-    from rangeslam.evaluation.crlb import mdu_crlb
+    from rangeslam.verdict.crlb import mdu_crlb
 
     x, s = rng.uniform(0, [5, 4, 2.6], (16, 3)), rng.uniform(0, [5, 4, 2.6], (10, 3))
     ranges = range_matrix(x, s) + 0.01 * rng.standard_normal((16, 10))

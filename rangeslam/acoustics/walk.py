@@ -35,7 +35,6 @@ from rangeslam.acoustics.echoes import (
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.mdu.core import (
-    EXACT_RTOL,
     canonical_frame,
     residual_status,
     rotated_covariances,
@@ -46,6 +45,7 @@ from rangeslam.mdu.slam import SlamResult, slam
 from rangeslam.solvers.gtsam_graph import refine_graph
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdict.thresholds import EXACT_RTOL
 
 __all__ = ["WalkFromRirs", "walk_from_rirs"]
 

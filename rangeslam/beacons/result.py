@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import PASSED, Check
+from rangeslam.verdict import PASSED, Check
 
 __all__ = ["MAX_RELATIVE_BIAS", "MAX_SCALE_ERROR", "BeaconSlamResult", "calibration_check"]
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from rangeslam.evaluation.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from rangeslam.evaluation.metrics import (
     BEATS_BOUND,
     MISSES_BOUND,
@@ -20,6 +19,7 @@ from rangeslam.evaluation.metrics import (
     trajectory_rmse,
     wall_errors,
 )
+from rangeslam.verdict.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 
 __all__ = [
     "BEATS_BOUND",

@@ -5,7 +5,7 @@ with the truth it was built from. The TRUTH, never the estimator, decides what i
 
 - *identifiable*: the Cramer-Rao bound at the truth, for the data actually usable (clean ranges
   only, injected wrong picks masked out; with the priors the estimator uses), is finite and its
-  RMS is at most :data:`rangeslam.verdicts.PRECISION_FRACTION` of the scene size (the median true
+  RMS is at most :data:`rangeslam.verdict.PRECISION_FRACTION` of the scene size (the median true
   range), and the construction has no ambiguity (a point heard by exactly d partners, all points
   in one plane at dim=3, a linear array, 3-D data fitted in dim=2; for a located point, a mirror
   image through the anchors' plane that fits the noise-free ranges within chi-square(1, 0.999)
@@ -36,13 +36,13 @@ import numpy as np
 
 from rangeslam._validation import as_rng
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, RangeSlamError
-from rangeslam.evaluation.crlb import mdu_crlb, multilateration_crlb, wall_crlb
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 from rangeslam.geometry.room import Room
 from rangeslam.sim.scenes import add_outliers, echo_ranges, random_points_in_room
-from rangeslam.verdicts import AMBIGUITY_CHI2, PRECISION_FRACTION, mirror_gap, reflected
+from rangeslam.verdict import AMBIGUITY_CHI2, PRECISION_FRACTION, mirror_gap, reflected
+from rangeslam.verdict.crlb import mdu_crlb, multilateration_crlb, wall_crlb
 
 __all__ = [
     "BOUND_FACTOR",

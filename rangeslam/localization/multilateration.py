@@ -43,7 +43,6 @@ from rangeslam._validation import (
 )
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.localization.robust_start import (
-    INLIER_K,
     TRUNCATED_STD,
     Refit,
     check_robust_options,
@@ -52,7 +51,7 @@ from rangeslam.localization.robust_start import (
     robust_start,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import (
+from rangeslam.verdict import (
     ambiguity_check,
     consistency_check,
     first_failure,
@@ -60,6 +59,7 @@ from rangeslam.verdicts import (
     mirror_gap,
     noise_upper_bound,
 )
+from rangeslam.verdict.thresholds import EXACT_RTOL, MSAC_INLIER_K
 
 __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
 
@@ -68,9 +68,6 @@ __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "mul
 log = logging.getLogger(__name__)
 
 WeightSpec = ArrayLike | Literal["uniform", "inverse_range"] | None
-
-# Exact data: RMS range residual at most this fraction of the median range (round-off only).
-EXACT_RMS = 1e-8
 
 # Relative singular-value threshold below which anchors are taken to be affinely dependent.
 _AFFINE_RTOL = 1e-8
@@ -310,7 +307,7 @@ def _srls_refit(prob: ScaledProblem, inliers: np.ndarray, fixed: bool) -> Refit:
         return Refit(fit.x, fit, None)
     res = _range_residuals(fit.x, prob.anchors_s[inliers], prob.ranges_s[inliers])
     sigma = math.sqrt(float(res @ res) / max(int(inliers.sum()) - d, 1)) / TRUNCATED_STD
-    return Refit(fit.x, fit, max(INLIER_K * sigma, 1e-9))
+    return Refit(fit.x, fit, max(MSAC_INLIER_K * sigma, 1e-9))
 
 
 def _robust_fit(
@@ -331,7 +328,7 @@ def _robust_fit(
     if start is None:
         raise DegenerateGeometryError("every subset of d+1 anchors is affinely dependent")
     # Floor on the threshold (scaled units): exact data has residuals at round-off level.
-    thr = thr_s if fixed else max(INLIER_K * start.sigma, 1e-9)
+    thr = thr_s if fixed else max(MSAC_INLIER_K * start.sigma, 1e-9)
     search = refine_inliers(
         lambda x: _range_residuals(x, prob.anchors_s, prob.ranges_s),
         lambda inl: _srls_refit(prob, inl, fixed),
@@ -358,7 +355,7 @@ def _robust_fit(
 
 
 def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> Verdict:
-    """The verdict of :mod:`rangeslam.verdicts` on a fit: determined, unambiguous, consistent."""
+    """The verdict of :mod:`rangeslam.verdict` on a fit: determined, unambiguous, consistent."""
     d, inl, scale = prob.dim, verdict.inliers, prob.scale
     x = verdict.fit.x
     a, r = prob.anchors_s[inl], prob.ranges_s[inl]
@@ -368,7 +365,7 @@ def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> 
     redundancy = len(r) - d
     noise_s = noise_std / scale if noise_std is not None else None
     sigma_s = noise_s if noise_s is not None else noise_upper_bound(float(res @ res), redundancy)
-    exact = EXACT_RMS * float(np.median(r))
+    exact = EXACT_RTOL * float(np.median(r))
     range_scale = float(np.median(r))
     check = first_failure(
         consistency_check(res, jac, redundancy, noise_s, range_scale, exact),
@@ -442,7 +439,7 @@ def multilaterate(
         :class:`MultilaterationResult`. Its status is CONVERGED only when the point is determined
         (the anchors' information has full rank and fixes it to a small fraction of the anchors'
         spread; no mirror image through nearly coplanar anchors fits as well), the residuals fit
-        the noise, and no heavy tail of residuals is left (see :mod:`rangeslam.verdicts`).
+        the noise, and no heavy tail of residuals is left (see :mod:`rangeslam.verdict`).
     """
     rng = as_rng(rng)
     robust = as_flag(robust, "robust")

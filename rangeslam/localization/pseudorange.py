@@ -39,7 +39,6 @@ from rangeslam._validation import (
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.localization.multilateration import affine_rank, check_spanning
 from rangeslam.localization.robust_start import (
-    INLIER_K,
     TRUNCATED_STD,
     Refit,
     check_robust_options,
@@ -48,6 +47,7 @@ from rangeslam.localization.robust_start import (
     robust_start,
 )
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdict.thresholds import MSAC_INLIER_K
 
 __all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
 
@@ -285,7 +285,7 @@ def _offset_refit(prob: OffsetProblem, inliers: np.ndarray, fixed: bool) -> Refi
         return Refit(fit.z, fit, None)
     dof = max(int(inliers.sum()) - prob.dim - 1, 1)
     sigma = math.sqrt(fit.cost / dof) / TRUNCATED_STD
-    return Refit(fit.z, fit, max(INLIER_K * sigma, 1e-9))
+    return Refit(fit.z, fit, max(MSAC_INLIER_K * sigma, 1e-9))
 
 
 def _offset_inliers(
@@ -311,7 +311,7 @@ def _offset_inliers(
         lambda inl: _offset_refit(prob, inl, fixed is not None),
         start.z,
         use,
-        fixed if fixed is not None else max(INLIER_K * start.sigma, 1e-9),
+        fixed if fixed is not None else max(MSAC_INLIER_K * start.sigma, 1e-9),
         lambda inl: inl.sum() >= d + 2 and affine_rank(prob.anchors_s[inl]) >= d,
     )
     kept = int(search.inliers.sum())

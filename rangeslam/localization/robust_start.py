@@ -29,10 +29,9 @@ import numpy as np
 
 from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import as_scalar
-from rangeslam.verdicts import range_gauss_newton
+from rangeslam.verdict import range_gauss_newton
 
 __all__ = [
-    "INLIER_K",
     "InlierSearch",
     "Refit",
     "RobustStart",
@@ -44,9 +43,6 @@ __all__ = [
     "robust_start",
 ]
 
-#: Inlier threshold of the robust multilaterations, in robust standard deviations (Rousseeuw and
-#: Leroy's 2.5).
-INLIER_K = 2.5
 #: Refits of :func:`refine_inliers` before it gives up on a changing inlier set.
 MAX_REFITS = 20
 #: Standard deviation of a unit normal truncated to +-2.5: residuals kept by a 2.5 sigma

@@ -57,27 +57,21 @@ from rangeslam.geometry.room import Room
 from rangeslam.localization.multilateration import affine_rank, check_spanning, multilaterate
 from rangeslam.localization.robust_start import check_robust_options, minimal_subset_points
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import (
+from rangeslam.verdict import (
     ambiguity_check,
     consistency_check,
     information_check,
     noise_upper_bound,
 )
+from rangeslam.verdict.thresholds import EXACT_RTOL, INLIER_K, RELATIVE_RMS
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
 
 log = logging.getLogger(__name__)
 
-# Inlier threshold in standard deviations of the range noise.
-_INLIER_K = 3.0
 # Largest plausible ratio of the fit's noise scale to the median per-column scale: measured 1.0
 # (median) to 1.7 (max) on 600 simulated draws and up to 5.6 on the measured dEchorate echoes.
 _MAX_SCALE_GROWTH = 10.0
-# Largest plausible RMS range residual as a fraction of the median range: 2% is about 6 cm at 3 m,
-# ten times what the measured dEchorate picks show (0.2%); beyond it the fit explains nothing.
-_MAX_RELATIVE_RMS = 0.02
-# Exact data: RMS range residual at most this fraction of the median range (round-off only).
-_EXACT_RMS = 1e-8
 
 
 @dataclass(frozen=True)
@@ -352,7 +346,7 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
             return JointFit(theta, use, sigma, nfev, None)
         new = observed.copy()
         if fixed_thr is None:
-            new[observed] = ~(stud > _INLIER_K * sigma)  # untestable (NaN) ranges stay
+            new[observed] = ~(stud > INLIER_K * sigma)  # untestable (NaN) ranges stay
         else:
             new = observed & (res_all <= fixed_thr)
         # Stop when the set repeats: unchanged, or a cycle through ranges sitting on the threshold
@@ -502,7 +496,7 @@ def _consensus_sources(prob: RoomProblem, start: ColumnStart, max_hypotheses: in
             r_s[j, :, 0],
             mask=observed[j, :, 0],
             robust=True,
-            inlier_threshold=_INLIER_K * start.sigma0,
+            inlier_threshold=INLIER_K * start.sigma0,
             rng=rng,
         )
         if res.converged:
@@ -524,7 +518,7 @@ def _consensus_sources(prob: RoomProblem, start: ColumnStart, max_hypotheses: in
             observed[:, :, cols],
             sources0,
             walls_best[known],
-            _INLIER_K * start.sigma0,
+            INLIER_K * start.sigma0,
             max_hypotheses,
             rng,
         )
@@ -548,7 +542,7 @@ def _joint_passes(
     sources, sigma, nfev = sources0, sigma0, 0
     fitted_walls = None
     for _ in range(2 if robust else 1):
-        thr = fixed_thr if fixed_thr is not None else _INLIER_K * sigma
+        thr = fixed_thr if fixed_thr is not None else INLIER_K * sigma
         if fitted_walls is not None:
             sources = _relocate_sources(
                 mics_s, r_s, observed, sources, fitted_walls, thr, n_hyp, rng
@@ -559,7 +553,7 @@ def _joint_passes(
         if fixed_thr is None:
             # The MAD of all ranges about the selected model is a steadier scale than the few
             # direct paths (it may only be larger: the walls were chosen to fit at sigma).
-            thr = _INLIER_K * max(sigma, MAD_TO_STD * float(np.median(res0[observed])))
+            thr = INLIER_K * max(sigma, MAD_TO_STD * float(np.median(res0[observed])))
         use = observed & (res0 <= thr) if robust else observed.copy()
         fit = _reweighted_fit(model, theta, use, robust=robust, fixed_thr=fixed_thr)
         theta, use, sigma, nfev = fit.theta, fit.use, fit.sigma, nfev + fit.nfev
@@ -595,7 +589,7 @@ def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_sca
     # The fit must explain its inliers at the noise level of the individual columns: a scale far
     # above it means the inlier test grew to accept a wrong model.
     rms_s = float(np.sqrt(np.mean(res_final**2))) if res_final.size else float("nan")
-    if rms_s > _MAX_RELATIVE_RMS:  # ranges are scaled by their median
+    if rms_s > RELATIVE_RMS:  # ranges are scaled by their median
         text = f"RMS residual {rms_s:.1%} of the median range: no consistent room fits the data; "
         problems.append((Status.INCONSISTENT, text))
     if check_scale and fit.sigma > _MAX_SCALE_GROWTH * sigma0:
@@ -629,7 +623,7 @@ def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_sca
 
 
 def _verdict_problems(prob: RoomProblem, fit: JointFit) -> list[tuple[Status, str]]:
-    """The checks of :mod:`rangeslam.verdicts` on the joint fit's kept ranges (scaled units):
+    """The checks of :mod:`rangeslam.verdict` on the joint fit's kept ranges (scaled units):
     their residuals against their own robust scale, the walls' information and precision, and
     the whole room's mirror image through the microphones' plane (microphones on a table hear
     it within the noise)."""
@@ -639,13 +633,13 @@ def _verdict_problems(prob: RoomProblem, fit: JointFit) -> list[tuple[Status, st
     redundancy = res.size - fit.theta.size
     sigma = noise_upper_bound(float(res @ res), redundancy)
     checks = [
-        consistency_check(res, jac, redundancy, None, 1.0, _EXACT_RMS),
+        consistency_check(res, jac, redundancy, None, 1.0, EXACT_RTOL),
         information_check(
             jac, None, sigma, 1.0, "the walls", dim=d, rows=np.arange(j_n * d, fit.theta.size)
         ),
     ]
     gap = _mirror_room_gap(final, fit.theta, prob.mics_s)
-    checks.append(ambiguity_check(gap, sigma, _EXACT_RMS, "the room"))
+    checks.append(ambiguity_check(gap, sigma, EXACT_RTOL, "the room"))
     return [(c.status, c.reason + "; ") for c in checks if not c.passed][:1]
 
 

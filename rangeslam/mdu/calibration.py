@@ -29,9 +29,6 @@ from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverE
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.mdu.core import (
-    EXACT_RTOL,
-    MAX_RELATIVE_RMS,
-    SAME_RTOL,
     ConvexIterationOptions,
     canonical_frame,
     checked_options,
@@ -49,7 +46,23 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, consistency_check, noise_upper_bound
+from rangeslam.verdict import (
+    AMBIGUITY_CHI2,
+    RIVAL_SPREADS,
+    consistency_check,
+    noise_upper_bound,
+    verdict_noise,
+)
+from rangeslam.verdict.breakdown import breakdown_check
+from rangeslam.verdict.crlb import mdu_crlb
+from rangeslam.verdict.thresholds import (
+    AGREEMENT_STARTS,
+    EXACT_RTOL,
+    PROBE_OUTLIER_K,
+    RELATIVE_RMS,
+    ROBUST_CHECK_STARTS,
+    SAME_RTOL,
+)
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -262,6 +275,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     made, was measured on Fig. 3 at 1 cm and rejected: two early runs often agree on a minimum
     that a later run beats; see benchmarks/README.md, "Cheap EDM start".)"""
     failures: list[str] = []
+    # the Cauchy scale must be positive: for exact data (0), as when unknown, the first fit's MAD
     cauchy_scale = problem.noise_std if problem.noise_std else None
     best: Candidate | None = None
     confirmed = False
@@ -304,10 +318,6 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     return SearchOutcome(best, confirmed, attempts, iterations, starts, tuple(failures))
 
 
-#: Random least-squares starts on a robust answer's inliers (at most ``random_starts``).
-ROBUST_CHECK_STARTS = 30
-
-
 def lowest_on_inliers(
     best: Candidate, problem: CalibrationProblem, cauchy_scale: float | None, rng
 ) -> tuple[Candidate, int]:
@@ -333,37 +343,28 @@ def lowest_on_inliers(
     return dataclasses.replace(cand, message=cand.message + note), n_starts
 
 
-def outvoted_receivers(inliers: np.ndarray, observed: np.ndarray) -> str:
-    """Why a robust answer does not locate its receivers ("" when it does): a receiver that kept
-    at most half of its observed ranges (``inliers``, ``observed``: (M, K)) is placed against the
-    other half, past the 50% breakdown point. (dEchorate, 30 microphones x 14 sources: the right
-    minima drop at most 5 of a microphone's 14 ranges; a wrong one 37 cm off, reached by two of
-    four starts, dropped 7.) Sources are not held to it: the receivers are what is calibrated,
-    and a source's column may hold picks of several reflections (the right dEchorate answer with
-    defaults keeps 15 of source 3's 30 ranges, a consistent phantom among them)."""
-    kept, heard = inliers.sum(axis=1), observed.sum(axis=1)
-    outvoted = np.flatnonzero(2 * kept <= heard)
-    if outvoted.size == 0:
-        return ""
-    i = int(outvoted[0])
-    more = f" (and {outvoted.size - 1} more)" if outvoted.size > 1 else ""
-    return (
-        f"receiver {i}: only {int(kept[i])} of its {int(heard[i])} ranges agree with the fit"
-        f"{more}, so half or more of its data disagree with where it is placed; "
-    )
+def calibration_breakdown(best: Candidate, problem: CalibrationProblem):
+    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust candidate, receivers only.
+    (dEchorate, 30 microphones x 14 sources: the right minima drop at most 5 of a microphone's 14
+    ranges; a wrong one 37 cm off, reached by two of four starts, dropped 7.) Sources are not held
+    to it: the receivers are what is calibrated, and a source's column may hold picks of several
+    reflections (the right dEchorate answer with defaults keeps 15 of source 3's 30 ranges, a
+    consistent phantom among them)."""
+    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    redundancy = int(problem.observed.sum()) - unknowns
+    return breakdown_check(best.inliers, problem.observed, redundancy, judge_sources=False)
 
 
 def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> tuple[Status, str]:
     """Status and message of the best candidate: NOT_IDENTIFIABLE without redundancy, OUTLIERS
     when robust dropped over half the redundant ranges or half of a receiver's
-    (:func:`outvoted_receivers`), NO_AGREEMENT when a robust answer was
+    (:func:`calibration_breakdown`), NO_AGREEMENT when a robust answer was
     reached by one start only, INCONSISTENT / NO_AGREEMENT when no start passed the residual test
     / the vote, SOLVER_FAILED when least squares failed."""
-    best, observed, noise_std = outcome.best, problem.observed, problem.noise_std
+    best, noise_std = outcome.best, problem.noise_std
     unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     n_in = int(best.inliers.sum())
-    redundancy, redundancy_all = n_in - unknowns, int(observed.sum()) - unknowns
-    n_dropped = int(observed.sum()) - n_in
+    redundancy = n_in - unknowns
     rms = float(np.sqrt(best.ssr / n_in))
     n_starts = outcome.attempts + outcome.random_starts
     message = best.message
@@ -377,16 +378,9 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
             "minimal configuration (no redundant ranges): the unfolding has finitely many exact "
             "solutions and the data cannot tell which is right; "
         )
-    elif problem.robust and n_dropped > redundancy_all / 2:
-        status = Status.OUTLIERS
-        message += (
-            f"{n_dropped} of the {int(observed.sum())} ranges were dropped as outliers, more "
-            f"than half the {redundancy_all} redundant ones (a wrong configuration can be made to "
-            "fit by dropping enough ranges); "
-        )
-    elif problem.robust and (outvoted := outvoted_receivers(best.inliers, observed)):
-        status = Status.OUTLIERS
-        message += outvoted
+    elif problem.robust and not (breakdown := calibration_breakdown(best, problem)).passed:
+        status = breakdown.status
+        message += breakdown.reason
     elif problem.robust and not outcome.confirmed:
         status = Status.NO_AGREEMENT
         message += (
@@ -397,7 +391,7 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
     elif (
         rms <= problem.exact_rms
         or _accepted(best, problem)
-        or (noise_std is None and outcome.confirmed and rms <= MAX_RELATIVE_RMS * problem.scale)
+        or (noise_std is None and outcome.confirmed and rms <= RELATIVE_RMS * problem.scale)
     ):
         pass
     elif noise_std is not None:
@@ -440,7 +434,9 @@ def calibration_result(
     redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     receivers, sources, _ = canonical_frame(np.asarray(fit.receivers), np.asarray(fit.sources))
     estimate = float(np.sqrt(best.ssr / redundancy)) if redundancy > 0 else float("nan")
-    sigma = problem.noise_std or noise_upper_bound(best.ssr, redundancy)  # the verdict's noise
+    sigma = verdict_noise(
+        problem.noise_std, noise_upper_bound(best.ssr, redundancy), problem.exact_rms
+    )
     mirrors = landmark_mirrors(receivers, sources, problem.ranges, best.inliers, sigma,
                                problem.exact_rms)  # fmt: skip
     return Calibration(
@@ -490,9 +486,10 @@ def calibrate(
             ignored (they may be NaN).
         dim: 2 or 3.
         mask: (M, K) boolean, True where observed; None means all observed.
-        noise_std: standard deviation of the range noise, metres, if known. An answer is accepted
-            when its sum of squared residuals passes a chi-square test at the 0.999 level (or is
-            exact to 1e-8 of the median range). Without it, all ``max_attempts`` runs are made
+        noise_std: standard deviation of the range noise, metres, if known; None: unknown;
+            0: exact data (every test then allows round-off only, 1e-8 of the median range). An
+            answer is accepted when its sum of squared residuals passes a chi-square test at the
+            CHI2_LEVEL (:mod:`rangeslam.verdict.thresholds`) or is exact. Without it, all ``max_attempts`` runs are made
             (slower) and the lowest-residual configuration is accepted when two starts reached it
             and its RMS residual is under 2% of the median range; a wrong local minimum that wins
             this vote is then reported as converged, so pass ``noise_std`` when you know it.
@@ -612,13 +609,8 @@ def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
     return bool(np.median(off) > PROBE_OUTLIER_K * noise)
 
 
-#: robust="auto" goes robust when the ranges a short robust run dropped are this many times its
-#: inliers' noise off (median): clear wrong picks, not the tail of the noise.
-PROBE_OUTLIER_K = 5.0
-
-
 def heavy_tail(cand: Candidate, problem: CalibrationProblem, statuses: tuple[Status, ...]) -> bool:
-    """Whether :func:`rangeslam.verdicts.consistency_check`, without a noise level, gives a
+    """Whether :func:`rangeslam.verdict.consistency_check`, without a noise level, gives a
     candidate's residuals one of ``statuses`` (OUTLIERS: a tail no noise explains)."""
     observed = problem.observed
     residuals = cand.fit.residuals[observed]
@@ -654,16 +646,10 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
 def receiver_spread(best: Candidate, observed: np.ndarray, noise: float) -> float:
     """The receivers' RMS standard deviation at the answer (:func:`mdu_crlb` in the receiver
     gauge at ``noise``), metres; ``noise`` where the bound is undefined."""
-    from rangeslam.evaluation.crlb import mdu_crlb
-
     try:
         return mdu_crlb(best.fit.receivers, best.fit.sources, noise, mask=observed).receiver_rmse
     except (DegenerateGeometryError, InvalidInputError):
         return noise
-
-
-#: Random least-squares starts that must not find other receivers of equal cost.
-AGREEMENT_STARTS = 3
 
 
 def rival_configuration(problem: CalibrationProblem, best: Candidate, rng) -> str:
@@ -672,7 +658,7 @@ def rival_configuration(problem: CalibrationProblem, best: Candidate, rng) -> st
     but receivers more than RIVAL_SPREADS times their RMS standard deviation (RMS, after the
     best rigid motion with reflection) away, else "". Flat scenes fitted in 3-D fold this way."""
     m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
-    noise = problem.noise_std or spread(best) or problem.exact_rms
+    noise = verdict_noise(problem.noise_std, spread(best) or problem.exact_rms, problem.exact_rms)
     far = max(RIVAL_SPREADS * receiver_spread(best, observed, noise), 1e-6 * problem.scale)
     for _ in range(AGREEMENT_STARTS):
         points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale

@@ -45,9 +45,6 @@ from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_mot
 from rangeslam.localization.emission import RANK_RTOL
 from rangeslam.localization.pseudorange import pseudoranges
 from rangeslam.mdu.core import (
-    EXACT_RTOL,
-    MAX_RELATIVE_RMS,
-    SAME_RTOL,
     canonical_frame,
     check_determined,
     check_noise_std,
@@ -58,6 +55,7 @@ from rangeslam.mdu.core import (
 from rangeslam.mdu.emission import UnknownEmissionCalibration, as_groups
 from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.status import Status
+from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS, SAME_RTOL
 
 # Function evaluations of one search run: from a start in the right basin, Levenberg-Marquardt
 # converges in 40 - 70 evaluations on the xtdoa data (12 microphones, 6 - 11 events); runs from
@@ -251,7 +249,7 @@ def clock_verdict(
     model, fit: ClockFit, corrected, observed, noise_std, need: int, *, tail: bool = True
 ):
     """(status, message) of a fit: the residual test (or, without noise_std, the vote of two runs
-    and an RMS below MAX_RELATIVE_RMS of the scene), the redundancy, the rank of the joint
+    and an RMS below RELATIVE_RMS of the scene), the redundancy, the rank of the joint
     Jacobian beyond the rigid motions (``need``), then
     :func:`rangeslam.mdu.core.unfolding_check` with the M - 1 + G offsets as unknowns (``tail``:
     whether its residual-tail test is made; False on a robust fit's inliers)."""
@@ -264,7 +262,7 @@ def clock_verdict(
     passed = passes_residual_test(
         fit.ssr, n_obs, n_pts, model.dim, noise, EXACT_RTOL, n_offsets=n_off
     )
-    vote = noise_std is None and fit.confirmed and rms <= MAX_RELATIVE_RMS * scale
+    vote = noise_std is None and fit.confirmed and rms <= RELATIVE_RMS * scale
     if not (passed or vote):
         status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
         return status, f"no run passed the residual test: best RMS residual {rms:.3g} m"

@@ -33,7 +33,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import Status
-from rangeslam.verdicts import (
+from rangeslam.verdict import (
     PASSED,
     PROBE_DIRECTIONS,
     PROBE_FROM,
@@ -49,17 +49,14 @@ from rangeslam.verdicts import (
     point_check,
     probed_failure,
     rms_precision,
+    verdict_noise,
     weak_moves,
 )
+from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS
 
 __all__ = [
-    "CHI2_LEVEL",
-    "DIMENSION_LEVEL",
     "EDM_STARTS",
     "EMBEDDING_RTOL",
-    "EXACT_RTOL",
-    "MAX_RELATIVE_RMS",
-    "SAME_RTOL",
     "SIGMA_FLOOR",
     "WEIGHT_FACTORS",
     "ConvexIterationOptions",
@@ -85,19 +82,6 @@ __all__ = [
 
 if TYPE_CHECKING:
     from rangeslam.solvers.gtsam_graph import GraphFit
-
-# Exact data: RMS range residual at most this fraction of the median range (round-off only).
-EXACT_RTOL = 1e-8
-# Without noise_std, an answer is accepted when two attempts reach it; "the same" means squared
-# distances agreeing to this fraction of the squared scale.
-SAME_RTOL = 1e-5
-# Significance of the chi-square residual test that accepts an answer when noise_std is given.
-CHI2_LEVEL = 0.999
-
-
-# An answer whose RMS residual exceeds this fraction of the median range explains nothing.
-MAX_RELATIVE_RMS = 0.02
-
 
 #: With edm_start="cheap" a convex-iteration run also stops once the rank-d part of G moved by at
 #: most this fraction between two SDP solves (the refinement after it takes the points from there).
@@ -341,7 +325,7 @@ def residual_status(
                 f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
                 f"{noise_std:.3g} m; "
             )
-    elif not rms <= MAX_RELATIVE_RMS * scale:
+    elif not rms <= RELATIVE_RMS * scale:
         status = Status.INCONSISTENT
         message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
     if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
@@ -393,7 +377,7 @@ def unfolding_check(
     judge_sources: str = "all",
     tail: bool = True,
 ) -> Check:
-    """The verdict of :mod:`rangeslam.verdicts` on an unfolding's answer (eq. 9 model).
+    """The verdict of :mod:`rangeslam.verdict` on an unfolding's answer (eq. 9 model).
 
     Args:
         receivers, sources: (M, d), (K, d) the answer, metres.
@@ -424,15 +408,14 @@ def unfolding_check(
     points = np.vstack([receivers, sources])
     pairs = np.argwhere(observed)
     jac = unfolding_jacobian(points, m, pairs)
-    residuals = (
-        np.linalg.norm(points[pairs[:, 0]] - points[m + pairs[:, 1]], axis=1) - ranges[observed]
-    )
+    residuals = unfolding_residuals(points, m, ranges[observed], pairs)
     n_offsets = 0 if offset_columns is None else offset_columns.shape[1]
     redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(len(points), d) - n_offsets
     info_jac, gauge, projection = information_model(
         receivers, sources, jac, prior_jac, offset_columns
     )
-    sigma = noise_std if noise_std else noise_upper_bound(float(residuals @ residuals), redundancy)
+    ssr = float(residuals @ residuals)
+    sigma = verdict_noise(noise_std, noise_upper_bound(ssr, redundancy), exact_rms)
     scale = float(np.median(ranges[observed]))
     # Residuals first: a noise level estimated from residuals that do not fit means nothing.
     consistency = first_failure(
@@ -491,16 +474,16 @@ def region_check(
     scale: float,
     what: str,
 ) -> Check:
-    """The receivers' precision test of :func:`rangeslam.verdicts.information_check` repeated at
+    """The receivers' precision test of :func:`rangeslam.verdict.information_check` repeated at
     the answer moved PROBE_SPREADS standard deviations along its PROBE_DIRECTIONS weakest
-    receiver directions (:func:`rangeslam.verdicts.weak_moves`), for problems of at most
+    receiver directions (:func:`rangeslam.verdict.weak_moves`), for problems of at most
     PROBE_UNKNOWNS unknowns or when the answer's own RMS standard deviation exceeds PROBE_FROM
     of ``scale``.
 
     Args:
         receivers, sources: (M, d), (K, d) the answer, metres.
         pairs: (P, 2) the observed (receiver, source) index pairs.
-        model: the answer's gauge-free covariance for unit noise (:func:`rangeslam.verdicts.
+        model: the answer's gauge-free covariance for unit noise (:func:`rangeslam.verdict.
             gauge_free_covariance`, None when singular) and receiver-gauge projection
             (:func:`information_model`), then its ``prior_jac`` and ``offset_columns`` (the
             prior rows are held at the answer; the offsets' columns do not depend on the
@@ -592,7 +575,7 @@ def points_check(
     exact_rms: float,
     kind: str,
 ) -> Check:
-    """:func:`rangeslam.verdicts.point_check` of each of ``points`` (N, d) against the
+    """:func:`rangeslam.verdict.point_check` of each of ``points`` (N, d) against the
     ``partners`` (P, d) it is ranged to (``ranges`` and ``observed`` (N, P), metres); the first
     failure, its reason naming ``kind`` and the index."""
     failed = points_failures(points, partners, ranges, observed, sigma, exact_rms, kind, first=True)
@@ -631,10 +614,6 @@ def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndar
     return best
 
 
-#: Significance of the F-test that finds 3-D data fitted with dim=2.
-DIMENSION_LEVEL = 0.999
-
-
 def flat_rival_check(
     receivers: np.ndarray,
     sources: np.ndarray,
@@ -646,7 +625,7 @@ def flat_rival_check(
 ) -> Check:
     """NOT_IDENTIFIABLE when a 3-D answer whose receivers are flat (:func:`flatness_check`)
     fits its ranges no better than the flat configuration refined from its projection into
-    the receivers' plane (the F-test of :func:`dimension_check` at DIMENSION_LEVEL, read the
+    the receivers' plane (the F-test of :func:`dimension_check` at CHI2_LEVEL, read the
     other way): a flat scene fitted in 3-D folds its sources out of the plane at no cost, while
     sources truly off a flat array cannot be flattened. ``receivers`` (M, 3), ``sources``
     (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres. Ranges already
@@ -666,7 +645,7 @@ def flat_rival_check(
     fit = refine_unfolding(flat[:m], flat[m:], np.maximum(ranges, 0.0), observed)
     ssr2 = float(np.sum(fit.residuals[observed] ** 2))
     stat = ((ssr2 - ssr3) / extra) / max(ssr3 / redundancy, 1e-300)
-    if np.isfinite(ssr2) and stat <= f_dist.ppf(DIMENSION_LEVEL, extra, redundancy):
+    if np.isfinite(ssr2) and stat <= f_dist.ppf(CHI2_LEVEL, extra, redundancy):
         return Check(
             Status.NOT_IDENTIFIABLE,
             f"the receivers are flat and a flat configuration fits the ranges as well (residual "
@@ -686,7 +665,7 @@ def dimension_check(
     exact_rms: float,
 ) -> Check:
     """INCONSISTENT when a 2-D answer's ranges are fitted significantly better in 3-D (an F-test
-    at DIMENSION_LEVEL of the residual drop against the N - 3 extra unknowns): the data are not
+    at CHI2_LEVEL of the residual drop against the N - 3 extra unknowns): the data are not
     planar and dim=2 leaves a structured residual that no noise level explains. A 3-D answer
     passes. ``receivers`` (M, d), ``sources`` (K, d), ``ranges`` and ``observed`` (M, K)."""
     m, d = receivers.shape
@@ -702,7 +681,7 @@ def dimension_check(
         return PASSED
     dof3 = redundancy - extra
     stat = ((ssr2 - ssr3) / extra) / max(ssr3 / dof3, 1e-300)
-    if stat > f_dist.ppf(DIMENSION_LEVEL, extra, dof3):
+    if stat > f_dist.ppf(CHI2_LEVEL, extra, dof3):
         return Check(
             Status.INCONSISTENT,
             f"the data are not planar: fitted in 3-D the residual sum of squares drops from "

@@ -32,10 +32,6 @@ from rangeslam._validation import (
 from rangeslam.errors import InvalidInputError
 from rangeslam.localization.emission import RANK_RTOL, pseudoranges
 from rangeslam.mdu.core import (
-    CHI2_LEVEL,
-    EXACT_RTOL,
-    MAX_RELATIVE_RMS,
-    SAME_RTOL,
     ConvexIterationOptions,
     canonical_frame,
     check_determined,
@@ -50,6 +46,7 @@ from rangeslam.mdu.core import (
 )
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS, SAME_RTOL
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
 
@@ -482,7 +479,7 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
     redundancy = n_obs - need
     rms = math.sqrt(ssr / n_obs) * scale
     status, message = Status.CONVERGED, ""
-    vote = noise_std is None and found.confirmed and rms <= MAX_RELATIVE_RMS * scale
+    vote = noise_std is None and found.confirmed and rms <= RELATIVE_RMS * scale
     if not (emission_passes(problem, scale, ssr) or vote):
         status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
         message += f"no start passed the residual test: best RMS residual {rms:.3g} m" + (

@@ -5,8 +5,8 @@ same ranges, so the ranges fix every landmark only up to that reflection; a walk
 planar leaves the two sides a cost gap of a few noise variances, which the data cannot decide
 either (issue 18: the EDM answer put every landmark on one side of the walk's plane). Both sides
 are tried here, landmark by landmark against the fitted trajectory (the mirror image refined
-locally, :func:`rangeslam.verdicts.mirror_point`), and a landmark whose mirror image fits within
-:func:`rangeslam.verdicts.ambiguity_check`'s margin is reported as ambiguous with its other
+locally, :func:`rangeslam.verdict.mirror_point`), and a landmark whose mirror image fits within
+:func:`rangeslam.verdict.ambiguity_check`'s margin is reported as ambiguous with its other
 position, rather than one side picked silently.
 """
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rangeslam.verdicts import ambiguity_check, mirror_point
+from rangeslam.verdict import ambiguity_check, mirror_point
 
 __all__ = ["LandmarkMirrors", "landmark_mirrors"]
 

@@ -40,9 +40,9 @@ from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.alignment import align
 from rangeslam.localization.pseudorange import multilaterate_with_offset
 from rangeslam.status import Status
+from rangeslam.verdict.thresholds import INLIER_K
 
 __all__ = [
-    "INLIER_K",
     "SUBSET_EVENTS",
     "VOTES",
     "Consensus",
@@ -70,8 +70,6 @@ SUBSET_RUNS = 10
 VOTES = 2
 SAME_SCORE = 0.1
 SAME_RECEIVERS = 0.05
-#: Inlier threshold in robust standard deviations (as :func:`rangeslam.calibrate`).
-INLIER_K = 3.0
 #: Random subsets of d + 2 receivers per event placement (of C(12, 5) = 792 for the xtdoa data):
 #: with 3 of 12 arrivals wrong, a subset of 5 is clean with probability 0.16, and 50 draws miss
 #: every clean one with probability 2e-4.

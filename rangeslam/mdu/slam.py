@@ -24,35 +24,36 @@ from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import (
-    EXACT_RTOL,
-    SIGMA_FLOOR,
     ConvexIterationOptions,
     canonical_frame,
     checked_options,
     least_steps,
-    passes_residual_test,
-    residual_status,
     rotated_covariances,
-    step_prior_rows,
-    unfolding_check,
-    unknowns_up_to_rigid_motion,
     validated_ranges,
 )
-from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.slam_verdict import (
+    EXACT_POLISH,
+    SlamProblem,
+    SlamRun,
+    judged_ranges,
+    landmark_ambiguity,
+    passes,
+    slam_verdict,
+    trajectory_spread,
+)
 from rangeslam.mdu.subsets import keyframe_runs
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdicts import AMBIGUITY_CHI2, RIVAL_SPREADS, noise_upper_bound
+from rangeslam.verdict import AMBIGUITY_CHI2, RIVAL_SPREADS, verdict_noise
+from rangeslam.verdict.thresholds import AGREEMENT_STARTS, EXACT_RTOL
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
 
 __all__ = ["SlamResult", "slam"]
 
-# ... after which exact data are finished at this fraction of the floor.
-_EXACT_POLISH = 1e-3
 # Unknown noise: at most this many re-estimates of sigma from the refined fit.
 _NOISE_ROUNDS = 5
 # Why "uniform" is the default step prior: in the Fig. 5 setting at 1 cm, the dead zone's MAP
@@ -95,6 +96,9 @@ class SlamResult(HasStatus):
             :mod:`rangeslam.mdu.landmark_mirrors`); None without the check (EKF baseline).
         landmark_mirrors: (K, d) the other position of each ambiguous landmark, same frame,
             metres; NaN for the others.
+        inliers: (M, K) bool, the ranges the verdict judged: every observed one, or with a
+            robust kernel those it kept (residual within KEPT_SIGMAS noise standard deviations,
+            :data:`rangeslam.verdict.thresholds.KEPT_SIGMAS`); None for methods without it.
     """
 
     receivers: np.ndarray
@@ -113,6 +117,20 @@ class SlamResult(HasStatus):
     eigen_gap: float
     ambiguous_landmarks: np.ndarray | None = None
     landmark_mirrors: np.ndarray | None = None
+    inliers: np.ndarray | None = None
+
+    @property
+    def outliers(self) -> np.ndarray | None:
+        """(M, K) bool, the observed ranges left out as wrong (the kernel discounted them)."""
+        if self.inliers is None:
+            return None
+        return ~np.isnan(self.residuals) & ~self.inliers
+
+    @property
+    def n_outliers(self) -> int:
+        """Observed ranges left out as wrong (0 without a robust kernel)."""
+        out = self.outliers
+        return 0 if out is None else int(out.sum())
 
 
 def _check_bounds_against_ranges(bounds, r, observed, noise_std, robust=None) -> None:
@@ -159,56 +177,6 @@ def random_start(
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     walk = np.vstack([np.zeros(dim), np.cumsum(directions * steps[:, None], axis=0)])
     return walk, rng.uniform(-size, size, size=(k, dim))
-
-
-@dataclass(frozen=True)
-class SlamProblem:
-    """The validated inputs of :func:`slam` (built once by :func:`parse_slam`)."""
-
-    ranges: np.ndarray  # (M, K) metres, 0 where not observed
-    observed: np.ndarray  # (M, K) bool
-    scale: float  # median observed range, metres
-    dim: int
-    bounds: StepBounds | None
-    noise_std: float | None
-    robust: str | None
-    step_sigma: float | None
-    step_prior: str
-    refine: bool
-    extra_starts: int
-    options: ConvexIterationOptions
-
-    @property
-    def n_obs(self) -> int:
-        """Observed ranges."""
-        return int(self.observed.sum())
-
-    @property
-    def redundancy(self) -> int:
-        """Observed ranges minus unknowns up to a rigid motion."""
-        return self.n_obs - unknowns_up_to_rigid_motion(sum(self.ranges.shape), self.dim)
-
-    @property
-    def floor(self) -> float:
-        """The least range sigma of the graph, metres (SIGMA_FLOOR of the median range)."""
-        return SIGMA_FLOOR * self.scale
-
-
-@dataclass(frozen=True)
-class SlamRun:
-    """One answer: squared range residual sum (m^2), trajectory (M, d) and landmarks (K, d), the
-    GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), the
-    key runs are ranked by (the graph's cost, or ``ssr`` without refinement), and where its GTSAM
-    run started (:attr:`SlamResult.start`)."""
-
-    ssr: float
-    receivers: np.ndarray
-    sources: np.ndarray
-    fit: GraphFit | None
-    completion: EDMCompletion
-    residuals: np.ndarray
-    key: float
-    start: str = "edm"
 
 
 @dataclass(frozen=True)
@@ -363,7 +331,7 @@ def refine_run(
     # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
     # step at all): first at the floor, then at sigma itself, or for exact data (where the
     # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
-    target = sigma if sigma > 0 else _EXACT_POLISH * floor
+    target = sigma if sigma > 0 else EXACT_POLISH * floor
     fit = graph_fit(problem, pts, floor)
     return graph_fit(problem, _stacked(fit), target, covariances=covariances), target
 
@@ -399,13 +367,6 @@ def rekeyed(problem: SlamProblem, run: SlamRun | None, sigma: float) -> SlamRun 
     return dataclasses.replace(run, key=key)
 
 
-def passes(problem: SlamProblem, ssr: float) -> bool:
-    """The residual test (:func:`passes_residual_test`) on a sum of squared ranges, m^2."""
-    n = sum(problem.ranges.shape)
-    exact_rms = EXACT_RTOL * problem.scale
-    return passes_residual_test(ssr, problem.n_obs, n, problem.dim, problem.noise_std, exact_rms)
-
-
 def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acceptance:
     """Whether the search may stop at ``run`` (or at a lower minimum a random start found).
 
@@ -419,7 +380,7 @@ def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acce
     calibrate's vote asks. A random start that ends clearly lower replaces the run (the graph's
     cost ranks the EDM answer and the random starts alike), but the search stops there only once
     a convex-iteration run reached it too."""
-    if passes(problem, run.ssr):
+    if passes(problem, run):
         return Acceptance(True, None, run)
     if problem.options.start != "cheap" or run.fit is None:
         return Acceptance(False, None, run)
@@ -427,7 +388,7 @@ def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acce
     best = rivals.best
     if rivals.reason or slam_verdict(problem, best, (), ())[0] is not Status.CONVERGED:
         return Acceptance(False, rivals, best)
-    far = max(RIVAL_SPREADS * trajectory_spread(best, problem.noise_std or sigma_ref or 0.0),
+    far = max(RIVAL_SPREADS * trajectory_spread(best, verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)),
               1e-6 * problem.scale)  # fmt: skip
 
     def near(other: SlamRun) -> bool:
@@ -494,84 +455,6 @@ def try_random_starts(problem: SlamProblem, best: SlamRun, sigma_ref, rng):
     return best, start_failures
 
 
-def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
-    """(status, message): the residual verdict (:func:`residual_status`), SOLVER_FAILED when
-    GTSAM did not converge."""
-    message = ""
-    if failures:
-        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
-    if start_failures:
-        message += f"GTSAM failed from {'; '.join(start_failures)}; "
-    status, why = residual_status(
-        best.ssr,
-        problem.observed,
-        problem.dim,
-        problem.noise_std,
-        problem.scale,
-        chi_square=problem.noise_std is not None and problem.redundancy > 0,
-        bounded=problem.bounds is not None,
-    )
-    message += why
-    if best.fit is not None and not best.fit.converged:
-        status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
-        message += f"GTSAM: {best.fit.message}; "
-    if status is Status.CONVERGED:
-        check = trajectory_check(problem, best)
-        status, message = check.status, message + check.reason
-    return status, message.rstrip("; ")
-
-
-def judged_ranges(problem: SlamProblem, best: SlamRun) -> tuple[np.ndarray, np.ndarray, int]:
-    """What the verdict judges ``best`` on: the (M, K) ranges (all observed ones; with a robust
-    kernel only those it kept, within 4 robust standard deviations), their residuals (metres) and
-    their redundancy."""
-    observed = problem.observed
-    residuals = best.residuals
-    if problem.robust:
-        res = np.abs(residuals[observed])
-        sigma = problem.noise_std or MAD_TO_STD * float(np.median(res))
-        observed = observed & (np.abs(np.nan_to_num(residuals, nan=np.inf)) <= 4 * sigma)
-    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(
-        sum(problem.ranges.shape), problem.dim
-    )
-    return observed, residuals[observed], redundancy
-
-
-def trajectory_check(problem: SlamProblem, best: SlamRun):
-    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
-    the :func:`judged_ranges`."""
-    observed, res, redundancy = judged_ranges(problem, best)
-    sigma = problem.noise_std or (float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0)
-    n_points = sum(problem.ranges.shape)
-    return unfolding_check(
-        best.receivers,
-        best.sources,
-        problem.ranges,
-        observed,
-        problem.noise_std,
-        EXACT_RTOL * problem.scale,
-        prior_jac=step_prior_rows(
-            problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
-        )
-        if sigma
-        else None,
-        what="the trajectory",
-        judge_sources="none",
-    )
-
-
-def landmark_ambiguity(problem: SlamProblem, best: SlamRun, receivers, sources):
-    """:func:`landmark_mirrors` of the answer (``receivers`` (M, d), ``sources`` (K, d) in the
-    frame reported) on the ranges and at the noise the verdict's note used (the
-    :func:`judged_ranges`; ``noise_std``, else the largest noise their residuals allow), so the
-    result's ``ambiguous_landmarks`` and the message's "noted" agree."""
-    observed, res, redundancy = judged_ranges(problem, best)
-    sigma = problem.noise_std or noise_upper_bound(float(res @ res), redundancy)
-    return landmark_mirrors(
-        receivers, sources, problem.ranges, observed, sigma, EXACT_RTOL * problem.scale
-    )
-
-
 def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, message) -> SlamResult:
     """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated)."""
     m = problem.ranges.shape[0]
@@ -582,6 +465,7 @@ def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, mess
     pts = best.completion.points
     edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
     mirrors = landmark_ambiguity(problem, best, rec_f, src_f)
+    kept = judged_ranges(problem, best)[0]
     return SlamResult(
         receivers=frozen(rec_f),
         sources=frozen(src_f),
@@ -599,6 +483,7 @@ def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, mess
         eigen_gap=best.completion.eigen_gap,
         ambiguous_landmarks=frozen(mirrors.ambiguous),
         landmark_mirrors=frozen(mirrors.mirrors),
+        inliers=frozen(kept.copy()),
     )
 
 
@@ -632,8 +517,13 @@ def slam(
         dim: 2 or 3.
         refine: refine the EDM answer with GTSAM (and compute covariances).
         noise_std: range noise standard deviation, metres. Weighs the graph and sets the residual
-            test; when None it is estimated from the residuals of the EDM answer.
-        robust: GTSAM kernel against wrong echoes: None, "huber", "cauchy" or "tukey".
+            test; when None it is estimated from the residuals of the EDM answer; 0 means exact
+            data (the graph is finished as exact, the tests allow round-off only).
+        robust: GTSAM kernel against wrong echoes: None, "huber", "cauchy" or "tukey". The
+            answer is then judged on the ranges the kernel kept (residual within KEPT_SIGMAS
+            noise standard deviations; ``SlamResult.inliers``, ``outliers``, ``n_outliers``),
+            and is OUTLIERS when it left out more than half the redundant ranges or half of one
+            step's or one landmark's (:mod:`rangeslam.verdict.breakdown`).
         step_sigma: scale of the step prior outside the bounds, metres (default: the noise).
         step_prior: how GTSAM reads the bounds: "uniform" (default: the step length uniform on
             [lower, upper], as a dead zone plus its moment-matched Gaussian) or "dead_zone" (no
@@ -697,19 +587,6 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng) -> tuple[SlamRun,
     return best, status, message
 
 
-def trajectory_spread(best: SlamRun, sigma: float) -> float:
-    """The trajectory's RMS standard deviation per point from GTSAM's marginal covariances
-    (receiver gauge), metres; ``sigma`` when there are none."""
-    cov = None if best.fit is None else best.fit.receiver_cov
-    if cov is None:
-        return sigma
-    return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))
-
-
-#: GTSAM-style random starts that must not find a different trajectory of equal cost.
-AGREEMENT_STARTS = 3
-
-
 def rival_search(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> RivalSearch:
     """GTSAM from AGREEMENT_STARTS GTSAM-style random starts (:func:`random_start`), on the graph
     of ``sigma_ref``, beside the answer ``best``; the graph's cost ranks them all alike.
@@ -734,7 +611,10 @@ def rival_search(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> RivalSe
             continue
         apart = align(fit.receivers, best.receivers, reflection=True).rmse
         near = apart <= max(
-            RIVAL_SPREADS * trajectory_spread(best, problem.noise_std or sigma_ref or 0.0),
+            RIVAL_SPREADS
+            * trajectory_spread(
+                best, verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)
+            ),
             1e-6 * problem.scale,  # exact data: round-off apart
         )
         if fit.error < best.key - margin:

@@ -31,25 +31,23 @@ from scipy.stats import chi2, norm
 
 from rangeslam._robust import mad_sigma, studentized
 from rangeslam.status import Status
+from rangeslam.verdict.thresholds import (
+    AMBIGUITY_CHI2,
+    AMBIGUITY_MARGIN,
+    CHI2_LEVEL,
+    FLAT_FACTOR,
+    NOISE_QUANTILE,
+    PRECISION_FRACTION,
+    PROBE_SPREADS,
+    RANK_RTOL,
+    RELATIVE_RMS,
+    ROBUST_RATIO,
+    TAIL_LEVEL,
+    TAIL_SCALE_FLOOR,
+)
 
 __all__ = [
-    "AMBIGUITY_CHI2",
-    "AMBIGUITY_MARGIN",
-    "CONSISTENCY_LEVEL",
-    "FLAT_FACTOR",
-    "NOISE_QUANTILE",
     "PASSED",
-    "PRECISION_FRACTION",
-    "PROBE_DIRECTIONS",
-    "PROBE_FROM",
-    "PROBE_SPREADS",
-    "PROBE_UNKNOWNS",
-    "RANK_RTOL",
-    "RELATIVE_RMS",
-    "RIVAL_SPREADS",
-    "ROBUST_RATIO",
-    "TAIL_LEVEL",
-    "TAIL_SCALE_FLOOR",
     "Check",
     "ambiguity_check",
     "consistency_check",
@@ -65,58 +63,9 @@ __all__ = [
     "range_gauss_newton",
     "reflected",
     "rms_precision",
+    "verdict_noise",
     "weak_moves",
 ]
-
-#: Without a known noise level, the precision and flatness tests assume the largest noise the
-#: residuals do not rule out at this level (the lower quantile of chi-square on the redundancy).
-NOISE_QUANTILE = 0.05
-#: Singular values of the gauge-free Jacobian below this fraction of the largest are zero.
-RANK_RTOL = 1e-7
-#: The RMS standard deviation the information implies must be at most this fraction of the scene
-#: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
-PRECISION_FRACTION = 0.05
-#: The precision test is repeated at the answer moved this many standard deviations along each
-#: of its PROBE_DIRECTIONS weakest directions (where the truth may well lie): near-singular
-#: geometry makes the information change faster than the noise moves the answer, and a bound
-#: that holds only at the answer then flatters it (measured on lemniscate walks without step
-#: bounds: 6 answers 1-4% of the scene fixed at the answer, 11-40% at the truth).
-PROBE_SPREADS = 2.0
-PROBE_DIRECTIONS = 6
-#: Problems of at most PROBE_UNKNOWNS unknowns are always probed (up to 13 more SVDs of their
-#: Jacobian); larger ones (one SVD of 6000 x 474 takes 0.35 s) only when the answer's own RMS
-#: standard deviation exceeds PROBE_FROM of the scene size. A lemniscate walk of 4 steps without
-#: bounds, singular at the truth, was fixed to 0.6% of the scene at its answer and to 1.4 m two
-#: deviations away: a large problem that near a singular point would pass unprobed.
-PROBE_UNKNOWNS = 300
-PROBE_FROM = 0.01
-#: Significance of the chi-square test when the noise level is given.
-CONSISTENCY_LEVEL = 0.999
-#: Without a noise level, an RMS residual above this fraction of the scene size explains nothing.
-RELATIVE_RMS = 0.02
-#: Without a noise level, an RMS residual above this multiple of the residuals' robust (MAD) scale
-#: means a few large residuals dominate the fit: wrong picks the least squares absorbed.
-ROBUST_RATIO = 2.0
-#: A configuration whose thinnest RMS spread is under this multiple of sqrt(sigma * scale) may be
-#: flat: noise of sigma bends a flat configuration out of its plane by about that much (a range
-#: changes by the square of an out-of-plane offset over twice the range).
-FLAT_FACTOR = 2.0
-#: The robust scale of the tail test is at least this fraction of the scene size (3 mm at 3 m), so
-#: a residual must exceed about 0.6% of the scene to count as a wrong pick.
-TAIL_SCALE_FLOOR = 1e-3
-#: Family-wise false-alarm rate of the studentised-residual tail test (Bonferroni over residuals).
-TAIL_LEVEL = 1e-3
-#: Another start's answer of equal cost is a rival minimum when it lies more than this many of
-#: the answer's RMS standard deviations away (measured on Fig. 5 walks: the same minimum reached
-#: again lies 0.2-1.0 of them away, a different one 1.25-4).
-RIVAL_SPREADS = 1.2
-#: A second minimum whose cost exceeds the answer's by less than this many noise variances
-#: cannot be told apart from it (the 0.999 quantile of chi-square with one degree of freedom).
-AMBIGUITY_CHI2 = float(chi2.ppf(0.999, 1))
-#: :func:`ambiguity_check` flags a mirror whose cost gap is under this many times
-#: AMBIGUITY_CHI2 noise variances: the gap is measured on noisy data at the estimate, and a
-#: mirror the noise-free data could not tell apart sometimes shows a larger one there.
-AMBIGUITY_MARGIN = 2.0
 
 
 @dataclass(frozen=True)
@@ -159,6 +108,16 @@ def gauge_free_covariance(
         return None, n_zero
     basis = complement @ vt.T / sv
     return basis @ basis.T, 0
+
+
+def verdict_noise(noise_std: float | None, estimate: float | None, exact_rms: float):
+    """The range noise a verdict works with, metres: ``noise_std`` when given, 0 meaning exact
+    data (then the exact-data RMS ``exact_rms``: round-off only); else ``estimate`` (from the
+    residuals; None when they say nothing). One meaning of ``noise_std`` for every estimator:
+    None is unknown, 0 is exact."""
+    if noise_std is None:
+        return estimate
+    return max(float(noise_std), exact_rms)
 
 
 def noise_upper_bound(ssr: float, redundancy: int) -> float | None:
@@ -293,7 +252,7 @@ def consistency_check(
         return PASSED
     if noise_std:
         tail_check = _tail_check(residuals, jac, noise_std, scale) if tail else PASSED
-        limit = float(chi2.ppf(CONSISTENCY_LEVEL, redundancy)) * noise_std**2
+        limit = float(chi2.ppf(CHI2_LEVEL, redundancy)) * noise_std**2
         if tail_check.passed and ssr > limit:
             return Check(
                 Status.INCONSISTENT,

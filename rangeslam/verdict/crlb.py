@@ -1,5 +1,9 @@
 """Cramer-Rao lower bounds for range measurements with i.i.d. Gaussian noise. Pure numpy.
 
+The information of the models the estimators solve: the verdicts judge precision with it (so it
+sits below the estimators, beside the checks) and the benchmarks use it as a yardstick
+(re-exported by :mod:`rangeslam.evaluation`).
+
 For a point x observed through ranges r_m = ||x - a_m|| + e_m, e_m ~ N(0, sigma_m^2), the Fisher
 information is F = sum_m u_m u_m^T / sigma_m^2 with u_m = (x - a_m) / ||x - a_m||, and any
 unbiased estimator has covariance >= F^-1. The bound on the RMSE is sqrt(trace F^-1): compare it

@@ -1,0 +1,238 @@
+"""The verdict of :func:`rangeslam.mdu.slam` on one answer: what it judges and how.
+
+A robust answer (a GTSAM kernel against wrong echoes) is judged on the ranges its kernel kept
+(:func:`judged_ranges`): the chi-square test of :func:`rangeslam.mdu.core.residual_status` runs
+on those, and :func:`rangeslam.verdict.breakdown.breakdown_check` asks whether it left out too
+many (in all, or of one step's or one landmark's ranges). The trajectory's information and
+flatness (:func:`trajectory_check`) and the landmarks' mirror images (:func:`landmark_ambiguity`)
+are judged on the same ranges at the same noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rangeslam._robust import MAD_TO_STD
+from rangeslam.mdu.core import (
+    SIGMA_FLOOR,
+    ConvexIterationOptions,
+    passes_residual_test,
+    residual_status,
+    step_prior_rows,
+    unfolding_check,
+    unknowns_up_to_rigid_motion,
+)
+from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.solvers.gtsam_graph import GraphFit
+from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.status import Status
+from rangeslam.verdict import noise_upper_bound, verdict_noise
+from rangeslam.verdict.breakdown import breakdown_check
+from rangeslam.verdict.thresholds import EXACT_RTOL, KEPT_SIGMAS
+
+if TYPE_CHECKING:
+    from rangeslam.solvers.sdp import EDMCompletion
+
+__all__ = [
+    "SlamProblem",
+    "SlamRun",
+    "judged_ranges",
+    "kept_scale",
+    "landmark_ambiguity",
+    "passes",
+    "robust_breakdown",
+    "slam_verdict",
+    "trajectory_check",
+    "trajectory_spread",
+]
+
+#: The exact-data graph is finished at this fraction of the sigma floor (see
+#: :func:`rangeslam.mdu.slam.refine_run`); a robust answer to exact data keeps its ranges
+#: against it.
+EXACT_POLISH = 1e-3
+
+
+@dataclass(frozen=True)
+class SlamProblem:
+    """The validated inputs of :func:`slam` (built once by :func:`parse_slam`)."""
+
+    ranges: np.ndarray  # (M, K) metres, 0 where not observed
+    observed: np.ndarray  # (M, K) bool
+    scale: float  # median observed range, metres
+    dim: int
+    bounds: StepBounds | None
+    noise_std: float | None
+    robust: str | None
+    step_sigma: float | None
+    step_prior: str
+    refine: bool
+    extra_starts: int
+    options: ConvexIterationOptions
+
+    @property
+    def n_obs(self) -> int:
+        """Observed ranges."""
+        return int(self.observed.sum())
+
+    @property
+    def redundancy(self) -> int:
+        """Observed ranges minus unknowns up to a rigid motion."""
+        return self.n_obs - unknowns_up_to_rigid_motion(sum(self.ranges.shape), self.dim)
+
+    @property
+    def floor(self) -> float:
+        """The least range sigma of the graph, metres (SIGMA_FLOOR of the median range)."""
+        return SIGMA_FLOOR * self.scale
+
+
+@dataclass(frozen=True)
+class SlamRun:
+    """One answer: squared range residual sum (m^2), trajectory (M, d) and landmarks (K, d), the
+    GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), the
+    key runs are ranked by (the graph's cost, or ``ssr`` without refinement), and where its GTSAM
+    run started (:attr:`SlamResult.start`)."""
+
+    ssr: float
+    receivers: np.ndarray
+    sources: np.ndarray
+    fit: GraphFit | None
+    completion: EDMCompletion
+    residuals: np.ndarray
+    key: float
+    start: str = "edm"
+
+
+def passes(problem: SlamProblem, run: SlamRun) -> bool:
+    """The residual test (:func:`passes_residual_test`) on the ranges the verdict judges
+    (:func:`judged_ranges`: with a robust kernel, those it kept), and, with a kernel, no more
+    ranges dropped than the breakdown allows (:func:`robust_breakdown`)."""
+    kept, res, _ = judged_ranges(problem, run)
+    if problem.robust and not robust_breakdown(problem, kept).passed:
+        return False
+    n = sum(problem.ranges.shape)
+    exact_rms = EXACT_RTOL * problem.scale
+    return passes_residual_test(
+        float(res @ res), int(kept.sum()), n, problem.dim, problem.noise_std, exact_rms
+    )
+
+
+def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
+    """(status, message): the residual verdict (:func:`residual_status`) on the ranges the
+    verdict judges (:func:`judged_ranges`: with a robust kernel, those it kept), OUTLIERS when
+    the kernel discounted more ranges than the breakdown allows, SOLVER_FAILED when GTSAM did
+    not converge."""
+    message = ""
+    if failures:
+        message += f"{len(failures)} SDP runs failed ({failures[0]}); "
+    if start_failures:
+        message += f"GTSAM failed from {'; '.join(start_failures)}; "
+    kept, res, redundancy = judged_ranges(problem, best)
+    status, why = residual_status(
+        float(res @ res),
+        kept,
+        problem.dim,
+        problem.noise_std,
+        problem.scale,
+        chi_square=problem.noise_std is not None and redundancy > 0,
+        bounded=problem.bounds is not None,
+    )
+    message += why
+    breakdown = robust_breakdown(problem, kept) if problem.robust else None
+    if breakdown is not None and not breakdown.passed:  # the deeper reason of a failed test
+        status, message = breakdown.status, message + breakdown.reason
+    if best.fit is not None and not best.fit.converged:
+        status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
+        message += f"GTSAM: {best.fit.message}; "
+    if status is Status.CONVERGED:
+        check = trajectory_check(problem, best)
+        status, message = check.status, message + check.reason
+    return status, message.rstrip("; ")
+
+
+def robust_breakdown(problem: SlamProblem, kept: np.ndarray):
+    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust answer that kept the
+    (M, K) ranges ``kept``: steps and landmarks alike (each is a point located from its ranges)."""
+    return breakdown_check(
+        kept, problem.observed, problem.redundancy, judge_sources=True, names=("step", "landmark")
+    )
+
+
+def kept_scale(problem: SlamProblem, residuals: np.ndarray) -> float:
+    """The range sigma (metres) a robust answer's ranges are kept against: ``noise_std`` (0 is
+    exact data: the sigma of the exact-data graph, EXACT_POLISH of the floor), else MAD_TO_STD times the median |residual| of the
+    observed ranges (wrong echoes must not set it)."""
+    exact_rms = EXACT_RTOL * problem.scale
+    if problem.noise_std == 0:  # exact data: the sigma their graph was finished at
+        return max(EXACT_POLISH * problem.floor, exact_rms)
+    if problem.noise_std is not None:
+        return max(problem.noise_std, exact_rms)
+    res = np.abs(residuals[problem.observed])
+    return max(MAD_TO_STD * float(np.median(res)), exact_rms)
+
+
+def judged_ranges(problem: SlamProblem, best: SlamRun) -> tuple[np.ndarray, np.ndarray, int]:
+    """What the verdict judges ``best`` on: the (M, K) ranges (all observed ones; with a robust
+    kernel only those it kept: |residual| within KEPT_SIGMAS of :func:`kept_scale`), their
+    residuals (metres) and their redundancy."""
+    observed = problem.observed
+    residuals = best.residuals
+    if problem.robust:
+        within = np.abs(np.nan_to_num(residuals, nan=np.inf)) <= KEPT_SIGMAS * kept_scale(
+            problem, residuals
+        )
+        observed = observed & within
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(
+        sum(problem.ranges.shape), problem.dim
+    )
+    return observed, residuals[observed], redundancy
+
+
+def trajectory_check(problem: SlamProblem, best: SlamRun):
+    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
+    the :func:`judged_ranges`."""
+    observed, res, redundancy = judged_ranges(problem, best)
+    estimate = float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0.0
+    sigma = verdict_noise(problem.noise_std, estimate, EXACT_RTOL * problem.scale)
+    n_points = sum(problem.ranges.shape)
+    return unfolding_check(
+        best.receivers,
+        best.sources,
+        problem.ranges,
+        observed,
+        problem.noise_std,
+        EXACT_RTOL * problem.scale,
+        prior_jac=step_prior_rows(
+            problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
+        )
+        if sigma
+        else None,
+        what="the trajectory",
+        judge_sources="none",
+    )
+
+
+def landmark_ambiguity(problem: SlamProblem, best: SlamRun, receivers, sources):
+    """:func:`landmark_mirrors` of the answer (``receivers`` (M, d), ``sources`` (K, d) in the
+    frame reported) on the ranges and at the noise the verdict's note used (the
+    :func:`judged_ranges`; ``noise_std``, else the largest noise their residuals allow), so the
+    result's ``ambiguous_landmarks`` and the message's "noted" agree."""
+    observed, res, redundancy = judged_ranges(problem, best)
+    exact_rms = EXACT_RTOL * problem.scale
+    sigma = verdict_noise(
+        problem.noise_std, noise_upper_bound(float(res @ res), redundancy), exact_rms
+    )
+    return landmark_mirrors(
+        receivers, sources, problem.ranges, observed, sigma, EXACT_RTOL * problem.scale
+    )
+
+
+def trajectory_spread(best: SlamRun, sigma: float) -> float:
+    """The trajectory's RMS standard deviation per point from GTSAM's marginal covariances
+    (receiver gauge), metres; ``sigma`` when there are none."""
+    cov = None if best.fit is None else best.fit.receiver_cov
+    if cov is None:
+        return sigma
+    return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))

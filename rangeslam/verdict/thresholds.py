@@ -1,0 +1,127 @@
+"""Every threshold of the verdicts, named once: what it means and what set it.
+
+The estimators (:mod:`rangeslam.mdu`, :mod:`rangeslam.localization`, :mod:`rangeslam.beacons`)
+and the checks of :mod:`rangeslam.verdict.checks` import them from here; none keeps a copy under
+another name. The README's "Verdict thresholds" table lists them with the same words.
+"""
+
+from __future__ import annotations
+
+from scipy.stats import chi2
+
+__all__ = [
+    "AGREEMENT_STARTS",
+    "AMBIGUITY_CHI2",
+    "AMBIGUITY_MARGIN",
+    "CHI2_LEVEL",
+    "EXACT_RTOL",
+    "FLAT_FACTOR",
+    "INLIER_K",
+    "KEPT_SIGMAS",
+    "MSAC_INLIER_K",
+    "NOISE_QUANTILE",
+    "PRECISION_FRACTION",
+    "PROBE_DIRECTIONS",
+    "PROBE_FROM",
+    "PROBE_OUTLIER_K",
+    "PROBE_SPREADS",
+    "PROBE_UNKNOWNS",
+    "RANK_RTOL",
+    "RELATIVE_RMS",
+    "RIVAL_SPREADS",
+    "ROBUST_CHECK_STARTS",
+    "ROBUST_RATIO",
+    "SAME_RTOL",
+    "TAIL_LEVEL",
+    "TAIL_SCALE_FLOOR",
+]
+
+# --- consistent with the noise ---------------------------------------------------------------
+
+#: Significance of every chi-square test of the verdicts: the residual test against a given
+#: ``noise_std`` (sum of squares on the redundancy), the F-test that finds 3-D data fitted in
+#: ``dim=2``, and the one-degree-of-freedom gap that makes two minima indistinguishable.
+CHI2_LEVEL = 0.999
+#: Exact data: an RMS range residual at most this fraction of the median range is round-off.
+#: ``noise_std=0`` means exact data and is tested against it.
+EXACT_RTOL = 1e-8
+#: Without a noise level, an RMS residual above this fraction of the scene (the median range)
+#: explains nothing.
+RELATIVE_RMS = 0.02
+#: Without a noise level, an RMS residual above this multiple of the residuals' robust (MAD)
+#: scale means a few large residuals dominate the fit: wrong picks the least squares absorbed.
+ROBUST_RATIO = 2.0
+#: The robust scale of the tail test is at least this fraction of the scene size (3 mm at 3 m),
+#: so a residual must exceed about 0.6% of the scene to count as a wrong pick.
+TAIL_SCALE_FLOOR = 1e-3
+#: Family-wise false-alarm rate of the studentised-residual tail test (Bonferroni over residuals).
+TAIL_LEVEL = 1e-3
+#: Without a known noise level, the precision and flatness tests assume the largest noise the
+#: residuals do not rule out at this level (the lower quantile of chi-square on the redundancy).
+NOISE_QUANTILE = 0.05
+
+# --- no unexplained outliers -----------------------------------------------------------------
+
+#: A range whose studentised residual exceeds this many robust standard deviations (1.4826 MAD,
+#: or ``noise_std``) is a wrong pick to the outlier rejection of calibrate, reconstruct_room and
+#: the offset estimators.
+INLIER_K = 3.0
+#: MSAC's inlier threshold for minimal-subset hypotheses, in the same standard deviations (a
+#: hypothesis from d + 1 noisy ranges misses the others by more than the noise).
+MSAC_INLIER_K = 2.5
+#: A robust kernel (slam's Huber, Cauchy or Tukey) kept a range when its residual at the answer
+#: is within this many noise standard deviations: the chi-square test runs on those (a range
+#: the kernel discounted is not held against the answer), and the breakdown rule counts the others.
+KEPT_SIGMAS = 4.0
+#: robust="auto" of calibrate goes robust when the ranges a short robust run dropped are this
+#: many times its inliers' noise off (median): clear wrong picks, not the tail of the noise.
+PROBE_OUTLIER_K = 5.0
+
+# --- identifiable ----------------------------------------------------------------------------
+
+#: Singular values of the gauge-free Jacobian below this fraction of the largest are zero.
+RANK_RTOL = 1e-7
+#: The RMS standard deviation the information implies must be at most this fraction of the scene
+#: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
+PRECISION_FRACTION = 0.05
+#: The precision test is repeated at the answer moved this many standard deviations along each
+#: of its PROBE_DIRECTIONS weakest directions (where the truth may well lie): near-singular
+#: geometry makes the information change faster than the noise moves the answer, and a bound
+#: that holds only at the answer then flatters it (measured on lemniscate walks without step
+#: bounds: 6 answers 1-4% of the scene fixed at the answer, 11-40% at the truth).
+PROBE_SPREADS = 2.0
+PROBE_DIRECTIONS = 6
+#: Problems of at most PROBE_UNKNOWNS unknowns are always probed (up to 13 more SVDs of their
+#: Jacobian); larger ones (one SVD of 6000 x 474 takes 0.35 s) only when the answer's own RMS
+#: standard deviation exceeds PROBE_FROM of the scene size. A lemniscate walk of 4 steps without
+#: bounds, singular at the truth, was fixed to 0.6% of the scene at its answer and to 1.4 m two
+#: deviations away: a large problem that near a singular point would pass unprobed.
+PROBE_UNKNOWNS = 300
+PROBE_FROM = 0.01
+#: A configuration whose thinnest RMS spread is under this multiple of sqrt(sigma * scale) may be
+#: flat: noise of sigma bends a flat configuration out of its plane by about that much (a range
+#: changes by the square of an out-of-plane offset over twice the range).
+FLAT_FACTOR = 2.0
+
+# --- one answer: restarts agree --------------------------------------------------------------
+
+#: Without noise_std two runs reach "the same" answer when their squared distances agree to this
+#: fraction of the squared scale.
+SAME_RTOL = 1e-5
+#: Random least-squares (calibrate) or GTSAM (slam) starts that must not find another answer of
+#: equal cost.
+AGREEMENT_STARTS = 3
+#: Random least-squares starts on a robust calibration's inliers, looking for a lower minimum
+#: (at most ``random_starts``).
+ROBUST_CHECK_STARTS = 30
+#: Another start's answer of equal cost is a rival minimum when it lies more than this many of
+#: the answer's RMS standard deviations away (measured on Fig. 5 walks: the same minimum reached
+#: again lies 0.2-1.0 of them away, a different one 1.25-4).
+RIVAL_SPREADS = 1.2
+#: A second minimum whose cost exceeds the answer's by less than this many noise variances
+#: cannot be told apart from it (the CHI2_LEVEL quantile of chi-square with one degree of freedom).
+AMBIGUITY_CHI2 = float(chi2.ppf(CHI2_LEVEL, 1))
+#: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
+#: times AMBIGUITY_CHI2 noise variances: the gap is measured on noisy data at the estimate, and a
+#: mirror the noise-free data could not tell apart sometimes shows a larger one there.
+AMBIGUITY_MARGIN = 2.0
