@@ -22,7 +22,6 @@ from rangeslam.errors import (
     RangeSlamError,
     SolverError,
 )
-from rangeslam.evaluation.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 from rangeslam.geometry.alignment import Alignment, align
 from rangeslam.geometry.edm import classical_mds, edm, edm_to_gram, gram_to_edm, is_edm
 from rangeslam.geometry.room import ImageSources, Room
@@ -35,6 +34,7 @@ from rangeslam.localization.room_reconstruction import RoomReconstruction, recon
 from rangeslam.mdu.calibration import Calibration, calibrate
 from rangeslam.mdu.emission import calibrate_unknown_emission
 from rangeslam.mdu.slam import SlamResult, slam
+from rangeslam.verdict.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 
 __version__ = "0.1.0"
 

@@ -13,7 +13,6 @@ import numpy as np
 
 from rangeslam._validation import as_rng
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
-from rangeslam.evaluation.crlb import mdu_crlb
 from rangeslam.evaluation.metrics import (
     mean_nees,
     planar_source_error,
@@ -27,6 +26,7 @@ from rangeslam.localization.room_reconstruction import RoomReconstruction, recon
 from rangeslam.mdu.calibration import Calibration, calibrate
 from rangeslam.sim.scenes import add_outliers, add_range_noise, echo_ranges, random_points_in_room
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdict.crlb import mdu_crlb
 
 __all__ = [
     "CalibrationExperiment",

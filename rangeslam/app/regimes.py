@@ -346,7 +346,7 @@ def scene_bound(scene: RegimeScene, cell: RegimeCell) -> float:
     """The receiver-gauge Cramer-Rao bound of the trajectory's RMS error, metres, from the
     observed ranges and the step prior the graph uses (inf: not identifiable)."""
     from rangeslam.errors import DegenerateGeometryError
-    from rangeslam.evaluation.crlb import mdu_crlb
+    from rangeslam.verdict.crlb import mdu_crlb
 
     priors = {}
     if scene.step_bounds is not None:
