@@ -207,7 +207,7 @@ def test_beacon_beyond_n_beacons_is_refused():
     ("kwargs", "match"),
     [
         (dict(range_calibration="linear"), "range_calibration must be one of"),
-        (dict(robust="l1"), "robust must be None or one of"),
+        (dict(robust="l1"), "robust must be one of None, False, True"),
         (dict(odometry_sigma=(0.1, 0.1)), "odometry_sigma must be three positive"),
         (dict(calibration_sigma=(0.1, 0.0)), "calibration_sigma must be two positive"),
         (dict(range_sigma=0.0), "range_sigma must be a positive number"),

@@ -211,7 +211,7 @@ def test_bad_input(rng):
     m = len(x)
     with pytest.raises(InvalidInputError, match="noise_std must be positive"):
         refine_graph(x, s, r, noise_std=0.0)
-    with pytest.raises(InvalidInputError, match="robust must be None or one of"):
+    with pytest.raises(InvalidInputError, match="robust must be one of None, False, True"):
         refine_graph(x, s, r, noise_std=0.01, robust="l1")
     with pytest.raises(InvalidInputError, match=r"lower must have shape \(7,\)"):
         refine_graph(x, s, r, noise_std=0.01, step_bounds=(np.ones(5), np.ones(7)))

@@ -6,9 +6,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from rangeslam._robust import ROBUST_KERNELS, robust_mode
 from rangeslam._validation import as_float_array
 from rangeslam.errors import InvalidInputError
-from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 
 __all__ = ["RANGE_CALIBRATIONS", "BeaconSlamOptions"]
 
@@ -70,8 +70,8 @@ class BeaconSlamOptions:
         range_sigma: standard deviation of a range [m].
         odometry_sigma: (3,) per-step standard deviations along and across the track [m] and of
             the heading [rad].
-        robust: kernel on the range factors: "huber" (default), "cauchy", "tukey" or None
-            (:data:`rangeslam.solvers.robust_kernels.ROBUST_KERNELS`).
+        robust: kernel on the range factors: "huber" (default; also True), "cauchy", "tukey",
+            or None / False (:data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`).
         calibration_sigma: zero-mean prior standard deviations of the scale error s and the
             offset b [m] (weak: they only keep the graph determinate).
         window_length: metres of travel per EDM window.
@@ -103,7 +103,8 @@ class BeaconSlamOptions:
     def __post_init__(self) -> None:
         """Validate every setting and store it in its canonical type."""
         one_of(self.range_calibration, "range_calibration", RANGE_CALIBRATIONS)
-        one_of(self.robust, "robust", ROBUST_KERNELS, or_none=True)
+        robust = robust_mode(self.robust, ROBUST_KERNELS, default_kernel="huber")
+        object.__setattr__(self, "robust", robust)
         osig = as_float_array(self.odometry_sigma, "odometry_sigma")
         if osig.shape != (3,) or not np.all(np.isfinite(osig)) or np.any(osig <= 0):
             raise InvalidInputError(

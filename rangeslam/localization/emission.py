@@ -61,8 +61,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from rangeslam._robust import robust_mode
 from rangeslam._validation import (
-    as_flag,
     as_float_array,
     as_mask,
     as_points,
@@ -427,7 +427,7 @@ def reconstruct_room_unknown_emission(
         see the module docstring).
     """
     rng = as_rng(rng)
-    robust = as_flag(robust, "robust")
+    robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_event(mics, ranges, mask, c)
     thr_s = None if inlier_threshold is None else inlier_threshold / prob.scale

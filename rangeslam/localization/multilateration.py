@@ -30,8 +30,8 @@ from numpy.typing import ArrayLike
 from scipy.linalg import eigh
 from scipy.optimize import brentq
 
+from rangeslam._robust import robust_mode
 from rangeslam._validation import (
-    as_flag,
     as_float_array,
     as_mask,
     as_points,
@@ -442,7 +442,7 @@ def multilaterate(
         the noise, and no heavy tail of residuals is left (see :mod:`rangeslam.verdict`).
     """
     rng = as_rng(rng)
-    robust = as_flag(robust, "robust")
+    robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
     noise_std = as_scalar(noise_std, "noise_std", low=0.0, allow_none=True)
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))

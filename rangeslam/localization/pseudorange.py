@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from rangeslam._robust import robust_mode
 from rangeslam._validation import (
-    as_flag,
     as_float_array,
     as_mask,
     as_points,
@@ -395,7 +395,7 @@ def multilaterate_with_offset(
         anchors on a cone around the point).
     """
     rng = as_rng(rng)
-    robust = as_flag(robust, "robust")
+    robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_offset_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_use = prob.dim, prob.n_use

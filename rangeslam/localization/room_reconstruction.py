@@ -41,9 +41,8 @@ from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from rangeslam._blas import single_blas_thread
-from rangeslam._robust import MAD_TO_STD, mad_sigma, studentized
+from rangeslam._robust import MAD_TO_STD, mad_sigma, robust_mode, studentized
 from rangeslam._validation import (
-    as_flag,
     as_float_array,
     as_mask,
     as_points,
@@ -745,7 +744,7 @@ def reconstruct_room(
         :class:`RoomReconstruction`; ``sources`` is (J, d) even for one loudspeaker.
     """
     rng = as_rng(rng)
-    robust = as_flag(robust, "robust")
+    robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_room_problem(mics, ranges, mask)
     start = _locate_columns(prob, robust, rng)

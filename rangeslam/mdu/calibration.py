@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._blas import single_blas_thread
-from rangeslam._robust import MAD_TO_STD
+from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
@@ -207,9 +207,6 @@ def parse_calibration(
     ):
         check_int(value, name, low)
     refine = as_flag(refine, "refine")
-    if isinstance(robust, str):
-        raise InvalidInputError(f"robust must be True, False or 'auto'; got {robust!r}")
-    robust = as_flag(robust, "robust")
     if robust and not refine:
         raise InvalidInputError(
             "robust=True needs refine=True (wrong picks are found by refitting)"
@@ -470,7 +467,7 @@ def calibrate(
     mask: ArrayLike | None = None,
     noise_std: float | None = None,
     refine: bool = True,
-    robust: bool | str = "auto",
+    robust: bool | str | None = "auto",
     max_attempts: int = 8,
     random_starts: int = 100,
     fit_weight: float = 10.0,
@@ -503,11 +500,13 @@ def calibrate(
             best one's inliers are then fitted from up to 30 random points, and a lower minimum
             found there is refitted robustly. A robust answer is converged only when two
             starts reached it: dropping ranges lets a wrong configuration pass the residual
-            test, so one start's answer is NO_AGREEMENT. ``"auto"`` (the default): least
-            squares on all ranges first; as soon as a fit's residuals carry a heavy tail (wrong picks), or when
-            the search ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, the robust fit (the message
+            test, so one start's answer is NO_AGREEMENT. True or "cauchy": always robust.
+            ``"auto"`` (the default): least squares on all ranges first; as soon as a fit's
+            residuals carry a heavy tail (wrong picks), or when the search ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, the robust fit (the message
             says so), provided there are at least as many redundant ranges as unknowns (with
-            fewer, wrong picks are reported, not searched for). ``False``: never robust.
+            fewer, wrong picks are reported, not searched for). ``False`` or None: never robust.
+            (The values of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`; "huber" and
+            "tukey" are refused.)
         max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
@@ -531,12 +530,11 @@ def calibrate(
         False: DEFAULT_MAX_ITERATIONS if max_iterations is None else max_iterations,
         True: ROBUST_MAX_ITERATIONS if max_iterations is None else max_iterations,
     }
-    auto = isinstance(robust, str) and robust == "auto"
+    mode = robust_mode(robust, ("on", "auto", "cauchy"))  # its robust refit is Cauchy's
+    auto, robust = mode == "auto", mode in ("on", "cauchy")
     problem = parse_calibration(
-        ranges, mask, dim, noise_std, refine, False if auto else robust, random_starts,
-        ConvexIterationOptions(
-            max_attempts, fit_weight, iterations[bool(robust is True)], gap_tol, edm_start
-        ),
+        ranges, mask, dim, noise_std, refine, robust, random_starts,
+        ConvexIterationOptions(max_attempts, fit_weight, iterations[robust], gap_tol, edm_start),
     )  # fmt: skip
     rng = as_rng(rng)
     if not (auto and problem.refine and enough_for_robust(problem)):

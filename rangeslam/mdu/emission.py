@@ -18,9 +18,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import least_squares, minimize, minimize_scalar
 
+from rangeslam._robust import robust_mode
 from rangeslam._validation import (
     as_dim,
-    as_flag,
     as_float_array,
     as_mask,
     as_rng,
@@ -671,7 +671,7 @@ def clock_mode(receiver_offsets, robust, offsets0) -> bool:
     (:mod:`rangeslam.mdu.clock_offsets`) is asked for. Raises InvalidInputError when either is
     not a bool, when ``robust`` comes without ``receiver_offsets`` and when ``offsets0`` comes
     with it."""
-    robust = as_flag(robust, "robust")
+    robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
     if receiver_offsets is not True and receiver_offsets is not False:
         raise InvalidInputError(f"receiver_offsets must be True or False; got {receiver_offsets!r}")
     if robust and not receiver_offsets:

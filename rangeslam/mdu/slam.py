@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._blas import single_blas_thread
-from rangeslam._robust import MAD_TO_STD
+from rangeslam._robust import MAD_TO_STD, ROBUST_KERNELS, robust_mode
 from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
@@ -43,7 +43,6 @@ from rangeslam.mdu.slam_verdict import (
 )
 from rangeslam.mdu.subsets import keyframe_runs
 from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
-from rangeslam.solvers.robust_kernels import ROBUST_KERNELS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import AMBIGUITY_CHI2, RIVAL_SPREADS, verdict_noise
@@ -233,10 +232,7 @@ def parse_slam(
     extra_starts = as_scalar(extra_starts, "extra_starts", low=0, integer=True)
     options = checked_options(options)
     refine = as_flag(refine, "refine")
-    if robust is not None and (not isinstance(robust, str) or robust not in ROBUST_KERNELS):
-        raise InvalidInputError(
-            f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r:.80}"
-        )
+    robust = robust_mode(robust, ROBUST_KERNELS, default_kernel="cauchy")
     step_sigma = as_scalar(
         step_sigma, "step_sigma", low=0.0, low_open=True, allow_none=True,
         expected="a positive number of metres or None",
@@ -519,7 +515,8 @@ def slam(
         noise_std: range noise standard deviation, metres. Weighs the graph and sets the residual
             test; when None it is estimated from the residuals of the EDM answer; 0 means exact
             data (the graph is finished as exact, the tests allow round-off only).
-        robust: GTSAM kernel against wrong echoes: None, "huber", "cauchy" or "tukey". The
+        robust: GTSAM kernel against wrong echoes: None (or False), "huber", "cauchy" (also
+            True) or "tukey" (:data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`). The
             answer is then judged on the ranges the kernel kept (residual within KEPT_SIGMAS
             noise standard deviations; ``SlamResult.inliers``, ``outliers``, ``n_outliers``),
             and is OUTLIERS when it left out more than half the redundant ranges or half of one

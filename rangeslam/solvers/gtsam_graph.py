@@ -50,6 +50,7 @@ from rangeslam.geometry.rigid_motion import receiver_gauge_projection
 from rangeslam.solvers.robust_kernels import (
     ROBUST_KERNEL_CONSTANTS,
     ROBUST_KERNELS,
+    robust_mode,
     robust_noise_model,
 )
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
@@ -491,10 +492,7 @@ def parse_graph_problem(
     noise_std = as_scalar(
         noise_std, "noise_std", low=0.0, low_open=True, expected="positive and finite"
     )
-    if robust is not None and (not isinstance(robust, str) or robust not in ROBUST_KERNELS):
-        raise InvalidInputError(
-            f"robust must be None or one of {ROBUST_KERNELS}; got {robust!r:.80}"
-        )
+    robust = robust_mode(robust, ROBUST_KERNELS, default_kernel="huber")
     lm = check_lm_options(max_iterations, lambda_upper_bound)
     if not isinstance(step_prior, str) or step_prior not in STEP_PRIORS:
         raise InvalidInputError(f"step_prior must be one of {STEP_PRIORS}; got {step_prior!r:.80}")

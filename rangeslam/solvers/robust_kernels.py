@@ -7,12 +7,15 @@ fitting", Image and Vision Computing 15(1), 1997), in units of the residual's si
 
 from __future__ import annotations
 
-__all__ = ["ROBUST_KERNELS", "ROBUST_KERNEL_CONSTANTS", "robust_noise_model"]
+from rangeslam._robust import ROBUST_KERNEL_CONSTANTS, ROBUST_KERNELS, ROBUST_VALUES, robust_mode
 
-#: Kernel name -> tuning constant in sigmas (95% efficiency).
-ROBUST_KERNEL_CONSTANTS: dict[str, float] = {"huber": 1.345, "cauchy": 2.3849, "tukey": 4.6851}
-#: The kernel names accepted by every ``robust=`` option backed by GTSAM.
-ROBUST_KERNELS: tuple[str, ...] = tuple(ROBUST_KERNEL_CONSTANTS)
+__all__ = [
+    "ROBUST_KERNELS",
+    "ROBUST_KERNEL_CONSTANTS",
+    "ROBUST_VALUES",
+    "robust_mode",
+    "robust_noise_model",
+]
 
 
 def robust_noise_model(gtsam, base, kind: str | None, constant: float | None = None):
