@@ -20,9 +20,10 @@ from numpy.typing import ArrayLike
 from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, ROBUST_KERNELS, robust_mode
 from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
-from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
+from rangeslam.localization.multilateration import multilaterate
 from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
@@ -31,6 +32,7 @@ from rangeslam.mdu.core import (
     rotated_covariances,
     validated_ranges,
 )
+from rangeslam.mdu.robust_unfolding import agreeing
 from rangeslam.mdu.slam_verdict import (
     EXACT_POLISH,
     SlamProblem,
@@ -46,7 +48,8 @@ from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import AMBIGUITY_CHI2, RIVAL_SPREADS, verdict_noise
-from rangeslam.verdict.thresholds import AGREEMENT_STARTS, EXACT_RTOL
+from rangeslam.verdict.breakdown import outvoted_points
+from rangeslam.verdict.thresholds import AGREEMENT_STARTS, EXACT_RTOL, KEPT_SIGMAS
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -384,8 +387,8 @@ def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acce
     best = rivals.best
     if rivals.reason or slam_verdict(problem, best, (), ())[0] is not Status.CONVERGED:
         return Acceptance(False, rivals, best)
-    far = max(RIVAL_SPREADS * trajectory_spread(best, verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)),
-              1e-6 * problem.scale)  # fmt: skip
+    noise = verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)
+    far = max(RIVAL_SPREADS * trajectory_spread(best, noise), 1e-6 * problem.scale)
 
     def near(other: SlamRun) -> bool:
         return align(other.receivers, best.receivers, reflection=True).rmse <= far
@@ -415,6 +418,8 @@ def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
             )
         if sigma_ref is None:
             sigma_ref = sigma
+        if problem.robust:
+            run = resected(problem, run, sigma_ref, rng)
         # the lowest answer so far is the one checked (random starts may confirm or beat it)
         candidate = run if best is None or run.key < best.key else best
         verdict = accepted(problem, candidate, runs, sigma_ref, rng)
@@ -425,6 +430,48 @@ def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
             break
     cleared = best if verdict is not None and verdict.ok and verdict.rivals else None
     return EdmSearch(best, attempts, tuple(failures), sigma_ref, cleared)
+
+
+def resected(problem: SlamProblem, run: SlamRun, sigma_ref, rng) -> SlamRun:
+    """A robust run whose kernel left out half or more of a step's or a landmark's ranges
+    (:func:`rangeslam.verdict.breakdown.outvoted_points`) with those points moved to where a
+    robust multilateration from the others puts them (when more of their ranges agree there,
+    within KEPT_SIGMAS of the noise), then refined as an EDM answer is (:func:`edm_run`); kept
+    when its graph cost (on the graph of ``sigma_ref``) is lower, else ``run``. A kernel lets a
+    landmark sit where 2-3 of its 8 ranges and a wrong pick agree, shedding the right ranges at
+    a small cost; the trajectory is right and places it again."""
+    if run.fit is None:
+        return run
+    kept = judged_ranges(problem, run)[0]
+    observed, m = problem.observed, problem.ranges.shape[0]
+    noise = verdict_noise(problem.noise_std, sigma_ref, EXACT_RTOL * problem.scale)
+    threshold = KEPT_SIGMAS * max(noise or 0.0, problem.floor)
+    pts = np.vstack([run.receivers, run.sources])
+    moved = 0
+    for axis in (1, 0):  # steps (rows), then landmarks (columns)
+        for i in outvoted_points(kept, observed, axis):
+            j = i if axis == 1 else m + i
+            anchors = pts[m:] if axis == 1 else pts[:m]
+            r = problem.ranges[i] if axis == 1 else problem.ranges[:, i]
+            obs = observed[i] if axis == 1 else observed[:, i]
+            if obs.sum() < problem.dim + 2:
+                continue
+            try:
+                cand = multilaterate(anchors, r, mask=obs, robust=True,
+                                     inlier_threshold=threshold, rng=rng)  # fmt: skip
+            except (DegenerateGeometryError, InvalidInputError):
+                continue
+            if agreeing(cand.position, anchors, r, obs, threshold) > agreeing(
+                pts[j], anchors, r, obs, threshold
+            ):
+                pts[j], moved = cand.position, moved + 1
+    if not moved:
+        return run
+    try:
+        new = edm_run(problem, run.completion, sigma_ref, pts=pts)[0]
+    except SolverError:
+        return run
+    return new if new.key < run.key else run
 
 
 def try_random_starts(problem: SlamProblem, best: SlamRun, sigma_ref, rng):
