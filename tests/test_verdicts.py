@@ -319,3 +319,18 @@ def test_calibrate_auto_robust_on_wrong_picks(rng):
     small = ranges[:8, :7]
     res = rangeslam.calibrate(small, rng=rng)
     assert not res.converged and "robust='auto'" not in res.message
+
+
+def test_noise_std_zero_is_exact_data_to_the_consistency_check(rng):
+    """noise_std=0 means exact data: 2 mm of noise is INCONSISTENT with it (it once fell through
+    to the unknown-noise tests and passed), while exact ranges pass."""
+    from rangeslam import multilaterate
+
+    anchors = rng.uniform(0, 4, size=(10, 3))
+    point = rng.uniform(1, 3, size=3)
+    exact = np.linalg.norm(anchors - point, axis=1)
+    assert multilaterate(anchors, exact, noise_std=0.0).converged
+    noisy = exact + rng.normal(0, 0.002, size=exact.size)
+    out = multilaterate(anchors, noisy, noise_std=0.0)
+    assert out.status is Status.INCONSISTENT, out.message
+    assert "exact data" in out.message

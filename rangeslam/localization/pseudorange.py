@@ -47,13 +47,9 @@ from rangeslam.localization.robust_start import (
     robust_start,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import MSAC_INLIER_K
+from rangeslam.verdict.thresholds import MSAC_INLIER_K, OFFSET_RANK_RTOL
 
 __all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
-
-# Smallest singular value of the (scaled, weighted) Jacobian over the largest below which the
-# offset and the position cannot be told apart (a rank-deficient fit).
-RANK_RTOL = 1e-8
 
 
 def pseudoranges(value: ArrayLike, name: str, shape: tuple[int, ...], observed: np.ndarray):
@@ -200,7 +196,7 @@ def _rank_ok(z: np.ndarray, anchors: np.ndarray, weights: np.ndarray) -> tuple[b
     if not np.all(np.isfinite(jac)):
         return False, np.full(jac.shape[1], np.inf)
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    if sv.size < jac.shape[1] or sv[-1] <= RANK_RTOL * sv[0]:
+    if sv.size < jac.shape[1] or sv[-1] <= OFFSET_RANK_RTOL * sv[0]:
         return False, np.full(jac.shape[1], np.inf)
     # the diagonal of (J^T J)^-1 = V S^-2 V^T from the SVD (no inverse of the squared matrix: far
     # anchors made it numerically singular and np.linalg.inv raised)

@@ -332,7 +332,8 @@ def reranked(cands: list[Candidate], problem: CalibrationProblem):
     is ranked by its Cauchy cost at that scale, and "confirmed" means another candidate is the
     same configuration within what 3 ``floor`` of range error makes of it."""
     sound = [c for c in cands if calibration_breakdown(c, problem).passed] or cands
-    floor = max(min(spread(c) for c in sound), problem.exact_rms)
+    # the least spread is biased low (it is a minimum); a given noise_std is the floor's floor
+    floor = max(min(spread(c) for c in sound), problem.exact_rms, problem.noise_std or 0.0)
     r, observed = problem.ranges, problem.observed
     keyed = [dataclasses.replace(c, key=_cauchy_cost(c.fit, r, observed, floor)) for c in cands]
     best = min(keyed, key=lambda c: c.key)

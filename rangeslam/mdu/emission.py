@@ -30,7 +30,7 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.errors import InvalidInputError
-from rangeslam.localization.emission import RANK_RTOL, pseudoranges
+from rangeslam.localization.emission import pseudoranges
 from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
@@ -46,7 +46,13 @@ from rangeslam.mdu.core import (
 )
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS, SAME_RTOL
+from rangeslam.verdict.thresholds import (
+    CHI2_LEVEL,
+    EXACT_RTOL,
+    OFFSET_RANK_RTOL,
+    RELATIVE_RMS,
+    SAME_RTOL,
+)
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
 
@@ -491,7 +497,7 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
             "no redundant ranges: finitely many exact solutions, the data cannot tell which; "
         )
     sv = np.linalg.svd(scaled.model.jacobian(fit.x), compute_uv=False)
-    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
+    rank = int(np.sum(sv > OFFSET_RANK_RTOL * sv[0]))
     if rank < need:
         status = Status.NOT_IDENTIFIABLE
         message += (

@@ -21,9 +21,9 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import Status
-from rangeslam.verdict.thresholds import EXACT_RTOL, INLIER_K
+from rangeslam.verdict.thresholds import INLIER_K
 
-__all__ = ["embedding_fit", "reject_outliers", "repair_points", "robust_refit"]
+__all__ = ["agreeing", "embedding_fit", "reject_outliers", "repair_points", "robust_refit"]
 
 
 def embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarray):
@@ -44,7 +44,7 @@ def embedding_fit(points: np.ndarray, m: int, ranges: np.ndarray, mask: np.ndarr
 def reject_outliers(fit, ranges, mask, dim, noise_std):
     """Studentized-residual test (3 sigma), refit without the outliers, until the set is stable.
 
-    sigma is ``noise_std`` when given (0: exact data, round-off only), else 1.4826 MAD of the studentized residuals. Ranges are
+    sigma is ``noise_std`` when given and positive, else 1.4826 MAD of the studentized residuals. Ranges are
     only dropped while every point keeps at least ``dim`` of them and the data stay redundant.
     """
     m = mask.shape[0]
@@ -55,12 +55,10 @@ def reject_outliers(fit, ranges, mask, dim, noise_std):
         pts = np.vstack([fit.receivers, fit.sources])
         abs_res = np.abs(unfolding_residuals(pts, m, ranges[mask], pairs))
         stud = studentized(abs_res, unfolding_jacobian(pts, m, pairs), use[mask])
-        # noise_std None: unknown (the MAD); 0: exact data (round-off of the median range)
-        sigma = (
-            mad_sigma(stud)
-            if noise_std is None
-            else max(noise_std, EXACT_RTOL * float(np.median(ranges[mask])))
-        )
+        # a working scale: for exact data (0), as when unknown, the MAD (the first Cauchy fit is
+        # still pulled by the wrong picks, and round-off would reject every range); the verdict
+        # then judges the inliers as exact
+        sigma = noise_std if noise_std else mad_sigma(stud)
         new = mask.copy()
         new[mask] = ~(stud > INLIER_K * sigma)  # untestable (NaN) ranges stay in
         try:

@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
 
 __all__ = [
+    "EXACT_POLISH",
     "SlamProblem",
     "SlamRun",
     "judged_ranges",

@@ -47,7 +47,7 @@ def breakdown_check(
     ``kept``, ``observed``: (M, K) bool, the ranges the answer kept and those observed;
     ``names``: what the rows and columns are called in the reason ("step", "landmark")."""
     n_obs, n_kept = int(observed.sum()), int(kept.sum())
-    if n_obs - n_kept > redundancy / 2:
+    if n_obs - n_kept > max(redundancy, 0) / 2:  # without redundancy, any range left out
         return Check(
             Status.OUTLIERS,
             f"{n_obs - n_kept} of the {n_obs} ranges were left out as wrong, more than half the "

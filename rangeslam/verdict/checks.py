@@ -250,6 +250,11 @@ def consistency_check(
     rms = float(np.sqrt(ssr / max(n, 1)))
     if rms <= exact_rms or redundancy <= 0:
         return PASSED
+    if noise_std == 0:  # exact data, and these residuals are more than round-off
+        return Check(
+            Status.INCONSISTENT,
+            f"the residual test failed: RMS residual {rms:.3g} m for exact data (noise_std 0)",
+        )
     if noise_std:
         tail_check = _tail_check(residuals, jac, noise_std, scale) if tail else PASSED
         limit = float(chi2.ppf(CHI2_LEVEL, redundancy)) * noise_std**2

@@ -20,6 +20,7 @@ __all__ = [
     "KEPT_SIGMAS",
     "MSAC_INLIER_K",
     "NOISE_QUANTILE",
+    "OFFSET_RANK_RTOL",
     "PRECISION_FRACTION",
     "PROBE_DIRECTIONS",
     "PROBE_FROM",
@@ -88,6 +89,10 @@ PROBE_OUTLIER_K = 5.0
 
 #: Singular values of the gauge-free Jacobian below this fraction of the largest are zero.
 RANK_RTOL = 1e-7
+#: With unknown range offsets (emission times, clock offsets), the offsets and the positions
+#: cannot be told apart when the smallest singular value of the scaled, weighted Jacobian is
+#: under this fraction of the largest (a rank-deficient fit: NOT_IDENTIFIABLE).
+OFFSET_RANK_RTOL = 1e-8
 #: The RMS standard deviation the information implies must be at most this fraction of the scene
 #: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
 PRECISION_FRACTION = 0.05
