@@ -13,6 +13,7 @@ from rangeslam.localization.emission import (
 )
 from rangeslam.mdu.emission import _OffsetUnfolding, calibrate_unknown_emission, offsets_from_rank
 from rangeslam.sim.scenes import echo_ranges, random_convex_room, random_points_in_room
+from rangeslam.status import Status
 
 C = 343.0  # m/s
 FS = 16_000.0  # Hz
@@ -169,8 +170,9 @@ def test_multilaterate_with_offset_bad_input(rng):
     ang = np.linspace(0, 2 * np.pi, 7)[:-1]
     dirs = np.column_stack([np.cos(ang) * 0.6, np.sin(ang) * 0.6, np.full(6, 0.8)])
     cone = x + dirs * np.array([1.0, 2.0, 1.5, 3.0, 2.5, 1.2])[:, None]
-    with pytest.raises(DegenerateGeometryError, match="cone"):
-        multilaterate_with_offset(cone, np.linalg.norm(cone - x, axis=1) + 0.3)
+    on_cone = multilaterate_with_offset(cone, np.linalg.norm(cone - x, axis=1) + 0.3)
+    assert on_cone.status is Status.NOT_IDENTIFIABLE and "cone" in on_cone.message
+    assert np.all(np.isinf(on_cone.dop))
     with pytest.raises(InvalidInputError, match=r"ranges must have shape \(6,\)"):
         multilaterate_with_offset(anchors, r[:5])
     with pytest.raises(InvalidInputError, match="anchors must have shape"):
@@ -187,9 +189,11 @@ def test_multilaterate_with_offset_bad_input(rng):
         multilaterate_with_offset(anchors, r, robust=True, inlier_threshold=0.0)
     with pytest.raises(InvalidInputError, match="max_hypotheses"):
         multilaterate_with_offset(anchors, r, robust=True, max_hypotheses=0)
-    # Robust with only d + 2 ranges: nothing to reject, said so.
+    # Robust with only d + 2 ranges: a wrong range cannot be found, so the point is not
+    # determined under the model robust=True declares; without robust the exact fit converges.
     res = multilaterate_with_offset(anchors[:5], r[:5], robust=True)
-    assert res.converged and "no outlier rejection" in res.message
+    assert res.status is Status.NOT_IDENTIFIABLE and "no outlier rejection" in res.message
+    assert multilaterate_with_offset(anchors[:5], r[:5]).converged
 
 
 # --- reconstruct_room_unknown_emission -----------------------------------------------------------

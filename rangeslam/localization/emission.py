@@ -168,6 +168,10 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
+#: Column fits that give no start: the robust search failed, or least squares did.
+_NO_START = (Status.OUTLIERS, Status.SOLVER_FAILED)
+
+
 def _offset_start(mics, r, observed, robust, inlier_threshold, max_hypotheses, rng):
     """Offset and points (C, d) to start the joint fit, from each column on its own.
 
@@ -196,7 +200,9 @@ def _offset_start(mics, r, observed, robust, inlier_threshold, max_hypotheses, r
             )
         except DegenerateGeometryError:
             continue
-        if res.converged:
+        # A start needs a fit, not a verdict: a column weakly determined on its own (an image
+        # source far from the array) still votes, weighted by its offset's precision.
+        if res.status not in _NO_START and np.all(np.isfinite(res.dop)):
             pts[c] = res.position
             offsets.append(res.offset)
             inv_var.append(1.0 / res.dop[-1] ** 2)

@@ -33,6 +33,7 @@ from rangeslam._validation import (
     as_points,
     as_ranges,
     as_rng,
+    as_scalar,
     frozen,
     shape_str,
 )
@@ -47,7 +48,18 @@ from rangeslam.localization.robust_start import (
     robust_start,
 )
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import MSAC_INLIER_K, OFFSET_RANK_RTOL
+from rangeslam.verdict import (
+    PASSED,
+    ambiguity_check,
+    consistency_check,
+    first_failure,
+    information_check,
+    mirror_gap,
+    noise_upper_bound,
+    verdict_noise,
+)
+from rangeslam.verdict.breakdown import breakdown_check
+from rangeslam.verdict.thresholds import EXACT_RTOL, MSAC_INLIER_K, OFFSET_RANK_RTOL
 
 __all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
 
@@ -77,9 +89,15 @@ class OffsetMultilaterationResult(HasStatus):
             of the residuals in (position, offset): the standard deviations of the coordinates
             and of the offset per unit range noise (dilution of precision); in metres when the
             weights are 1 / sigma^2.
-        status: :class:`rangeslam.status.Status`: OUTLIERS when too few ranges agreed with the
-            robust start, SOLVER_FAILED when the inlier set kept changing or least squares did
-            not converge (``converged`` is ``status is CONVERGED``).
+        status: :class:`rangeslam.status.Status`: CONVERGED only when the verdict of
+            :mod:`rangeslam.verdict` passes (the residuals fit the noise, a robust fit kept more
+            than half its redundant ranges, the point is determined and its mirror image through
+            nearly flat anchors fits worse); OUTLIERS when too few ranges agreed with the robust
+            start or it left out too many; NOT_IDENTIFIABLE when the point is undetermined (the
+            Jacobian in (position, offset) is rank-deficient, a mirror image fits as well, or a
+            wrong range was declared possible with no spare range to find it); INCONSISTENT when
+            the residuals do not fit the noise; SOLVER_FAILED when the inlier set kept changing
+            or least squares did not converge (``converged`` is ``status is CONVERGED``).
         message: what happened, in words.
     """
 
@@ -300,8 +318,11 @@ def _offset_inliers(
         threshold=fixed,
     )
     if start is None:
-        message = "every subset of d + 2 ranges is rank-deficient: no outlier rejection"
-        return InlierVerdict(use.copy(), Status.CONVERGED, message)
+        message = (
+            "every subset of d + 2 ranges is rank-deficient: a wrong range could not be found, "
+            "so the point is not determined when one may be wrong"
+        )
+        return InlierVerdict(use.copy(), Status.NOT_IDENTIFIABLE, message)
     search = refine_inliers(
         lambda z: _offset_residuals(z, prob.anchors_s, prob.ranges_s),
         lambda inl: _offset_refit(prob, inl, fixed is not None),
@@ -326,20 +347,62 @@ def _offset_inliers(
     return InlierVerdict(inliers, Status.OUTLIERS, message)
 
 
-def _offset_result(prob: OffsetProblem, verdict: InlierVerdict) -> OffsetMultilaterationResult:
-    """The final ML fit on the inliers, its rank test and the result in the caller's units."""
-    inliers, status, message = verdict.inliers, verdict.status, verdict.message
+def _offset_checked(
+    prob: OffsetProblem,
+    verdict: InlierVerdict,
+    z: np.ndarray,
+    noise_std: float | None,
+    breakdown: bool,
+) -> InlierVerdict:
+    """The verdict of :mod:`rangeslam.verdict` on the fit z = (x, b) (scaled units) of the
+    inliers: the residuals against the noise (``noise_std`` metres, None unknown, 0 exact),
+    with ``breakdown`` (a data-driven robust fit) no more than half the redundant ranges left
+    out, the point determined (its information, the offset a nuisance) and its mirror image
+    through the anchors' best-fit plane, with its own offset, fitting worse."""
+    d, inl, scale = prob.dim, verdict.inliers, prob.scale
+    a, r = prob.anchors_s[inl], prob.ranges_s[inl]
+    res = _offset_residuals(z, a, r)
+    jac = _offset_jacobian(z, a)
+    redundancy = len(r) - d - 1  # unknowns: the point and the offset
+    range_scale = float(np.median(np.linalg.norm(a - z[:d], axis=1)))
+    exact = EXACT_RTOL * range_scale
+    noise_s = None if noise_std is None else noise_std / scale
+    sigma_s = verdict_noise(noise_s, noise_upper_bound(float(res @ res), redundancy), exact)
+    kept = PASSED
+    if breakdown:
+        used = prob.use[None]
+        kept = breakdown_check(inl[None] & used, used, prob.n_use - d - 1, judge_sources=False)
+    check = first_failure(
+        consistency_check(res, jac, redundancy, noise_s, range_scale, exact),
+        kept,
+        information_check(jac, None, sigma_s, range_scale, "the point", dim=d, rows=np.arange(d)),
+        ambiguity_check(mirror_gap(z[:d], a, r, float(z[d])), sigma_s, exact, "the point"),
+    )
+    if check.passed:
+        return verdict
+    return InlierVerdict(inl, check.status, f"{verdict.message}; {check.reason}")
+
+
+def _offset_result(
+    prob: OffsetProblem, verdict: InlierVerdict, noise_std: float | None, breakdown: bool
+) -> OffsetMultilaterationResult:
+    """The final ML fit on the inliers, its verdict and the result in the caller's units."""
+    inliers = verdict.inliers
     fit = _fit_offset(prob.anchors_s[inliers], prob.ranges_s[inliers], prob.weights_s[inliers])
     z = fit.z
-    if not fit.ok:
-        status = status if status is not Status.CONVERGED else Status.SOLVER_FAILED
-        message += f"; least squares did not converge: {fit.message}"
     full_rank, dop = _rank_ok(z, prob.anchors_s[inliers], prob.weights_s[inliers])
-    if not full_rank:
-        raise DegenerateGeometryError(
-            "the offset cannot be told from the distance: the directions from the point to the "
-            "anchors lie on a cone (u . n = const), so (position, offset) is a family of fits"
+    if not fit.ok and verdict.status is Status.CONVERGED:
+        message = f"{verdict.message}; least squares did not converge: {fit.message}"
+        verdict = InlierVerdict(inliers, Status.SOLVER_FAILED, message)
+    elif not full_rank and verdict.status is Status.CONVERGED:
+        message = (
+            f"{verdict.message}; the offset cannot be told from the distance: the directions "
+            "from the point to the anchors lie on a cone (u . n = const), so (position, offset) "
+            "is a family of fits"
         )
+        verdict = InlierVerdict(inliers, Status.NOT_IDENTIFIABLE, message)
+    elif verdict.status is Status.CONVERGED:
+        verdict = _offset_checked(prob, verdict, z, noise_std, breakdown)
     d, scale, w = prob.dim, prob.scale, prob.weights
     pos = prob.centre + scale * z[:d]
     b = float(scale * z[d])
@@ -354,8 +417,8 @@ def _offset_result(prob: OffsetProblem, verdict: InlierVerdict) -> OffsetMultila
         cost=float(np.sum((w * res**2)[inliers])),
         # dop in metres per unit weight: the scaled Jacobian is unitless, weights were normalised.
         dop=frozen(dop / np.sqrt(np.mean(w[prob.use]))),
-        status=status,
-        message=message,
+        status=verdict.status,
+        message=verdict.message,
     )
 
 
@@ -368,6 +431,7 @@ def multilaterate_with_offset(
     robust: bool = False,
     inlier_threshold: float | None = None,
     max_hypotheses: int = 2000,
+    noise_std: float | None = None,
     rng: np.random.Generator | int | None = None,
 ) -> OffsetMultilaterationResult:
     """Locate a point and a common range offset from ranges r_m = ||x - a_m|| + b (pseudoranges).
@@ -383,23 +447,32 @@ def multilaterate_with_offset(
             a threshold of 2.5 robust standard deviations and re-fits). Needs M >= d + 3 observed.
         inlier_threshold: with ``robust``, a fixed bound in metres on |residual| instead (MSAC).
         max_hypotheses: with ``robust``, random subsets tried when there are more than this.
+        noise_std: the range noise's standard deviation in metres, if known (0: exact ranges):
+            the verdict then tests the residuals against it (chi-square); without it, against
+            the scene size and their own robust scale.
         rng: random generator (or seed) for the subset draws.
 
     Returns:
-        :class:`OffsetMultilaterationResult`. Raises DegenerateGeometryError when the anchors do
-        not span R^d or the fit's Jacobian is rank-deficient (b cannot be told from the distance:
-        anchors on a cone around the point).
+        :class:`OffsetMultilaterationResult`, CONVERGED only when the verdict passes (see its
+        ``status``). With ``robust`` and fewer than d + 3 ranges no wrong range can be found,
+        so the point is NOT_IDENTIFIABLE under the model the caller declared. Raises
+        DegenerateGeometryError when the anchors do not span R^d.
     """
     rng = as_rng(rng)
     robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
+    noise_std = as_scalar(noise_std, "noise_std", low=0.0, allow_none=True)
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_offset_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_use = prob.dim, prob.n_use
     if robust and n_use >= d + 3:
         verdict = _offset_inliers(prob, inlier_threshold, int(max_hypotheses), rng)
+    elif robust:
+        message = (
+            f"no outlier rejection possible with {n_use} ranges in {d}-D (needs {d + 3}): a wrong "
+            "range, which robust=True declares possible, would be fitted exactly"
+        )
+        verdict = InlierVerdict(prob.use.copy(), Status.NOT_IDENTIFIABLE, message)
     else:
-        message = "pseudorange least squares"
-        if robust:
-            message = f"no outlier rejection possible with {n_use} ranges in {d}-D (needs {d + 3})"
-        verdict = InlierVerdict(prob.use.copy(), Status.CONVERGED, message)
-    return _offset_result(prob, verdict)
+        verdict = InlierVerdict(prob.use.copy(), Status.CONVERGED, "pseudorange least squares")
+    breakdown = robust and inlier_threshold is None
+    return _offset_result(prob, verdict, noise_std, breakdown)

@@ -145,6 +145,8 @@ def place_events(
             # LinAlgError: multilaterate_with_offset's rank test inverts a singular J^T J when
             # the receivers lie in the far field (xtdoa data, seed 2); the event stays unplaced.
             continue
+        if not np.all(np.isfinite(fit.dop)):  # (position, offset) a family of fits: unplaced
+            continue
         sources[j], offsets[j] = fit.position, fit.offset
         residuals[:, j] = fit.residuals
         inliers[:, j] = fit.inliers & observed[:, j]

@@ -354,30 +354,43 @@ def reflected(points: np.ndarray, anchors: np.ndarray) -> np.ndarray:
     return points - 2.0 * ((points - centre) @ normal)[:, None] * normal
 
 
-def mirror_point(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> np.ndarray | None:
+def mirror_point(
+    point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, offset: float | None = None
+) -> np.ndarray | None:
     """The other side of ``point`` (d,): its reflection through the best-fit plane (line in 2-D)
-    of ``anchors`` (N, d), refined locally on the ``ranges`` (N,); None when the refinement
-    returns to the point's basin (within 1% of the anchors' RMS spread) or with fewer than d
-    anchors (no plane to reflect through)."""
+    of ``anchors`` (N, d), refined locally on the ``ranges`` (N,) (with a range ``offset`` b,
+    metres, ranges = ||x - a|| + b: the point and b are refined together and (d + 1,) returned);
+    None when the refinement returns to the point's basin (within 1% of the anchors' RMS spread)
+    or with fewer than d anchors (no plane to reflect through)."""
     if len(anchors) < point.size:
         return None
-    mirror = range_gauss_newton(reflected(point[None], anchors)[0], anchors, ranges)
+    start = reflected(point[None], anchors)[0]
+    if offset is None:
+        mirror = range_gauss_newton(start, anchors, ranges)
+    else:
+        mirror = range_gauss_newton(np.r_[start, offset], anchors, ranges, offset=True)
     centred = anchors - anchors.mean(axis=0)
     spread = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
-    if np.linalg.norm(mirror - point) < 1e-2 * spread:
+    if np.linalg.norm(mirror[: point.size] - point) < 1e-2 * spread:
         return None
     return mirror
 
 
-def mirror_gap(point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> float:
+def mirror_gap(
+    point: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, offset: float | None = None
+) -> float:
     """How much worse the point's mirror image (:func:`mirror_point`) fits: its sum of squared
-    range residuals minus the point's own; units of ``ranges`` (N,) squared. Infinite when there
-    is no mirror image."""
-    mirror = mirror_point(point, anchors, ranges)
+    range residuals minus the point's own; units of ``ranges`` (N,) squared. With a range
+    ``offset`` b (metres) the residuals are ||x - a|| + b - r and the mirror has its own b.
+    Infinite when there is no mirror image."""
+    mirror = mirror_point(point, anchors, ranges, offset)
     if mirror is None:
         return float("inf")
-    res_p = np.linalg.norm(anchors - point, axis=1) - ranges
-    res_m = np.linalg.norm(anchors - mirror, axis=1) - ranges
+    d = point.size
+    b_point = 0.0 if offset is None else offset
+    b_mirror = 0.0 if offset is None else float(mirror[d])
+    res_p = np.linalg.norm(anchors - point, axis=1) + b_point - ranges
+    res_m = np.linalg.norm(anchors - mirror[:d], axis=1) + b_mirror - ranges
     return float(res_m @ res_m - res_p @ res_p)
 
 
