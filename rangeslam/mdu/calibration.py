@@ -28,6 +28,7 @@ from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
+from rangeslam.mdu.basin_probe import lower_minimum_nearby
 from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
@@ -59,6 +60,7 @@ from rangeslam.verdict.thresholds import (
     AGREEMENT_STARTS,
     EXACT_RTOL,
     PROBE_OUTLIER_K,
+    PROBE_SPREADS,
     RELATIVE_RMS,
     ROBUST_CHECK_STARTS,
     SAME_RTOL,
@@ -666,12 +668,40 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
             else "calibration found no usable solution: every fit diverged",
             status="; ".join(dict.fromkeys(failures)) or None,
         )
+    if problem.refine and not problem.robust:
+        outcome = probed(outcome, problem, rng)
     status, message = calibration_verdict(outcome, problem)
     if status is Status.CONVERGED and problem.refine and not problem.robust:
         rival = rival_configuration(problem, outcome.best, rng)
         if rival:
             status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
     return calibration_result(outcome, problem, status, message)
+
+
+def probed(outcome: SearchOutcome, problem: CalibrationProblem, rng) -> SearchOutcome:
+    """The search's answer, or the lower minimum a probe along its weakest directions reached
+    (:func:`rangeslam.mdu.basin_probe.lower_minimum_nearby`, moves scaled by noise_std or the
+    answer's own spread; none for exact data). A lower minimum was reached once: without
+    noise_std it is not "confirmed", so the vote of two starts is not claimed for it."""
+    best = outcome.best
+    sigma = problem.noise_std or spread(best)
+    if sigma <= problem.exact_rms:
+        return outcome
+    r, observed = problem.ranges, problem.observed
+    lower = lower_minimum_nearby(best.fit.receivers, best.fit.sources, r, observed, sigma)
+    if lower is None:
+        return outcome
+    cand = fit_start(Start(np.vstack([lower.receivers, lower.sources]), None), problem, None, rng)
+    if cand is None or cand.ssr >= best.ssr:
+        return outcome
+    note = (
+        f"a lower minimum {PROBE_SPREADS:g} standard deviations from the search's answer along "
+        f"one of its weakest directions (residual sum of squares {cand.ssr:.3g} against "
+        f"{best.ssr:.3g} m^2) replaced it; "
+    )
+    cand = dataclasses.replace(cand, message=best.message + note)
+    confirmed = outcome.confirmed and problem.noise_std is not None
+    return dataclasses.replace(outcome, best=cand, confirmed=confirmed)
 
 
 def receiver_spread(best: Candidate, observed: np.ndarray, noise: float) -> float:
