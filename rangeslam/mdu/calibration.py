@@ -28,7 +28,7 @@ from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.mdu.basin_probe import lower_minimum_nearby
+from rangeslam.mdu.basin_probe import LOWER_RTOL, lower_minimum_nearby
 from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
@@ -672,8 +672,11 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
         outcome = probed(outcome, problem, rng)
     status, message = calibration_verdict(outcome, problem)
     if status is Status.CONVERGED and problem.refine and not problem.robust:
-        rival = rival_configuration(problem, outcome.best, rng)
-        if rival:
+        rival, lower = rival_configuration(problem, outcome.best, rng)
+        if lower is not None:  # a lower minimum elsewhere: the answer, judged again
+            outcome = replaced(outcome, problem, lower, rng, "a random start")
+            status, message = calibration_verdict(outcome, problem)
+        elif rival:
             status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
     return calibration_result(outcome, problem, status, message)
 
@@ -681,8 +684,7 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
 def probed(outcome: SearchOutcome, problem: CalibrationProblem, rng) -> SearchOutcome:
     """The search's answer, or the lower minimum a probe along its weakest directions reached
     (:func:`rangeslam.mdu.basin_probe.lower_minimum_nearby`, moves scaled by noise_std or the
-    answer's own spread; none for exact data). A lower minimum was reached once: without
-    noise_std it is not "confirmed", so the vote of two starts is not claimed for it."""
+    answer's own spread; none for exact data)."""
     best = outcome.best
     sigma = problem.noise_std or spread(best)
     if sigma <= problem.exact_rms:
@@ -691,13 +693,24 @@ def probed(outcome: SearchOutcome, problem: CalibrationProblem, rng) -> SearchOu
     lower = lower_minimum_nearby(best.fit.receivers, best.fit.sources, r, observed, sigma)
     if lower is None:
         return outcome
-    cand = fit_start(Start(np.vstack([lower.receivers, lower.sources]), None), problem, None, rng)
-    if cand is None or cand.ssr >= best.ssr:
+    where = f"a probe {PROBE_SPREADS:g} standard deviations along one of its weakest directions"
+    points = np.vstack([lower.receivers, lower.sources])
+    return replaced(outcome, problem, points, rng, where)
+
+
+def replaced(
+    outcome: SearchOutcome, problem: CalibrationProblem, points: np.ndarray, rng, where: str
+) -> SearchOutcome:
+    """``outcome`` with the least-squares fit from ``points`` (M + K, d) as its answer when that
+    costs less, the message saying ``where`` it came from. A lower minimum was reached once:
+    without noise_std it is not "confirmed" (the vote of two starts is not claimed for it)."""
+    best = outcome.best
+    cand = fit_start(Start(points, None), problem, None, rng)
+    if cand is None or cand.ssr >= best.ssr * (1.0 - LOWER_RTOL):
         return outcome
     note = (
-        f"a lower minimum {PROBE_SPREADS:g} standard deviations from the search's answer along "
-        f"one of its weakest directions (residual sum of squares {cand.ssr:.3g} against "
-        f"{best.ssr:.3g} m^2) replaced it; "
+        f"{where} reached a lower minimum than the search's answer (residual sum of squares "
+        f"{cand.ssr:.3g} against {best.ssr:.3g} m^2), which replaced it; "
     )
     cand = dataclasses.replace(cand, message=best.message + note)
     confirmed = outcome.confirmed and problem.noise_std is not None
@@ -713,28 +726,35 @@ def receiver_spread(best: Candidate, observed: np.ndarray, noise: float) -> floa
         return noise
 
 
-def rival_configuration(problem: CalibrationProblem, best: Candidate, rng) -> str:
-    """ "Restarts agree": least squares from AGREEMENT_STARTS random points; the reason when one
-    ends with a residual sum of squares within AMBIGUITY_CHI2 noise variances of the answer's
-    but receivers more than RIVAL_SPREADS times their RMS standard deviation (RMS, after the
-    best rigid motion with reflection) away, else "". Flat scenes fitted in 3-D fold this way."""
+def rival_configuration(
+    problem: CalibrationProblem, best: Candidate, rng
+) -> tuple[str, np.ndarray | None]:
+    """ "Restarts agree": least squares from AGREEMENT_STARTS random points. Returns the reason
+    when one ends with a residual sum of squares within AMBIGUITY_CHI2 noise variances of the
+    answer's but receivers more than RIVAL_SPREADS times their RMS standard deviation (RMS,
+    after the best rigid motion with reflection) away, else "" (flat scenes fitted in 3-D fold
+    this way); and the points (M + K, d) of the lowest start that costs less than the answer
+    (a lower minimum the search missed), else None."""
     m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
     noise = verdict_noise(problem.noise_std, spread(best) or problem.exact_rms, problem.exact_rms)
     far = max(RIVAL_SPREADS * receiver_spread(best, observed, noise), 1e-6 * problem.scale)
+    reason, lower, lower_ssr = "", None, best.ssr * (1.0 - LOWER_RTOL)
     for _ in range(AGREEMENT_STARTS):
         points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
         fit = refine_unfolding(points[:m], points[m:], r, observed)
         ssr = float(np.sum(fit.residuals[observed] ** 2))
         if not np.isfinite(ssr) or ssr > best.ssr + AMBIGUITY_CHI2 * noise**2:
             continue
+        if ssr < lower_ssr:
+            lower, lower_ssr = np.vstack([fit.receivers, fit.sources]), ssr
         apart = align(fit.receivers, best.fit.receivers, reflection=True).rmse
-        if apart > far:
-            return (
+        if apart > far and not reason:
+            reason = (
                 f"another start fits the ranges as well (residual sum of squares {ssr:.3g} "
                 f"against {best.ssr:.3g} m^2) with receivers {apart:.3g} m RMS away: the data do "
                 "not decide between them"
             )
-    return ""
+    return reason, lower
 
 
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
