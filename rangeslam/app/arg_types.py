@@ -7,12 +7,16 @@ import argparse
 from pathlib import Path
 
 __all__ = [
+    "SEED_MAX",
+    "SIGMA_MAX",
     "fraction",
     "int_in",
+    "noise_level",
     "non_negative",
     "npz_file",
     "positive_float",
     "positive_int",
+    "seed",
     "writable_dir",
 ]
 
@@ -36,6 +40,31 @@ def non_negative(text: str) -> float:
     if not value >= 0:
         raise argparse.ArgumentTypeError(f"must be >= 0; got {text}")
     return value
+
+
+#: The largest range noise the simulated benchmarks take, metres: beyond it no scene (rooms of a
+#: few metres, beacon fields of a few hundred) is located at all, and 1e300 overflowed a trial.
+SIGMA_MAX = 10.0
+#: The largest --seed: numpy's generators take any non-negative integer; 2^63 - 1 keeps seeds
+#: derived from it (seed + trial) inside a signed 64-bit integer.
+SEED_MAX = 2**63 - 1
+
+
+def noise_level(text: str) -> float:
+    """A range noise standard deviation in metres, in [0, SIGMA_MAX]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of metres; got {text}") from None
+    if not 0 <= value <= SIGMA_MAX:
+        raise argparse.ArgumentTypeError(f"must be from 0 to {SIGMA_MAX:g} m; got {text}")
+    return value
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer from 0 to SEED_MAX (numpy refuses negative seeds)."""
+    parse = int_in(0, SEED_MAX)
+    return parse(text)
 
 
 def fraction(text: str) -> float:

@@ -76,7 +76,7 @@ def _add_demo(sub) -> None:
     demo.add_argument(
         "--out", type=arg_types.writable_dir, default="rangeslam-out", help="output folder"
     )
-    demo.add_argument("--seed", type=int, default=0, help="random seed")
+    demo.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
     demo.add_argument(
         "--mics", type=arg_types.int_in(4, 64), default=8, metavar="M", help="microphones, 4 to 64"
     )
@@ -88,7 +88,10 @@ def _add_demo(sub) -> None:
         help="loudspeakers, 1 to 8",
     )
     demo.add_argument(
-        "--sigma", type=arg_types.non_negative, default=1e-3, help="range noise std, metres"
+        "--sigma",
+        type=arg_types.noise_level,
+        default=1e-3,
+        help="range noise std, metres (0 to 10)",
     )
     demo.add_argument(
         "--outliers",
@@ -124,11 +127,11 @@ def _add_bench(sub) -> None:
     )
     fig3.add_argument(
         "--sigmas",
-        type=arg_types.non_negative,
+        type=arg_types.noise_level,
         nargs="+",
         default=list(FIG3_SIGMAS),
         metavar="SIGMA",
-        help="range noise levels, metres",
+        help="range noise levels, metres (0 to 10)",
     )
     for name, text in (
         (
@@ -197,7 +200,7 @@ def _add_xtdoa_bench(experiments) -> None:
         metavar="K",
         help="numbers of events K",
     )
-    xtdoa.add_argument("--seed", type=int, default=0, help="random seed")
+    xtdoa.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
     xtdoa.add_argument(
         "--robust",
         type=arg_types.positive_int,
@@ -230,7 +233,7 @@ def _bench_common() -> argparse.ArgumentParser:
 
 def _add_bench_run_options(bench: argparse.ArgumentParser) -> None:
     """What every benchmark takes, simulated or Plaza: seed, output folder, TUM files."""
-    bench.add_argument("--seed", type=int, default=0, help="random seed")
+    bench.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
     bench.add_argument(
         "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
     )
@@ -244,11 +247,11 @@ def _add_slam_bench_options(slam: argparse.ArgumentParser) -> None:
     """The options of ``bench fig5`` and ``bench compare``: noise, steps, bounds."""
     slam.add_argument(
         "--sigmas",
-        type=arg_types.non_negative,
+        type=arg_types.noise_level,
         nargs="+",
         default=list(FIG5_SIGMAS),
         metavar="SIGMA",
-        help="range noise levels, metres",
+        help="range noise levels, metres (0 to 10)",
     )
     slam.add_argument(
         "--steps",
@@ -351,7 +354,9 @@ def _add_run(sub) -> None:
         help="speed of sound, m/s (default: the npz's c, else 343)",
     )
     run.add_argument("--dim", type=int, choices=(2, 3), default=3, help="2 or 3 (walks; default 3)")
-    run.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    run.add_argument(
+        "--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1; default 0)"
+    )
     run.add_argument(
         "--measured",
         action="store_true",

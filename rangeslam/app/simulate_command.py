@@ -137,7 +137,7 @@ def _add_common(p: argparse.ArgumentParser, *, fs: int) -> None:
         metavar=("X", "Y", "Z"),
         help="loudspeaker position, metres (default: at random, 0.5 m from the walls)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
     p.add_argument("--fs", type=arg_types.positive_int, default=fs, help="sampling rate, Hz")
     p.add_argument("--absorption", type=_absorption, default=0.2, help="energy absorbed by a wall")
     p.add_argument(
