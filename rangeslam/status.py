@@ -32,6 +32,14 @@ class Status(enum.IntEnum):
     #: Without a known noise level, no two restarts reached the same answer.
     NO_AGREEMENT = 6
 
+    def __str__(self) -> str:
+        """The status by name (``CONVERGED``), as printed, logged and written to tables; the
+        integer is ``int(status)``."""
+        return self.name
+
+    def __format__(self, spec: str) -> str:
+        return format(self.name, spec)
+
 
 #: The sentence each status's message starts with.
 STATUS_MESSAGES: dict[Status, str] = {

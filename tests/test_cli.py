@@ -206,3 +206,22 @@ def test_an_interrupted_bench_keeps_what_it_finished(tmp_path, monkeypatch, caps
         ("0", "0", "ok"),
         ("0", "1", "ok"),
     ]
+
+
+def test_python_dash_m_rangeslam_runs():
+    """``python -m rangeslam`` is the command (it failed: no __main__)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "rangeslam", "--version"], capture_output=True, text=True
+    )
+    assert proc.returncode == 0 and proc.stdout.startswith("rangeslam ")
+
+
+def test_statuses_print_by_name_and_the_package_is_typed():
+    """``str(result.status)`` printed 0; the package ships its PEP 561 marker."""
+    from importlib import resources
+
+    from rangeslam.status import Status
+
+    assert str(Status.CONVERGED) == "CONVERGED" and f"{Status.OUTLIERS:>9}" == " OUTLIERS"
+    assert int(Status.NO_AGREEMENT) == 6 and Status.OUTLIERS == 3
+    assert resources.files("rangeslam").joinpath("py.typed").is_file()
