@@ -15,14 +15,20 @@ from numpy.typing import ArrayLike
 from rangeslam.errors import InvalidInputError
 
 __all__ = [
+    "INT_LIMIT",
+    "MAX_METRES",
+    "MIN_METRES",
     "as_dim",
     "as_flag",
+    "as_float_array",
     "as_mask",
+    "as_pair",
     "as_points",
     "as_ranges",
     "as_rng",
     "as_scalar",
     "check_int",
+    "check_metres",
     "check_option_keys",
     "check_options_for",
     "check_positive",
@@ -36,13 +42,67 @@ def shape_str(shape: tuple[int, ...]) -> str:
     return "(" + ", ".join(str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
 
 
+#: Largest magnitude of a coordinate or range the input layer takes, metres (1e12 m is about
+#: seven times the Earth-Sun distance): beyond it squared distances lose every digit of the
+#: geometry the solvers need and soon overflow (ranges scaled by 1e200 made LinAlgError and
+#: OverflowError deep in the solvers, issue 35).
+MAX_METRES = 1e12
+#: Smallest scale of coordinates or ranges, metres (a nanometre): an array whose largest entry is
+#: positive but below it (a problem scaled by 1e-200) is refused; all zeros are left to the
+#: geometry checks.
+MIN_METRES = 1e-9
+
+
 def as_float_array(value: ArrayLike, name: str) -> np.ndarray:
+    """``value`` as a fresh float64 array: real numbers only.
+
+    Refused with InvalidInputError naming ``name``: complex numbers (numpy would drop the
+    imaginary part with a warning), strings (numpy would parse numeric ones), ragged nesting,
+    objects that are not numbers and integers too large for a float.
+    """
     try:
-        arr = np.array(value, dtype=float, copy=True)
-    except (TypeError, ValueError) as exc:
+        raw = np.array(value, copy=True)
+    except (TypeError, ValueError, OverflowError) as exc:
         raise InvalidInputError(
             f"{name} must be an array of real numbers; got {value!r:.80}"
         ) from exc
+    kind = raw.dtype.kind
+    for v in raw.flat if kind == "O" else ():  # numpy keeps mixed or huge values as objects
+        if isinstance(v, str | bytes | complex | np.complexfloating):
+            kind = "U" if isinstance(v, str | bytes) else "c"
+            break
+    if kind == "c":
+        raise InvalidInputError(f"{name} must be real numbers, not complex; got {value!r:.80}")
+    if kind in "USVMm":
+        raise InvalidInputError(
+            f"{name} must be an array of real numbers, not {raw.dtype}; got {value!r:.80}"
+        )
+    try:
+        return raw.astype(float, copy=False)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InvalidInputError(
+            f"{name} must be an array of real numbers; got {value!r:.80}"
+        ) from exc
+
+
+def check_metres(
+    arr: np.ndarray, name: str, what: str = "coordinates", *, min_scale: bool = True
+) -> np.ndarray:
+    """Refuse (InvalidInputError naming ``name``) finite ``arr`` whose largest magnitude is above
+    :data:`MAX_METRES` or (with ``min_scale``: a set of points or ranges, not one point near the
+    origin) positive but below :data:`MIN_METRES`; return ``arr``."""
+    top = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if top > MAX_METRES:
+        bad = tuple(int(i) for i in np.argwhere(np.abs(arr) > MAX_METRES)[0])
+        raise InvalidInputError(
+            f"{name} must be {what} in metres of magnitude <= {MAX_METRES:g}; entry {bad} is "
+            f"{arr[bad]:.6g}"
+        )
+    if min_scale and 0 < top < MIN_METRES:
+        raise InvalidInputError(
+            f"{name} must be {what} in metres; its largest magnitude is {top:.3g}, below "
+            f"{MIN_METRES:g} m (rescale the problem to metres)"
+        )
     return arr
 
 
@@ -53,7 +113,9 @@ def as_points(
     dim: int | None = None,
     min_points: int = 1,
 ) -> np.ndarray:
-    """Return ``value`` as a float64 array of shape (N, d), d in {2, 3}, all finite.
+    """Return ``value`` as a float64 array of shape (N, d), d in {2, 3}, all finite, in metres
+    (:func:`check_metres`: no coordinate beyond :data:`MAX_METRES`; two or more points not all
+    within :data:`MIN_METRES` of the origin unless all zero).
 
     A single point of shape (d,) is refused: points are rows, and a bare vector is ambiguous.
     """
@@ -72,17 +134,17 @@ def as_points(
         raise InvalidInputError(
             f"{name} must be finite; entry {tuple(int(i) for i in bad)} is {arr[tuple(bad)]}"
         )
-    return arr
+    return check_metres(arr, name, min_scale=arr.shape[0] > 1)
 
 
 def as_point(value: ArrayLike, name: str, *, dim: int) -> np.ndarray:
-    """Return one point of shape (dim,), finite."""
+    """Return one point of shape (dim,), finite, no coordinate beyond :data:`MAX_METRES`."""
     arr = as_float_array(value, name)
     if arr.shape != (dim,):
         raise InvalidInputError(f"{name} must have shape ({dim},); got {shape_str(arr.shape)}")
     if not np.all(np.isfinite(arr)):
         raise InvalidInputError(f"{name} must be finite; got {arr}")
-    return arr
+    return check_metres(arr, name)
 
 
 def as_ranges(
@@ -99,6 +161,7 @@ def as_ranges(
     an unknown offset, such as an unknown emission time, may be negative). Where ``observed`` (a boolean array of the same
     shape) is False the entry is a placeholder: it is not checked and is set to 0 in the returned
     array, so it can hold NaN in the caller's data. Missing entries are given by the mask only.
+    At least one entry; magnitudes in metres as :func:`check_metres` takes them.
     """
     arr = as_float_array(value, name)
     expected = shape_str(tuple("*" if s is None else s for s in shape))  # type: ignore[misc]
@@ -106,6 +169,8 @@ def as_ranges(
         s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)
     ):
         raise InvalidInputError(f"{name} must have shape {expected}; got {shape_str(arr.shape)}")
+    if arr.size == 0:
+        raise InvalidInputError(f"{name} must hold at least one range; got {shape_str(arr.shape)}")
     if observed is not None:
         arr = np.where(observed, arr, 0.0)
     if not np.all(np.isfinite(arr)):
@@ -117,7 +182,7 @@ def as_ranges(
     if not signed and np.any(arr < 0):
         bad = tuple(int(i) for i in np.argwhere(arr < 0)[0])
         raise InvalidInputError(f"{name} must be non-negative distances; entry {bad} is {arr[bad]}")
-    return arr
+    return check_metres(arr, name, "ranges")
 
 
 def as_mask(value: ArrayLike | None, name: str, *, shape: tuple[int, ...]) -> np.ndarray:
@@ -151,10 +216,24 @@ def frozen(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-def check_int(value, name: str, low: int) -> int:
-    """``value`` as an int, refused (naming ``name``) unless an integer >= ``low`` (not a bool)."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-        raise InvalidInputError(f"{name} must be an integer >= {low}; got {value!r}")
+#: Largest integer :func:`check_int` takes when the option states no limit of its own (a count
+#: beyond it is never meant, and numpy cannot hold it).
+INT_LIMIT = 2**63 - 1
+
+
+def check_int(value, name: str, low: int, high: int | None = None) -> int:
+    """``value`` as an int, refused (naming ``name``) unless an integer in [low, high] (a Python
+    or numpy integer, not a bool; ``high`` None: at most :data:`INT_LIMIT`, 64 bits)."""
+    ok = isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+    top = INT_LIMIT if high is None else high
+    if not ok or value < low or value > top:
+        what = f">= {low}" if high is None else f"in [{low}, {high}]"
+        if high is None and ok and value > top:
+            what += " that fits in 64 bits"
+        shown = (
+            f"an integer of {len(str(value))} digits" if ok and value > 10**30 else f"{value!r:.80}"
+        )
+        raise InvalidInputError(f"{name} must be an integer {what}; got {shown}")
     return int(value)
 
 
@@ -248,6 +327,22 @@ def as_scalar(
     if too_low or too_high:
         raise InvalidInputError(f"{name} must be {what}; got {value!r:.80}")
     return x if integer else float(x)
+
+
+def as_pair(value, name: str, *, expected: str) -> tuple[float, float]:
+    """``value`` as two finite real numbers (a pair of Python or numpy reals, each as
+    :func:`as_scalar` takes it: no strings, bools, complex numbers, NaN or infinities); else
+    InvalidInputError naming ``name``, saying ``expected`` and what arrived."""
+    items = None
+    if not isinstance(value, str | bytes | dict | set):
+        try:
+            items = list(value)
+        except TypeError:
+            items = None
+    if items is None or len(items) != 2:
+        raise InvalidInputError(f"{name} must be {expected}; got {value!r:.80}")
+    a, b = (as_scalar(v, name, expected=expected) for v in items)
+    return a, b
 
 
 def as_speed(c, name: str = "c"):

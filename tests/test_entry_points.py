@@ -2,10 +2,11 @@
 localization/, mdu/ and the CRLBs.
 
 Each entry point is called with one argument of a valid small problem replaced by something
-hypothesis draws (wrong shapes, dtypes, NaN/inf, strings, negative numbers, rng in many forms);
-whatever happens, only the package's errors (RangeSlamError subclasses) may escape. Valid
-noise-free problems drawn by hypothesis (points in a box, well-spread geometry) must come back
-close to the truth when the result says converged.
+hypothesis draws (wrong shapes, dtypes, NaN/inf, strings, negative numbers, rng in many forms; the
+families of issue 35: magnitudes 1e-200..1e200, integers too large for a float, complex numbers,
+numeric strings); whatever happens, only the package's errors (RangeSlamError subclasses) may
+escape. Valid noise-free problems drawn by hypothesis (points in a box, well-spread geometry) must
+come back close to the truth when the result says converged.
 """
 
 from __future__ import annotations
@@ -48,6 +49,28 @@ def odd_arrays():
     )
 
 
+# The families of the fuzz of issue 35: magnitudes far beyond metres (1e-200 .. 1e200), integers
+# too large for a float, complex numbers (also with zero imaginary part), numeric strings, and
+# arrays of them where a scalar belongs.
+HOSTILE_VALUES = [
+    10**400, -(10**400), 2**1024, 1e200, -1e200, 1e-200, 1e308, 5e-324, 1 + 0j, np.complex128(2),
+    np.array([1 + 0j]), "0.5", "3", " 1e3", "nan", np.array(["0.5", "1"]), np.array([10**400]),
+    [1.0, "2"], [1.0, 2j], np.array([1e200, 1.0]),
+]  # fmt: skip
+
+
+def hostile_values():
+    """The families of issue 35, drawn: fixed hostile values, huge integers, extreme floats,
+    complex numbers, numeric strings."""
+    return st.one_of(
+        st.sampled_from(HOSTILE_VALUES),
+        st.integers(2**1024, 10**500),
+        st.floats(1e100, 1e308) | st.floats(1e-320, 1e-100),
+        st.complex_numbers(max_magnitude=1e3, allow_nan=False),
+        st.floats(-1e3, 1e3).map(repr),
+    )
+
+
 def bad_values():
     return st.one_of(
         st.sampled_from(ODD_VALUES),
@@ -55,6 +78,7 @@ def bad_values():
         st.floats(allow_nan=True, allow_infinity=True),
         st.integers(-(10**20), 10**20),
         odd_arrays(),
+        hostile_values(),
     )
 
 

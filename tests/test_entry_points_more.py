@@ -1,9 +1,12 @@
 """Bad input refused at the door (issue 17, item 3), for the entry points not covered by
-tests/test_entry_points.py: acoustics, beacons, datasets (files) and sim.
+tests/test_entry_points.py: acoustics, beacons, datasets (files), sim, and (issue 35) the EKF
+baseline and the geometry.
 
 Property-based part: each entry point is called with one or two arguments of a small valid
 problem replaced by values hypothesis draws (wrong types, shapes, NaN/inf, strings, huge or
-negative numbers, option dicts with unknown keys, damaged files); whatever happens, only the
+negative numbers, option dicts with unknown keys, damaged files, and the families of issue 35:
+magnitudes 1e-200..1e200, integers too large for a float, complex numbers, numeric strings);
+whatever happens, only the
 package's errors (RangeSlamError subclasses) may escape. Explicit part: regression tests for the
 holes the fuzz of issue 17 found (truncated WAVs, a beacon id of 10^12, a tiny window_length, a
 known step length given to refine_graph).
@@ -31,6 +34,7 @@ from rangeslam.acoustics import (
     walk_from_rirs,
 )
 from rangeslam.acoustics.labelling import MAX_HYPOTHESES
+from rangeslam.baselines.ekf_slam import ekf_slam
 from rangeslam.beacons import beacon_slam, beacon_slam_incremental
 from rangeslam.beacons.data import RangeOdometry
 from rangeslam.beacons.options import BeaconSlamOptions, min_window_length
@@ -38,7 +42,9 @@ from rangeslam.beacons.simulation import simulate_beacon_run
 from rangeslam.datasets.cmu_plaza import plaza
 from rangeslam.datasets.rir_files import load_rirs
 from rangeslam.errors import DataFormatError, InvalidInputError, RangeSlamError
-from rangeslam.geometry.edm import range_matrix
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import classical_mds, edm, range_matrix
+from rangeslam.geometry.room import Room
 from rangeslam.sim import (
     add_outliers,
     add_range_noise,
@@ -76,6 +82,28 @@ def odd_arrays():
     )
 
 
+# The families of the fuzz of issue 35: magnitudes far beyond metres (1e-200 .. 1e200), integers
+# too large for a float, complex numbers (also with zero imaginary part), numeric strings, and
+# arrays of them where a scalar belongs.
+HOSTILE_VALUES = [
+    10**400, -(10**400), 2**1024, 1e200, -1e200, 1e-200, 1e308, 5e-324, 1 + 0j, np.complex128(2),
+    np.array([1 + 0j]), "0.5", "3", " 1e3", "nan", np.array(["0.5", "1"]), np.array([10**400]),
+    [1.0, "2"], [1.0, 2j], np.array([1e200, 1.0]),
+]  # fmt: skip
+
+
+def hostile_values():
+    """The families of issue 35, drawn: fixed hostile values, huge integers, extreme floats,
+    complex numbers, numeric strings."""
+    return st.one_of(
+        st.sampled_from(HOSTILE_VALUES),
+        st.integers(2**1024, 10**500),
+        st.floats(1e100, 1e308) | st.floats(1e-320, 1e-100),
+        st.complex_numbers(max_magnitude=1e3, allow_nan=False),
+        st.floats(-1e3, 1e3).map(repr),
+    )
+
+
 def bad_values():
     """Anything a caller might pass by mistake."""
     return st.one_of(
@@ -84,6 +112,7 @@ def bad_values():
         st.floats(allow_nan=True, allow_infinity=True),
         st.integers(-(10**20), 10**20),
         odd_arrays(),
+        hostile_values(),
         st.dictionaries(st.text(max_size=6), st.integers(0, 3), max_size=2),
     )
 
@@ -551,3 +580,35 @@ def test_rir_simulation_refuses_bad_input(data):
                 odometry_std=(0.005, 0.002), range_rate=0.4, outlier_fraction=0.0,
                 outlier_size=10.0)  # fmt: skip
     only_package_errors(simulate_beacon_run, fuzzed(base, data))
+
+
+# ---- baselines and geometry (issue 35: the families of HOSTILE_VALUES) -------------------------
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_ekf_slam_refuses_bad_input(data):
+    """ekf_slam (2-D walk of 8 steps, 5 landmarks): only RangeSlamError escapes, for every
+    argument and option (strings, None, complex, arrays, huge integers, 10**400 starts)."""
+    gen = np.random.default_rng(7)
+    x, s = gen.uniform(0, 3, (8, 2)), gen.uniform(0, 3, (5, 2))
+    steps = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    base = dict(ranges=range_matrix(x, s), step_bounds=(0.9 * steps, 1.1 * steps), mask=None,
+                dim=2, noise_std=None, smooth=False, motion="constant_velocity", turn_std=0.5,
+                init_tol=1.0, init_steps=None, n_starts=2, rng=0)  # fmt: skip
+    only_package_errors(ekf_slam, fuzzed(base, data))
+
+
+@FUZZ
+@given(data=st.data())
+def test_geometry_refuses_bad_input(data):
+    """classical_mds, Room.shoebox, align, range_matrix and StepBounds.parse: only
+    RangeSlamError escapes."""
+    pts = MICS[:4]
+    only_package_errors(classical_mds, fuzzed(dict(edm_matrix=edm(pts), dim=3), data))
+    only_package_errors(Room.shoebox, fuzzed(dict(dims=(4.0, 3.0, 2.5)), data))
+    base = dict(estimate=pts, reference=pts + 0.1, reflection=False, scale=False)
+    only_package_errors(align, fuzzed(base, data))
+    only_package_errors(range_matrix, fuzzed(dict(receivers=pts, sources=MICS[4:]), data))
+    base = dict(value=(np.full(3, 0.1), np.full(3, 0.2)), n_steps=3)
+    only_package_errors(StepBounds.parse, fuzzed(base, data, names=["value"]))

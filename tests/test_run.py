@@ -296,7 +296,7 @@ def test_loader_refuses_bad_npz_naming_the_array(tmp_path):
         ({"fs": 16000}, r"no 'rirs' array"),
         ({"rirs": x[0], "fs": 16000}, r"rirs must have shape \(M, L\)"),
         ({"rirs": np.where(np.arange(100) == 42, np.inf, x), "fs": 16000}, r"rirs\[0\] sample 42"),
-        ({"rirs": x, "fs": 16000, "mics": np.ones((4, 3))}, r"mics must have shape \(5, \*\)"),
+        ({"rirs": x, "fs": 16000, "mics": np.ones((4, 3))}, r"mics must have shape \(5, 3\)"),
         ({"rirs": x, "fs": 16000, "mics": np.ones((5, 4))}, r"mics must have shape \(5, 3\)"),
         (
             {"rirs": x, "fs": 16000, "step_bounds": np.ones((4, 2))},

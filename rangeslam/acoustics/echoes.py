@@ -70,7 +70,14 @@ from scipy.ndimage import median_filter
 from scipy.signal import fftconvolve, find_peaks, hilbert
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam._validation import as_flag, as_float_array, frozen, shape_str
+from rangeslam._validation import (
+    as_flag,
+    as_float_array,
+    as_pair,
+    as_scalar,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import InvalidInputError
 
 __all__ = [
@@ -312,21 +319,18 @@ def _as_rir(value: ArrayLike, name: str) -> np.ndarray:
 
 
 def _as_fs(fs: object) -> float:
-    what = f"fs must be a positive number of Hz, at most {MAX_FS:g}"
-    if isinstance(fs, bool) or not isinstance(fs, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"{what}; got {fs!r:.80}")
-    if not (math.isfinite(fs) and 0 < fs <= MAX_FS):
-        raise InvalidInputError(f"{what}; got {fs!r:.80}")
-    return float(fs)
+    return as_scalar(
+        fs, "fs", low=0.0, low_open=True, high=MAX_FS,
+        expected=f"a positive number of Hz, at most {MAX_FS:g}",
+    )  # fmt: skip
 
 
 def _as_real(value: object, name: str, *, low: float, high: float = math.inf) -> float:
-    ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
-    ok = ok and not (isinstance(value, int) and abs(value) > 2**1000)  # beyond any float
-    if not ok or not (math.isfinite(value) and low <= value <= high):  # type: ignore[arg-type]
-        span = f">= {low:g}" if high == math.inf else f"in [{low:g}, {high:g}]"
-        raise InvalidInputError(f"{name} must be a finite number {span}; got {value!r}")
-    return float(value)  # type: ignore[arg-type]
+    span = f">= {low:g}" if high == math.inf else f"in [{low:g}, {high:g}]"
+    return as_scalar(
+        value, name, low=low, high=None if high == math.inf else high,
+        expected=f"a finite number {span}",
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -427,17 +431,15 @@ def _pulse_model(excitation: ArrayLike | None) -> tuple[np.ndarray | None, np.nd
 
 def _noise_span(noise_window, fs: float, length: int) -> tuple[int, int]:
     """The samples [n0, n1) of ``noise_window`` (start, stop) seconds, at least 8 of ``length``."""
-    try:
-        t0, t1 = (float(t) for t in noise_window)
-    except (TypeError, ValueError) as exc_:
+    what = "(start, stop) seconds with 0 <= start < stop"
+    t0, t1 = as_pair(noise_window, "noise_window", expected=what)
+    end = length / fs  # clipped first: t * fs of a huge t would overflow ceil and floor
+    n0, n1 = math.ceil(min(max(t0, 0.0), end) * fs), math.floor(min(t1, end) * fs) + 1
+    n1 = min(length, n1)
+    if not 0 <= t0 < t1 or n1 - n0 < 8:
         raise InvalidInputError(
-            f"noise_window must be (start, stop) in seconds; got {noise_window!r}"
-        ) from exc_
-    n0, n1 = max(0, math.ceil(t0 * fs)), min(length, math.floor(t1 * fs) + 1)
-    if not (math.isfinite(t0) and math.isfinite(t1) and 0 <= t0 < t1) or n1 - n0 < 8:
-        raise InvalidInputError(
-            f"noise_window must be (start, stop) seconds with 0 <= start < stop, covering at "
-            f"least 8 of the {length} samples; got {noise_window!r} ({max(n1 - n0, 0)} samples)"
+            f"noise_window must be {what}, covering at least 8 of the {length} samples; got "
+            f"{noise_window!r} ({max(n1 - n0, 0)} samples)"
         )
     return n0, n1
 

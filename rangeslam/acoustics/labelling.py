@@ -80,6 +80,7 @@ from numpy.typing import ArrayLike
 from rangeslam._robust import MAD_TO_STD
 from rangeslam._validation import (
     as_float_array,
+    as_pair,
     as_points,
     as_rng,
     check_int,
@@ -742,12 +743,8 @@ def _direct_template(rirs, fs, direct_template) -> tuple[np.ndarray, float]:
     """The matched filter of ``room_from_rirs``: the direct sound of the RIR with the strongest
     direct path, from ``before`` its peak to ``after`` it (seconds), and the time (seconds) from
     the template's start to its peak."""
-    try:
-        before, after = (float(t) for t in direct_template)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(
-            f"direct_template must be (before, after) in seconds; got {direct_template!r}"
-        ) from exc
+    what = "(before >= 0, after > 0) seconds, at least one sample after the direct peak"
+    before, after = as_pair(direct_template, "direct_template", expected=what)
     x = as_float_array(rirs, "rirs")
     if x.ndim != 2 or not np.all(np.isfinite(x)) or not np.any(x):
         raise InvalidInputError(
@@ -755,10 +752,9 @@ def _direct_template(rirs, fs, direct_template) -> tuple[np.ndarray, float]:
             f"got shape {shape_str(x.shape)}"
         )
     fs_ = check_positive(fs, "fs")
-    if not (before >= 0 and after > 0 and math.isfinite(before + after)):
-        raise InvalidInputError(
-            f"direct_template must be (before >= 0, after > 0) seconds; got {direct_template!r}"
-        )
+    # a window that ends at the peak (or before it: a reversed window) is no matched filter
+    if not (before >= 0 and after > 0 and math.isfinite(before + after)) or after * fs_ < 0.5:
+        raise InvalidInputError(f"direct_template must be {what}; got {direct_template!r:.80}")
     m0 = int(np.argmax(np.abs(x).max(axis=1)))
     n0 = int(np.argmax(np.abs(x[m0])))
     start = max(n0 - round(before * fs_), 0)

@@ -38,7 +38,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_dim, as_float_array, as_points, as_rng, frozen, shape_str
+from rangeslam._validation import (
+    as_dim,
+    as_float_array,
+    as_points,
+    as_rng,
+    as_scalar,
+    frozen,
+    shape_str,
+)
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
 from rangeslam.datasets.rir_files import (
     LoadedRirs,
@@ -306,11 +314,7 @@ class RirRunOptions:
 
 def _check_c(c: object) -> float:
     """The speed of sound as a positive finite float, m/s."""
-    if isinstance(c, bool) or not isinstance(c, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
-    if not (math.isfinite(c) and c > 0):
-        raise InvalidInputError(f"c must be a positive speed of sound in m/s; got {c!r}")
-    return float(c)
+    return as_scalar(c, "c", low=0.0, low_open=True, expected="a positive speed of sound in m/s")
 
 
 def _check_mode(mics: Any, step_bounds: Any, options: RirRunOptions) -> str:

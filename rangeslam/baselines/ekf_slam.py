@@ -81,7 +81,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 
-from rangeslam._validation import as_rng, frozen
+from rangeslam._validation import as_flag, as_rng, as_scalar, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -110,6 +110,9 @@ _SIGMA_GUESS = 5e-3
 # Standard deviation of the weak landmark prior, in units of the largest observed range.
 _LANDMARK_PRIOR = 3.0
 _MOTIONS = ("constant_velocity", "random_walk")
+#: Most random starts of each window fit ``n_starts`` takes (each start is a least-squares fit;
+#: without a limit, n_starts=10**400 never returned).
+MAX_STARTS = 1000
 
 
 @dataclass(frozen=True)
@@ -145,20 +148,23 @@ class EkfAnswer:
     message: str
 
 
-def check_ekf_options(options: EkfOptions, m: int) -> None:
-    """Refuse an unknown motion model or bad tuning values (named in the message)."""
-    if options.motion not in _MOTIONS:
-        raise InvalidInputError(f"motion must be one of {_MOTIONS}; got {options.motion!r}")
-    for name, value in (("turn_std", options.turn_std), ("init_tol", options.init_tol)):
-        if not (np.isfinite(value) and value > 0):
-            raise InvalidInputError(f"{name} must be a positive number; got {value!r}")
-    n_starts, init_steps = options.n_starts, options.init_steps
-    if not (isinstance(n_starts, int | np.integer) and n_starts >= 1):
-        raise InvalidInputError(f"n_starts must be a positive integer; got {n_starts!r}")
-    if init_steps is not None and not (
-        isinstance(init_steps, int | np.integer) and 3 <= init_steps <= m
-    ):
-        raise InvalidInputError(f"init_steps must be an integer in [3, {m}]; got {init_steps!r}")
+def check_ekf_options(options: EkfOptions, m: int) -> EkfOptions:
+    """The options checked and converted (InvalidInputError naming the option otherwise):
+    ``smooth`` a boolean, ``motion`` one of the models, ``turn_std`` and ``init_tol`` finite
+    real numbers > 0, ``n_starts`` an integer in [1, :data:`MAX_STARTS`], ``init_steps`` None
+    or an integer in [3, m] (booleans are not integers)."""
+    smooth = as_flag(options.smooth, "smooth")
+    if not isinstance(options.motion, str) or options.motion not in _MOTIONS:
+        raise InvalidInputError(f"motion must be one of {_MOTIONS}; got {options.motion!r:.80}")
+    turn_std, init_tol = (
+        as_scalar(value, name, low=0.0, low_open=True, expected="a finite real number > 0")
+        for name, value in (("turn_std", options.turn_std), ("init_tol", options.init_tol))
+    )
+    n_starts = check_int(options.n_starts, "n_starts", 1, MAX_STARTS)
+    init_steps = options.init_steps
+    if init_steps is not None:
+        init_steps = check_int(init_steps, "init_steps", 3, m)
+    return EkfOptions(smooth, options.motion, turn_std, init_tol, init_steps, n_starts)
 
 
 def step_model(bounds: StepBounds | None, r, observed, scale: float) -> StepModel:
@@ -289,8 +295,10 @@ def ekf_slam(
             range error delta^2 / (2 r) of its standard deviation delta (within the span of the
             window's positions) is at most init_tol times the range noise: the error the filter's
             linearisation neglects is then no larger than the noise.
-        init_steps: a fixed window length W (>= 3) instead of the ``init_tol`` rule.
-        n_starts: random starts of each window fit.
+        init_steps: a fixed window length W (an integer in [3, M]) instead of the ``init_tol``
+            rule.
+        n_starts: random starts of each window fit, an integer in [1, 1000]
+            (:data:`MAX_STARTS`).
         rng: Generator or seed for those starts.
 
     Returns:
@@ -301,21 +309,24 @@ def ekf_slam(
     Raises InvalidInputError for bad input (named in the message): ranges not (M, K), negative or
     non-finite where observed; a mask of the wrong shape, not boolean or leaving the problem
     under-determined; step bounds of the wrong length, negative, non-finite or lower > upper;
-    an unknown motion model or bad tuning values.
+    an unknown motion model or bad tuning values (strings, None, complex numbers or arrays for
+    numbers, booleans for integers, anything but True or False for ``smooth``).
     """
     r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
     m = r.shape[0]
     if m < 3:
         raise InvalidInputError(f"ranges must have at least 3 rows (steps); got {m}")
     bounds = None if step_bounds is None else StepBounds.parse(step_bounds, m - 1)
-    options = EkfOptions(smooth, motion, turn_std, init_tol, init_steps, n_starts)
-    check_ekf_options(options, m)
+    options = check_ekf_options(
+        EkfOptions(smooth, motion, turn_std, init_tol, init_steps, n_starts), m
+    )
     rng = as_rng(rng)
     steps = step_model(bounds, r, observed, scale)
     sigma = max(noise_std, SIGMA_FLOOR * scale) if noise_std is not None else None
     window = _initial_window(
         r, observed, dim, steps.nominal, steps.spread, sigma, float(np.max(r[observed])),
-        init_tol=init_tol, init_steps=init_steps, n_starts=n_starts, rng=rng,
+        init_tol=options.init_tol, init_steps=options.init_steps, n_starts=options.n_starts,
+        rng=rng,
     )  # fmt: skip
     if window.positions.shape[0] == m:
         answer = EkfAnswer(

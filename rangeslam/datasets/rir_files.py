@@ -10,7 +10,6 @@ arrays of the wrong shape.
 
 from __future__ import annotations
 
-import math
 import re
 import struct
 import warnings
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rangeslam._validation import frozen, shape_str
+from rangeslam._validation import as_float_array, as_scalar, frozen, shape_str
 from rangeslam.errors import DataFormatError, InvalidInputError
 
 __all__ = ["LoadedRirs", "SilentRirWarning", "load_rirs"]
@@ -44,7 +43,7 @@ class LoadedRirs:
         fs: sampling rate, Hz.
         names: (M,) where each row came from: ``"file.npz:rirs[m]"``, ``"mic03.wav"``,
             ``"array.wav:channel 2"``.
-        mics: (M, d) microphone positions, metres, when an npz held them (``mics``, or dEchorate's
+        mics: (M, 3) microphone positions, metres, when an npz held them (``mics``, or dEchorate's
             ``mics_v3``); else None.
         step_bounds: (2, M - 1) lower and upper bounds on each step, metres (npz ``step_bounds``);
             else None.
@@ -89,11 +88,7 @@ def _natural_key(path: Path) -> list:
 
 def check_fs(fs: object, name: str = "fs") -> float:
     """``fs`` as a positive finite float, Hz; InvalidInputError naming ``name`` otherwise."""
-    if isinstance(fs, bool) or not isinstance(fs, int | float | np.integer | np.floating):
-        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
-    if not (math.isfinite(fs) and fs > 0):
-        raise InvalidInputError(f"{name} must be a positive number of Hz; got {fs!r}")
-    return float(fs)
+    return as_scalar(fs, name, low=0.0, low_open=True, expected="a positive number of Hz")
 
 
 def first_bad(x: np.ndarray) -> tuple[int, ...] | None:
@@ -181,8 +176,8 @@ def _npz_array(raw: dict, keys: tuple[str, ...], p: Path, shape: tuple[int | Non
     for key in keys:
         if key in raw:
             try:
-                arr = np.asarray(raw[key], dtype=float)
-            except (TypeError, ValueError) as exc:
+                arr = as_float_array(raw[key], key)
+            except InvalidInputError as exc:
                 raise DataFormatError(f"{p}: {key} is not numeric ({exc})") from exc
             if arr.ndim != len(shape) or any(
                 s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)
@@ -213,8 +208,8 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     if "rirs" not in raw:
         raise DataFormatError(f"{p}: no 'rirs' array (M, L); it holds {sorted(raw)}")
     try:
-        rirs = np.array(raw["rirs"], dtype=float)
-    except (TypeError, ValueError) as exc:
+        rirs = as_float_array(raw["rirs"], "rirs")
+    except InvalidInputError as exc:
         raise DataFormatError(f"{p}: rirs is not numeric ({exc})") from exc
     if rirs.ndim != 2 or rirs.shape[1] < 3 or rirs.shape[0] < 1:
         raise DataFormatError(
@@ -233,9 +228,7 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
             raise DataFormatError(f"{p}: fs must be a positive number of Hz; got {file_fs:g}")
         if fs is not None and fs != file_fs:
             raise DataFormatError(f"{p}: fs is {file_fs:g} Hz, but fs={fs:g} was given")
-    mics = _npz_array(raw, ("mics", "mics_v3"), p, (m, None))
-    if mics is not None and mics.shape[1] not in (2, 3):
-        raise DataFormatError(f"{p}: mics must have shape ({m}, 3); got {shape_str(mics.shape)}")
+    mics = _npz_array(raw, ("mics", "mics_v3"), p, (m, 3))
     bounds = _npz_array(raw, ("step_bounds",), p, (2, None))
     c = _npz_array(raw, ("c",), p, ())
     if c is not None and not c > 0:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_points, frozen, shape_str
+from rangeslam._validation import as_flag, as_points, frozen, shape_str
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
 __all__ = ["Alignment", "align"]
@@ -61,6 +61,7 @@ def align(
     """
     x = as_points(estimate, "estimate", min_points=1)
     y = as_points(reference, "reference", dim=x.shape[1], min_points=1)
+    reflection, scale = as_flag(reflection, "reflection"), as_flag(scale, "scale")
     if x.shape != y.shape:
         raise InvalidInputError(
             f"estimate and reference must have the same shape; got {shape_str(x.shape)} and {shape_str(y.shape)}"

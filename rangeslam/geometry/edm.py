@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_points, shape_str
+from rangeslam._validation import as_float_array, as_points, as_scalar, shape_str
 from rangeslam.errors import InvalidInputError
 
 __all__ = ["centring_matrix", "classical_mds", "edm", "edm_to_gram", "gram_to_edm", "is_edm"]
 
 
 def _as_square(value: ArrayLike, name: str) -> np.ndarray:
-    arr = np.array(value, dtype=float, copy=True)
+    arr = as_float_array(value, name)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or arr.shape[0] < 1:
         raise InvalidInputError(
             f"{name} must be a square (N, N) matrix; got {shape_str(arr.shape)}"
@@ -80,8 +80,7 @@ def classical_mds(edm_matrix: ArrayLike, dim: int) -> np.ndarray:
     Double centring (eq. 7), ``eigh``, the ``dim`` largest eigenvalues with negatives clipped to 0.
     The result is unique up to rotation and reflection.
     """
-    if not isinstance(dim, int | np.integer) or dim < 1:
-        raise InvalidInputError(f"dim must be a positive integer; got {dim!r}")
+    dim = as_scalar(dim, "dim", low=1, integer=True, expected="a positive integer")
     g = edm_to_gram(edm_matrix)
     if dim > g.shape[0]:
         raise InvalidInputError(f"dim must be <= the number of points {g.shape[0]}; got {dim}")

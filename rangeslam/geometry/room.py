@@ -16,7 +16,14 @@ from numpy.typing import ArrayLike
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
-from rangeslam._validation import as_point, as_points, frozen, shape_str
+from rangeslam._validation import (
+    as_float_array,
+    as_point,
+    as_points,
+    check_metres,
+    frozen,
+    shape_str,
+)
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
 __all__ = ["ImageSources", "Room", "reflect"]
@@ -155,13 +162,14 @@ class Room:
         Walls in the order (x = 0, x = L_1, y = 0, y = L_2[, z = 0, z = L_3]), the order of the
         dEchorate echo columns (west, east, south, north, floor, ceiling).
         """
-        dims = np.array(dims, dtype=float)
+        dims = as_float_array(dims, "dims")
         if dims.ndim != 1 or dims.shape[0] not in (2, 3):
             raise InvalidInputError(
                 f"dims must have shape (d,) with d in (2, 3); got {shape_str(dims.shape)}"
             )
         if not np.all(np.isfinite(dims)) or np.any(dims <= 0):
             raise InvalidInputError(f"dims must be finite and positive; got {dims.tolist()}")
+        check_metres(dims, "dims", "room dimensions")
         d = dims.shape[0]
         normals = np.repeat(np.eye(d), 2, axis=0) * np.tile([-1.0, 1.0], d)[:, None]
         offsets = np.ravel(np.column_stack([np.zeros(d), dims]))

@@ -282,6 +282,12 @@ def _covariance(gtsam, graph, values, keys: list[int], d: int, *, gauge_free: bo
     for key in keys:
         ordering.push_back(key)
     jac, _ = graph.linearize(values).jacobian(ordering)
+    if not np.all(np.isfinite(jac)):  # |p - l| has no derivative where p and l coincide
+        raise SolverError(
+            "covariances undefined: the range factors have no derivative at the estimate (a "
+            "receiver and a source coincide)",
+            status="non-finite Jacobian",
+        )
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
     n_gauge = d * (d + 1) // 2 if gauge_free else d
     keep = sv > 1e-9 * sv[0]
@@ -477,6 +483,21 @@ def graph_covariances(gtsam, measurements, values, keys, est: np.ndarray, proble
     return frozen(blocks[:m]), frozen(blocks[m:]), frozen(full)
 
 
+def check_reached(observed: np.ndarray, stepped: bool) -> None:
+    """Refuse a mask that leaves a source without a range (nothing places it), or, without step
+    bounds or odometry, a receiver without one: InvalidInputError naming the column or row."""
+    for axis, what, side in ((0, "column", "source"), (1, "row", "receiver")):
+        if axis == 1 and stepped:
+            continue
+        empty = np.flatnonzero(~observed.any(axis=axis))
+        if empty.size:
+            j = int(empty[0])
+            raise InvalidInputError(
+                f"mask {what} {j} has no observed range: {side} {j} is unobservable"
+                + ("" if axis == 0 else " (without step bounds or odometry)")
+            )
+
+
 def parse_graph_problem(
     receivers, sources, ranges, *, noise_std, mask, step_bounds, step_sigma, step_prior,
     step_lengths, step_vectors, odometry_sigma, robust, robust_scale, max_iterations,
@@ -488,6 +509,8 @@ def parse_graph_problem(
     m, d = x.shape
     s = as_points(sources, "sources", dim=d)
     observed = as_mask(mask, "mask", shape=(m, len(s)))
+    stepped = step_bounds is not None or step_lengths is not None or step_vectors is not None
+    check_reached(observed, stepped)
     r = as_ranges(ranges, "ranges", shape=(m, len(s)), observed=observed)
     noise_std = as_scalar(
         noise_std, "noise_std", low=0.0, low_open=True, expected="positive and finite"

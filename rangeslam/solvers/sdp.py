@@ -19,11 +19,12 @@ import cvxpy as cp
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import frozen, shape_str
+from rangeslam._validation import as_scalar, frozen, shape_str
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import gram_to_edm
 
 __all__ = [
+    "MAX_FIT_WEIGHT",
     "RANGE_MODELS",
     "EDMCompletion",
     "EDMCompletionSDP",
@@ -42,6 +43,10 @@ _USABLE = {"CLARABEL": ("optimal", "optimal_inaccurate"), "SCS": ("optimal",)}
 FALLBACK_SOLVER = "SCS"
 
 METHODS = ("convex_iteration", "trace_min", "trace_max")
+#: Largest lambda of eq. (10) (``fit_weight``): beyond it the fit's weights swamp the SDP's
+#: conditioning (1e307 made SCS fail to allocate with a bare ValueError, issue 35); 1e20 still
+#: solved, and the package's own settings stay below 1e4.
+MAX_FIT_WEIGHT = 1e12
 
 
 @dataclass(frozen=True)
@@ -443,10 +448,10 @@ class CompletionOptions:
             raise InvalidInputError(f"method must be one of {METHODS}; got {self.method!r}")
         if not isinstance(self.dim, int | np.integer) or self.dim < 1:
             raise InvalidInputError(f"dim must be a positive integer; got {self.dim!r}")
-        if not (np.isfinite(self.fit_weight) and self.fit_weight > 0):
-            raise InvalidInputError(
-                f"fit_weight must be positive and finite; got {self.fit_weight!r}"
-            )
+        as_scalar(
+            self.fit_weight, "fit_weight", low=0.0, low_open=True, high=MAX_FIT_WEIGHT,
+            expected=f"positive and finite, at most {MAX_FIT_WEIGHT:g}",
+        )  # fmt: skip
         if not (isinstance(self.max_iterations, int | np.integer) and self.max_iterations >= 1):
             raise InvalidInputError(
                 f"max_iterations must be a positive integer; got {self.max_iterations!r}"
@@ -611,7 +616,8 @@ def complete_edm(
             and Z = projector on the eigenvectors of the N - d smallest eigenvalues, until their
             sum is below ``tol`` times the trace), "trace_min" (one SDP with Z = I) or
             "trace_max" (one SDP with Z = -I).
-        fit_weight: lambda of eq. (10), on data scaled to unit median distance.
+        fit_weight: lambda of eq. (10), on data scaled to unit median distance; at most
+            :data:`MAX_FIT_WEIGHT` (1e12).
         z0: starting direction instead of I (e.g. :func:`random_direction` for a restart).
         weights: optional (N, N) non-negative per-pair weights of the fit (0 drops a pair).
         bounded_pairs, bounds: eq. (11) distance bounds: pairs (P, 2) and (lower, upper) (P,),

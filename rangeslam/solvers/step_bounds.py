@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rangeslam._validation import frozen, shape_str
+from rangeslam._validation import as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
 __all__ = ["KNOWN_STEP_WIDTH", "StepBounds"]
@@ -48,19 +48,23 @@ class StepBounds:
             _check_lengths(lower, upper, n_steps, name)
             return value
         try:
-            lower, upper = (np.array(b, dtype=float, copy=True) for b in value)
+            lower, upper = value
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(
-                f"{name} must be a pair (lower, upper) of arrays of step lengths"
+                f"{name} must be a pair (lower, upper) of arrays of step lengths; got {value!r:.80}"
             ) from exc
+        lower, upper = (
+            as_float_array(lower, f"{name} lower"),
+            as_float_array(upper, f"{name} upper"),
+        )
         _check_lengths(lower, upper, n_steps, name)
         _check_order(lower, upper, name)
         return cls(lower=frozen(lower), upper=frozen(upper))
 
     def __post_init__(self):
         """Bounds built directly are held to the same rules as parsed ones (read-only copies)."""
-        lower = np.array(self.lower, dtype=float, copy=True)
-        upper = np.array(self.upper, dtype=float, copy=True)
+        lower = as_float_array(self.lower, "step_bounds lower")
+        upper = as_float_array(self.upper, "step_bounds upper")
         if lower.ndim != 1 or lower.shape != upper.shape:
             raise InvalidInputError(
                 "step_bounds lower and upper must be 1-D arrays of the same length; got "

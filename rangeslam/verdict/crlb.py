@@ -75,6 +75,8 @@ def multilateration_crlb(
         raise InvalidInputError(
             "sigma must be positive and finite (the bound is infinite information at 0)"
         )
+    if np.any(s < 1e-100) or np.any(s > 1e100):  # as _check_sigma: 1 / sigma^2 stays finite
+        raise InvalidInputError(f"sigma must be in [1e-100, 1e100] metres; got {sigma!r:.80}")
     diff = x - a[observed]
     dist = np.linalg.norm(diff, axis=1)
     if np.any(dist == 0):
