@@ -41,6 +41,7 @@ import csv
 import functools
 import io
 import json
+import re
 import signal
 import sys
 import tempfile
@@ -209,8 +210,16 @@ def mutate(value: Any, family: str, data) -> Any:
 
 
 def short(value: Any, limit: int = 120) -> str:
+    """A one-line description of a drawn value (integers of 40 digits or more by their size)."""
+    if isinstance(value, np.ndarray) and value.dtype == object:
+        big = [i for i, v in enumerate(value.flat) if isinstance(v, int) and abs(v) > 2**1000]
+        if big:
+            digits = len(str(abs(value.flat[big[0]])))
+            return f"array{value.shape} of floats, a {digits}-digit int at flat index {big[0]}"
     text = repr(value) if not isinstance(value, np.ndarray) else f"array{value.shape} {value!r}"
-    text = " ".join(text.split())
+    text = re.sub(
+        r"-?\d{40,}", lambda m: f"<{len(m.group().lstrip('-'))}-digit int>", " ".join(text.split())
+    )
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
