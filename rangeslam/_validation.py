@@ -112,10 +112,12 @@ def as_points(
     *,
     dim: int | None = None,
     min_points: int = 1,
+    metres: bool = True,
 ) -> np.ndarray:
     """Return ``value`` as a float64 array of shape (N, d), d in {2, 3}, all finite, in metres
     (:func:`check_metres`: no coordinate beyond :data:`MAX_METRES`; two or more points not all
-    within :data:`MIN_METRES` of the origin unless all zero).
+    within :data:`MIN_METRES` of the origin unless all zero). ``metres=False`` skips that check,
+    for the geometry helpers the estimators also apply to their own (possibly diverged) answers.
 
     A single point of shape (d,) is refused: points are rows, and a bare vector is ambiguous.
     """
@@ -134,7 +136,7 @@ def as_points(
         raise InvalidInputError(
             f"{name} must be finite; entry {tuple(int(i) for i in bad)} is {arr[tuple(bad)]}"
         )
-    return check_metres(arr, name, min_scale=arr.shape[0] > 1)
+    return check_metres(arr, name, min_scale=arr.shape[0] > 1) if metres else arr
 
 
 def as_point(value: ArrayLike, name: str, *, dim: int) -> np.ndarray:

@@ -23,10 +23,11 @@ from rangeslam.beacons import beacon_slam_incremental
 from rangeslam.beacons.simulation import simulate_beacon_run
 from rangeslam.datasets.rir_files import load_rirs
 from rangeslam.errors import DataFormatError, InvalidInputError, RangeSlamError, SolverError
-from rangeslam.geometry.edm import classical_mds, range_matrix
+from rangeslam.geometry.edm import classical_mds, edm, range_matrix
 from rangeslam.geometry.room import Room
 from rangeslam.solvers.gtsam_graph import refine_graph
 from rangeslam.solvers.step_bounds import StepBounds
+from rangeslam.status import Status
 
 FS = 8000
 
@@ -60,6 +61,8 @@ POINT = np.array([1.0, 1.2, 0.8])
         ("turn_std", None),
         ("turn_std", 1j),
         ("turn_std", np.array([1.0, 2.0])),
+        ("turn_std", 1e308),
+        ("noise_std", 1e300),
         ("init_tol", "1"),
         ("init_tol", 10**400),
         ("motion", np.array([1, 2])),
@@ -182,6 +185,9 @@ def test_scale_limits_leave_valid_problems_alone():
     refused, and the arrays come back unchanged."""
     assert MAX_METRES == 1e12 and MIN_METRES == 1e-9
     np.testing.assert_array_equal(range_matrix([[0.0, 0.0]], [[MAX_METRES, 0.0]]), [[MAX_METRES]])
+    # the geometry helpers take any finite coordinates: estimators apply them to their answers
+    np.testing.assert_array_equal(range_matrix([[0.0, 0.0]], [[1e-12, 0.0]]), [[1e-12]])
+    np.testing.assert_array_equal(range_matrix([[0.0, 0.0]], [[1e13, 0.0]]), [[1e13]])
     assert rs.Room.shoebox((5.0, 3.0)).contains(np.array([[1e-12, 0.0]]))[0]
     fit = rs.align(ANCHORS * MIN_METRES, ANCHORS * MIN_METRES)
     np.testing.assert_allclose(fit.errors, 0.0, rtol=0, atol=1e-6 * MIN_METRES)
@@ -195,6 +201,7 @@ def test_scale_limits_leave_valid_problems_alone():
         lambda: rs.calibrate(walk_scene()[2] + 0j, dim=2, max_attempts=1, rng=0),
         lambda: ekf_slam(walk_scene()[2] + 0j, dim=2, rng=0),
         lambda: range_matrix(ANCHORS + 0j, ANCHORS),
+        lambda: edm(ANCHORS + 0j),
         lambda: rs.align(ANCHORS, ANCHORS + 1e-3j),
         lambda: detect_echoes(_rir() + 0j, FS),
         lambda: rs.Room.shoebox([5 + 0j, 3]),
@@ -375,3 +382,21 @@ def test_multilateration_crlb_sigma_limits(sigma):
     (LinAlgError 'Eigenvalues did not converge' at 1e-320, before)."""
     with pytest.raises(InvalidInputError, match=r"^sigma must be in \[1e-100, 1e100\] metres"):
         rs.multilateration_crlb(ANCHORS, POINT, sigma)
+
+
+def test_ekf_noise_far_beyond_the_scene_is_a_solver_error():
+    """noise_std of 1e8 m on a 3 m scene (within MAX_METRES) leaves the window fit's information
+    matrix indefinite in floating point: SolverError (LinAlgError from the Cholesky, before)."""
+    _, _, r, _ = walk_scene()
+    with pytest.raises(SolverError, match="information matrix is not positive definite"):
+        ekf_slam(r, dim=2, noise_std=1e8, rng=0)
+
+
+def test_ekf_answer_collapsed_below_a_nanometre_is_not_an_input_error():
+    """An EKF answer that collapses towards the origin (noise_std of 1e6 m on a 3 m scene) is
+    judged, not refused as if the caller had passed it: range_matrix takes any finite points."""
+    _, _, r, _ = walk_scene()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        out = ekf_slam(r, dim=2, rng=0, smooth=True, noise_std=1e6)
+    assert isinstance(out.status, Status) and out.receivers.shape == (8, 2)

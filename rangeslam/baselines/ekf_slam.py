@@ -81,7 +81,7 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 
-from rangeslam._validation import as_flag, as_rng, as_scalar, check_int, frozen
+from rangeslam._validation import MAX_METRES, as_flag, as_rng, as_scalar, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -113,6 +113,9 @@ _MOTIONS = ("constant_velocity", "random_walk")
 #: Most random starts of each window fit ``n_starts`` takes (each start is a least-squares fit;
 #: without a limit, n_starts=10**400 never returned).
 MAX_STARTS = 1000
+#: Largest ``turn_std``, radians per step: a full turn (2 pi); beyond it the process noise says
+#: nothing more, and at 1e308 it overflowed the filter's covariance.
+MAX_TURN_STD = 2 * np.pi
 
 
 @dataclass(frozen=True)
@@ -150,15 +153,18 @@ class EkfAnswer:
 
 def check_ekf_options(options: EkfOptions, m: int) -> EkfOptions:
     """The options checked and converted (InvalidInputError naming the option otherwise):
-    ``smooth`` a boolean, ``motion`` one of the models, ``turn_std`` and ``init_tol`` finite
-    real numbers > 0, ``n_starts`` an integer in [1, :data:`MAX_STARTS`], ``init_steps`` None
+    ``smooth`` a boolean, ``motion`` one of the models, ``turn_std`` in (0, 2 pi], ``init_tol``
+    a finite real number > 0, ``n_starts`` an integer in [1, :data:`MAX_STARTS`], ``init_steps`` None
     or an integer in [3, m] (booleans are not integers)."""
     smooth = as_flag(options.smooth, "smooth")
     if not isinstance(options.motion, str) or options.motion not in _MOTIONS:
         raise InvalidInputError(f"motion must be one of {_MOTIONS}; got {options.motion!r:.80}")
-    turn_std, init_tol = (
-        as_scalar(value, name, low=0.0, low_open=True, expected="a finite real number > 0")
-        for name, value in (("turn_std", options.turn_std), ("init_tol", options.init_tol))
+    turn_std = as_scalar(
+        options.turn_std, "turn_std", low=0.0, low_open=True, high=MAX_TURN_STD,
+        expected=f"a real number > 0 and <= {MAX_TURN_STD:.4g} (radians per step)",
+    )  # fmt: skip
+    init_tol = as_scalar(
+        options.init_tol, "init_tol", low=0.0, low_open=True, expected="a finite real number > 0"
     )
     n_starts = check_int(options.n_starts, "n_starts", 1, MAX_STARTS)
     init_steps = options.init_steps
@@ -287,10 +293,12 @@ def ekf_slam(
         mask: (M, K) boolean, True where observed; unobserved entries are skipped.
         dim: 2 or 3.
         noise_std: range noise standard deviation, metres (R of the filter, and the residual
-            test). None: estimated from the residuals of the initialisation window.
+            test), at most :data:`rangeslam._validation.MAX_METRES`. None: estimated from the
+            residuals of the initialisation window.
         smooth: return Rauch-Tung-Striebel smoothed positions instead of filtered ones.
         motion: ``"constant_velocity"`` or ``"random_walk"`` (module notes).
-        turn_std: with constant velocity, the expected change of direction per step, radians.
+        turn_std: with constant velocity, the expected change of direction per step, radians,
+            in (0, 2 pi] (:data:`MAX_TURN_STD`).
         init_tol: the initialisation window grows until, for every landmark, the second-order
             range error delta^2 / (2 r) of its standard deviation delta (within the span of the
             window's positions) is at most init_tol times the range noise: the error the filter's
@@ -313,6 +321,7 @@ def ekf_slam(
     numbers, booleans for integers, anything but True or False for ``smooth``).
     """
     r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
+    noise_std = as_scalar(noise_std, "noise_std", low=0.0, high=MAX_METRES, allow_none=True)
     m = r.shape[0]
     if m < 3:
         raise InvalidInputError(f"ranges must have at least 3 rows (steps); got {m}")
@@ -505,7 +514,14 @@ def _fit_window(starts, r, obs, nominal, spread, sigma, prior_std, d):
         best.z, free, best.base, r, obs, nominal, spread, sigma, prior_std, w, k, d
     )
     info = jac_m.T @ jac_m
-    cov_free = cho_solve(cho_factor(info), np.eye(info.shape[0]))
+    try:
+        factor = cho_factor(info)
+    except np.linalg.LinAlgError as exc:  # e.g. a noise_std of 1e8 m against 1 mm step priors
+        raise SolverError(
+            "EKF initialisation: the window fit's information matrix is not positive definite "
+            "(range noise and step spreads too far apart in scale)"
+        ) from exc
+    cov_free = cho_solve(factor, np.eye(info.shape[0]))
     cov = np.zeros((best.full.size, best.full.size))
     cov[np.ix_(free, free)] = 0.5 * (cov_free + cov_free.T)
     pts = best.full.reshape(w + k, d)

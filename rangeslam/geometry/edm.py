@@ -26,8 +26,9 @@ def _as_square(value: ArrayLike, name: str) -> np.ndarray:
 
 
 def edm(points: ArrayLike) -> np.ndarray:
-    """(N, N) squared distances between points (N, d), eq. (5)."""
-    x = as_points(points, "points")
+    """(N, N) squared distances between points (N, d), eq. (5). Any finite coordinates (no
+    limit in metres: estimators apply it to their own answers)."""
+    x = as_points(points, "points", metres=False)
     sq = np.einsum("nd,nd->n", x, x)
     d = sq[:, None] + sq[None, :] - 2.0 * x @ x.T
     np.fill_diagonal(d, 0.0)
@@ -90,7 +91,8 @@ def classical_mds(edm_matrix: ArrayLike, dim: int) -> np.ndarray:
 
 
 def range_matrix(receivers: ArrayLike, sources: ArrayLike) -> np.ndarray:
-    """(M, K) distances between receivers (M, d) and sources (K, d)."""
-    r = as_points(receivers, "receivers")
-    s = as_points(sources, "sources", dim=r.shape[1])
+    """(M, K) distances between receivers (M, d) and sources (K, d). Any finite coordinates (no
+    limit in metres: estimators apply it to their own answers, which may have diverged)."""
+    r = as_points(receivers, "receivers", metres=False)
+    s = as_points(sources, "sources", dim=r.shape[1], metres=False)
     return np.linalg.norm(r[:, None, :] - s[None, :, :], axis=2)
