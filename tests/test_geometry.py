@@ -481,3 +481,18 @@ def test_image_sources_refuse_boolean_order():
     """order=True is a bool, not an order."""
     with pytest.raises(InvalidInputError, match="order must be an integer"):
         Room.shoebox([4.0, 3.0, 2.0]).image_sources([1.0, 1.0, 1.0], order=True)
+
+
+@pytest.mark.parametrize(
+    ("normals", "points", "match"),
+    [
+        ([[1.0, 0.0], [0.0, 1.0], [-1.0, -1.0]], [[10**400, 0], [0, 1], [0, 0]], "points must be"),
+        ([["1", 0.0], [0.0, 1.0], [-1.0, -1.0]], [[1.0, 0], [0, 1], [0, 0]], "normals must be"),
+        ([[1.0, 0.0], [0.0, 1.0], [-1.0, -1.0]], [[1.0, 0], [0, 1j], [0, 0]], "not complex"),
+        ([[1.0, 0.0], [0.0, 1.0], [-1.0, -1.0]], [[1e13, 0], [0, 1], [0, 0]], "magnitude"),
+    ],
+)
+def test_room_from_planes_refuses_hostile_values(normals, points, match):
+    """The fuzz found OverflowError and ValueError from numpy here (big integers, strings)."""
+    with pytest.raises(InvalidInputError, match=match):
+        Room.from_planes(normals, points)

@@ -135,8 +135,8 @@ class Room:
     @classmethod
     def from_planes(cls, normals: ArrayLike, points: ArrayLike) -> Room:
         """Room from K planes, each an outward normal (K, d) (any length > 0) and a point on it (K, d)."""
-        normals = np.array(normals, dtype=float)
-        points = np.array(points, dtype=float)
+        normals = as_float_array(normals, "normals")
+        points = as_float_array(points, "points")
         if normals.ndim != 2 or normals.shape[1] not in (2, 3):
             raise InvalidInputError(
                 f"normals must have shape (K, d) with d in (2, 3); got {shape_str(normals.shape)}"
@@ -147,6 +147,7 @@ class Room:
             )
         if not (np.all(np.isfinite(normals)) and np.all(np.isfinite(points))):
             raise InvalidInputError("normals and points must be finite")
+        check_metres(points, "points", min_scale=False)
         norms = np.linalg.norm(normals, axis=1)
         if np.any(norms < 1e-12):
             raise InvalidInputError(
