@@ -225,3 +225,23 @@ def test_statuses_print_by_name_and_the_package_is_typed():
     assert str(Status.CONVERGED) == "CONVERGED" and f"{Status.OUTLIERS:>9}" == " OUTLIERS"
     assert int(Status.NO_AGREEMENT) == 6 and Status.OUTLIERS == 3
     assert resources.files("rangeslam").joinpath("py.typed").is_file()
+
+
+@pytest.mark.parametrize("argv", [["--version"], ["--help"], ["bench", "plaza", "--help"]])
+def test_version_and_help_load_no_heavy_module(argv):
+    """``rangeslam --version`` took 3.4 s loading cvxpy, GTSAM and scipy.signal: the package
+    loads its modules on first use, and the parser needs none of them (checked by what is
+    imported, not by a clock)."""
+    code = (
+        "import sys\n"
+        "from rangeslam.app.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "heavy = ('cvxpy', 'gtsam', 'scipy.signal', 'scipy.optimize', 'matplotlib', 'filterpy')\n"
+        "print('heavy:' + ','.join(m for m in heavy if m in sys.modules))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "heavy:", proc.stdout

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rangeslam.app.defaults import FIG3_SIGMAS, FIG5_SIGMAS, FIG5_STEPS
 from rangeslam.app.progress import Progress
 from rangeslam.app.reports import markdown, versions, write_csv, write_summary, write_tum
 from rangeslam.errors import InvalidInputError
@@ -50,9 +51,6 @@ __all__ = [
 BENCHES = ("fig3", "fig5", "compare")
 #: The --bounds choices: which step-bound settings a SLAM run covers.
 BOUND_SETTINGS = {"both": (True, False), "with": (True,), "without": (False,)}
-FIG3_SIGMAS = (0.0, 1e-3, 5e-3, 1e-2)
-FIG5_STEPS = (4, 5, 6, 8, 10, 15, 20)
-FIG5_SIGMAS = (1e-3, 1e-2)
 #: Columns of a SLAM trial: the EDM answer, EDM + GTSAM (rangeslam.mdu.slam), GTSAM from a
 #: GTSAM-style start, and (``compare``) the filterpy EKF, filtered and RTS-smoothed.
 SLAM_METHODS = ("edm", "edm_gtsam", "gtsam", "ekf", "ekf_rts")

@@ -7,7 +7,13 @@ from pathlib import Path
 
 from rangeslam.app import arg_types
 from rangeslam.app.bench_command import bench as bench_command
-from rangeslam.app.benchmarking import FIG3_SIGMAS, FIG5_SIGMAS, FIG5_STEPS
+from rangeslam.app.defaults import (
+    DEFAULT_METHODS,
+    FIG3_SIGMAS,
+    FIG5_SIGMAS,
+    FIG5_STEPS,
+    PLAZA_METHODS,
+)
 from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
 from rangeslam.app.simulate_command import add_simulate_parser
@@ -277,8 +283,6 @@ def _add_slam_bench_options(slam: argparse.ArgumentParser) -> None:
 
 def _add_plaza_options(plaza: argparse.ArgumentParser) -> None:
     """The options of ``rangeslam bench plaza``: data set, methods, lengths, starts."""
-    from rangeslam.app.plaza_bench import DEFAULT_METHODS, PLAZA_METHODS
-
     plaza.add_argument(
         "--dataset", choices=("Plaza1", "Plaza2"), default="Plaza1", help="which CMU Plaza data set"
     )

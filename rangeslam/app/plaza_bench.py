@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from rangeslam.app.defaults import DEFAULT_METHODS, PLAZA_METHODS
 from rangeslam.app.progress import Progress
 from rangeslam.beacons import (
     BeaconSlamResult,
@@ -36,21 +37,6 @@ __all__ = [
     "run_method",
 ]
 
-#: Methods of the bench: ours (batch, incremental), the same graph from random beacons, GTSAM's
-#: example (random beacons, iSAM2), odometry alone and the EKF baseline.
-PLAZA_METHODS = (
-    "edm+gtsam",
-    "edm+isam2",
-    "gtsam random beacons",
-    "isam2 random beacons",
-    "gtsam example",
-    "odometry",
-    "ekf",
-)
-#: Run by default: all but "isam2 random beacons" (our iSAM2 graph with each beacon entering at
-#: its first range from N(0, I), as GTSAM's example starts them): on Plaza1 its beacons ran off to
-#: 1e4-1e8 m in both seeds tried and a run took 200 s.
-DEFAULT_METHODS = tuple(m for m in PLAZA_METHODS if m != "isam2 random beacons")
 RANDOM_METHODS = ("gtsam random beacons", "isam2 random beacons", "gtsam example")
 
 
