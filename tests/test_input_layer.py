@@ -400,3 +400,14 @@ def test_ekf_answer_collapsed_below_a_nanometre_is_not_an_input_error():
         warnings.simplefilter("ignore", RuntimeWarning)
         out = ekf_slam(r, dim=2, rng=0, smooth=True, noise_std=1e6)
     assert isinstance(out.status, Status) and out.receivers.shape == (8, 2)
+
+
+@pytest.mark.parametrize(
+    ("name", "value"),
+    [("dim", "3"), ("dim", True), ("rtol", np.array([1e-9, 1e-9])), ("rtol", 10**400)],
+)
+def test_is_edm_options_are_checked(name, value):
+    """is_edm(dim="3") or rtol as an array or a 401-digit integer: InvalidInputError naming the
+    option (TypeError, ValueError or OverflowError, before: benchmarks/fuzz_entry_points.py)."""
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be"):
+        rs.is_edm(np.zeros((3, 3)), **{name: value})

@@ -60,8 +60,11 @@ def is_edm(edm_matrix: ArrayLike, *, dim: int | None = None, rtol: float = 1e-9)
 
     With ``dim``, also requires embedding dimension <= dim (at most ``dim`` eigenvalues of the Gram
     matrix above ``rtol`` times the largest). Tolerances are relative to the largest entry.
+    ``dim``: None or a positive integer; ``rtol``: a real number in [0, 1).
     """
     d = _as_square(edm_matrix, "edm_matrix")
+    dim = as_scalar(dim, "dim", low=1, integer=True, allow_none=True)
+    rtol = as_scalar(rtol, "rtol", low=0.0, high=1.0, high_open=True)
     scale = max(float(np.abs(d).max()), np.finfo(float).tiny)
     if not np.allclose(d, d.T, atol=rtol * scale, rtol=0):
         return False
