@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import f as f_dist
 
 from rangeslam._validation import (
     as_dim,
@@ -27,8 +26,9 @@ from rangeslam._validation import (
 )
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
+from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.planarity import dimension_check, flat_rival_check, lifted_ssr
 from rangeslam.solvers.least_squares import (
-    refine_unfolding,
     unfolding_jacobian,
     unfolding_residuals,
 )
@@ -418,12 +418,13 @@ def unfolding_check(
     sigma = verdict_noise(noise_std, noise_upper_bound(ssr, redundancy), exact_rms)
     scale = float(np.median(ranges[observed]))
     # Residuals first: a noise level estimated from residuals that do not fit means nothing.
-    consistency = first_failure(
-        consistency_check(residuals, jac, redundancy, noise_std, scale, exact_rms, tail=tail),
-        dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms),
-    )
+    consistency = consistency_check(residuals, jac, redundancy, noise_std, scale, exact_rms,
+                                    tail=tail)  # fmt: skip
     if not consistency.passed:
         return consistency
+    # 3-D data in dim=2 first; what was noted is named with it (issue 35, S4)
+    dimension = dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms,
+                                noise_std)  # fmt: skip
     source_check, sources_note = sources_verdict(
         receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
     )
@@ -439,8 +440,8 @@ def unfolding_check(
         flat_rival, receivers_check = priorless_checks(
             receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale
         )
-    check = first_failure(flatness_check(points, sigma, scale, what), flat_rival, information,
-                          source_check, receivers_check)  # fmt: skip
+    check = first_failure(dimension, flatness_check(points, sigma, scale, what), flat_rival,
+                          information, source_check, receivers_check)  # fmt: skip
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 
 
@@ -534,10 +535,26 @@ def sources_verdict(
             sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source"
         ), ""
     failed = points_failures(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
-    if not failed:
+    # A flat array or walk held fixed is bent towards each source's side: the mirrors judged
+    # with everything refitted (issue 35, S3), so the note names every source reported.
+    mirrors = landmark_mirrors(receivers, sources, ranges, observed, sigma, exact_rms)
+    named = {i for i, _ in failed}
+    refitted = [j for j in np.flatnonzero(mirrors.ambiguous) if j not in named]
+    if not failed and not refitted:
         return PASSED, ""
-    also = f" (also noted: sources {', '.join(str(i) for i, _ in failed[1:])})"
-    return PASSED, f"noted: {failed[0][1].reason}" + (also if len(failed) > 1 else "")
+    first = failed[0][1].reason if failed else refitted_reason(refitted[0], mirrors.cost_gaps)
+    rest = sorted([i for i, _ in failed[1:]] + refitted[1 - bool(failed) :])
+    also = f" (also noted: sources {', '.join(str(i) for i in rest)})"
+    return PASSED, f"noted: {first}" + (also if rest else "")
+
+
+def refitted_reason(j: int, gaps: np.ndarray) -> str:
+    """The note on source ``j`` whose mirror image fits as well only with every point refitted;
+    ``gaps`` (K,) the cost gaps of :func:`landmark_mirrors`, metres^2."""
+    return (
+        f"source {j} and its mirror image fit the data equally well with the receivers refitted "
+        f"(their costs differ by {gaps[j]:.3g} m^2; the receivers may be flat)"
+    )
 
 
 def information_model(
@@ -597,101 +614,6 @@ def points_failures(points, partners, ranges, observed, sigma, exact_rms, kind, 
             if first:
                 break
     return failed
-
-
-def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:
-    """The least sum of squared range residuals (m^2) of 3-D least squares started from the 2-D
-    ``points`` (M + K, 2) lifted off their plane by fixed patterns (alternating, golden-angle and
-    slow sine signs, 5%, 20% and 50% of the median range): a 3-D fit has local minima, and a
-    start that misses the 3-D one lets 3-D data pass as planar (a 3-D walk fitted with dim=2
-    converged once in a full-suite run)."""
-    n, scale = len(points), float(np.median(ranges[observed]))
-    best = float("inf")
-    k = np.arange(n)
-    for pattern in ((-1.0) ** k, np.cos(2.39996 * k), np.sin(0.7 * k + 0.3)):
-        for lift in (0.05, 0.2, 0.5):
-            lifted = np.column_stack([points, lift * scale * pattern])
-            fit = refine_unfolding(lifted[:m], lifted[m:], ranges, observed)
-            ssr = float(np.sum(fit.residuals[observed] ** 2))
-            best = min(best, ssr) if np.isfinite(ssr) else best
-    return best
-
-
-def flat_rival_check(
-    receivers: np.ndarray,
-    sources: np.ndarray,
-    ranges: np.ndarray,
-    observed: np.ndarray,
-    redundancy: int,
-    sigma: float | None,
-    scale: float,
-) -> Check:
-    """NOT_IDENTIFIABLE when a 3-D answer whose receivers are flat (:func:`flatness_check`)
-    fits its ranges no better than the flat configuration refined from its projection into
-    the receivers' plane (the F-test of :func:`dimension_check` at CHI2_LEVEL, read the
-    other way): a flat scene fitted in 3-D folds its sources out of the plane at no cost, while
-    sources truly off a flat array cannot be flattened. ``receivers`` (M, 3), ``sources``
-    (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres. Ranges already
-    corrected by fitted offsets (emission times, clock offsets) keep those offsets in the flat
-    fit, which can only make it worse: a folded scene with offsets may pass unseen here."""
-    m, d = receivers.shape
-    extra = m + len(sources) - 3  # one coordinate per point, less 3-D's three extra motions
-    if d != 3 or redundancy <= 0 or flatness_check(receivers, sigma, scale, "").passed:
-        return PASSED
-    points = np.vstack([receivers, sources])
-    pairs = np.argwhere(observed)
-    residuals = unfolding_residuals(points, m, ranges[observed], pairs)
-    ssr3 = float(residuals @ residuals)
-    centre = receivers.mean(axis=0)
-    flat = (points - centre) @ np.linalg.svd(receivers - centre)[2][:2].T
-    # offset-corrected ranges can dip below 0 (a source at a receiver)
-    fit = refine_unfolding(flat[:m], flat[m:], np.maximum(ranges, 0.0), observed)
-    ssr2 = float(np.sum(fit.residuals[observed] ** 2))
-    stat = ((ssr2 - ssr3) / extra) / max(ssr3 / redundancy, 1e-300)
-    if np.isfinite(ssr2) and stat <= f_dist.ppf(CHI2_LEVEL, extra, redundancy):
-        return Check(
-            Status.NOT_IDENTIFIABLE,
-            f"the receivers are flat and a flat configuration fits the ranges as well (residual "
-            f"sum of squares {ssr2:.3g} against {ssr3:.3g} m^2, F = {stat:.3g} on {extra} and "
-            f"{redundancy} degrees of freedom): the sources' sides of their plane are not "
-            "determined (fit with dim=2?)",
-        )
-    return PASSED
-
-
-def dimension_check(
-    receivers: np.ndarray,
-    sources: np.ndarray,
-    ranges: np.ndarray,
-    observed: np.ndarray,
-    redundancy: int,
-    exact_rms: float,
-) -> Check:
-    """INCONSISTENT when a 2-D answer's ranges are fitted significantly better in 3-D (an F-test
-    at CHI2_LEVEL of the residual drop against the N - 3 extra unknowns): the data are not
-    planar and dim=2 leaves a structured residual that no noise level explains. A 3-D answer
-    passes. ``receivers`` (M, d), ``sources`` (K, d), ``ranges`` and ``observed`` (M, K)."""
-    m, d = receivers.shape
-    n = m + len(sources)
-    pairs = np.argwhere(observed)
-    residuals = unfolding_residuals(np.vstack([receivers, sources]), m, ranges[observed], pairs)
-    ssr2 = float(residuals @ residuals)
-    extra = n - 3  # one coordinate per point, less the three extra rigid motions of 3-D
-    if d != 2 or redundancy - extra <= 0 or ssr2 <= exact_rms**2 * residuals.size:
-        return PASSED
-    ssr3 = lifted_ssr(np.vstack([receivers, sources]), m, ranges, observed)
-    if not np.isfinite(ssr3) or ssr3 >= ssr2:
-        return PASSED
-    dof3 = redundancy - extra
-    stat = ((ssr2 - ssr3) / extra) / max(ssr3 / dof3, 1e-300)
-    if stat > f_dist.ppf(CHI2_LEVEL, extra, dof3):
-        return Check(
-            Status.INCONSISTENT,
-            f"the data are not planar: fitted in 3-D the residual sum of squares drops from "
-            f"{ssr2:.3g} to {ssr3:.3g} m^2 (F = {stat:.3g} on {extra} and {dof3} degrees of "
-            "freedom); fit with dim=3",
-        )
-    return PASSED
 
 
 def step_prior_rows(
