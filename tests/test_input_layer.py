@@ -411,3 +411,13 @@ def test_is_edm_options_are_checked(name, value):
     option (TypeError, ValueError or OverflowError, before: benchmarks/fuzz_entry_points.py)."""
     with pytest.raises(InvalidInputError, match=rf"^{name} must be"):
         rs.is_edm(np.zeros((3, 3)), **{name: value})
+
+
+@pytest.mark.parametrize("bad", [True, 0, 10**6, 2.5, "100"])
+def test_beacon_slam_max_iterations_is_an_integer_within_its_limit(bad):
+    """``max_iterations=True`` was accepted; the limit (MAX_LM_ITERATIONS) is stated."""
+    from rangeslam.beacons.simulation import simulate_beacon_run
+
+    run = simulate_beacon_run(np.random.default_rng(0), n_steps=60, radius=5.0, range_std=0.05)
+    with pytest.raises(InvalidInputError, match="max_iterations"):
+        rs.beacon_slam(run.data, max_iterations=bad)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from rangeslam._validation import as_point, frozen
+from rangeslam._validation import as_point, check_int, frozen
 from rangeslam.beacons.data import RangeOdometry, all_heard_placed, check_data, dead_reckoning
 from rangeslam.beacons.graph import (
     beacon_array,
@@ -25,11 +25,10 @@ from rangeslam.beacons.graph import (
     pose_array,
     range_inliers,
 )
-from rangeslam.beacons.lm import LMReport, levenberg_marquardt
+from rangeslam.beacons.lm import MAX_LM_ITERATIONS, LMReport, levenberg_marquardt
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation
 from rangeslam.beacons.result import BeaconSlamResult, calibration_check
 from rangeslam.beacons.windows import Initialisation, edm_initialisation
-from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
 
 __all__ = ["beacon_slam"]
@@ -74,7 +73,7 @@ def beacon_slam(
     Args:
         data: the odometry and ranges (:class:`~rangeslam.beacons.data.RangeOdometry`).
         start_pose: pose 0, (x, y, heading); it fixes the gauge.
-        max_iterations: Levenberg-Marquardt iterations at most.
+        max_iterations: Levenberg-Marquardt iterations at most, 1 to MAX_LM_ITERATIONS (100000).
         initialisation: "edm" (steps 2-3) or "random": dead-reckoned poses and beacons drawn
             from N(0, I) m as GTSAM's RangeISAMExample_plaza2 starts them (needs ``rng``): the
             same graph without the EDM, for comparison.
@@ -85,10 +84,7 @@ def beacon_slam(
     """
     t0 = time.perf_counter()
     check_data(data)
-    if not (isinstance(max_iterations, int | np.integer) and max_iterations >= 1):
-        raise InvalidInputError(
-            f"max_iterations must be a positive integer; got {max_iterations!r}"
-        )
+    max_iterations = check_int(max_iterations, "max_iterations", 1, MAX_LM_ITERATIONS)
     check_initialisation(initialisation, rng)
     cfg = BeaconSlamOptions.from_settings(settings)
     start = as_point(start_pose, "start_pose", dim=3)

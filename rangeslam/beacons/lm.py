@@ -9,7 +9,7 @@ import numpy as np
 from rangeslam._validation import as_scalar, check_int
 from rangeslam.status import HasStatus, Status
 
-__all__ = ["LMReport", "levenberg_marquardt"]
+__all__ = ["MAX_LM_ITERATIONS", "LMReport", "levenberg_marquardt"]
 
 #: The message of a stop at a stationary point whose cost no step lowers beyond round-off.
 ROUND_OFF_MESSAGE = "converged to round-off: no decrease at the largest damping, none predicted"
@@ -85,11 +85,16 @@ def stall_report(
     )
 
 
+#: The most Levenberg-Marquardt iterations a caller may ask for: Plaza converges in tens; a
+#: larger count only makes a run that does not converge run for hours before it says so.
+MAX_LM_ITERATIONS = 100_000
+
+
 def check_lm_settings(max_iterations, rel_tol, lambda_initial, lambda_max):
     """The settings of :func:`levenberg_marquardt` checked at its door: max_iterations an integer
-    >= 1, rel_tol in (0, 1), 0 < lambda_initial < lambda_max (finite); InvalidInputError naming
+    in [1, MAX_LM_ITERATIONS], rel_tol in (0, 1), 0 < lambda_initial < lambda_max (finite); InvalidInputError naming
     the setting otherwise. Returns them as (int, float, float, float)."""
-    iterations = check_int(max_iterations, "max_iterations", 1)
+    iterations = check_int(max_iterations, "max_iterations", 1, MAX_LM_ITERATIONS)
     tol = as_scalar(rel_tol, "rel_tol", low=0.0, high=1.0, low_open=True, high_open=True)
     lam0 = as_scalar(lambda_initial, "lambda_initial", low=0.0, low_open=True)
     lam_max = as_scalar(lambda_max, "lambda_max", low=lam0, low_open=True)
