@@ -421,3 +421,23 @@ def test_beacon_slam_max_iterations_is_an_integer_within_its_limit(bad):
     run = simulate_beacon_run(np.random.default_rng(0), n_steps=60, radius=5.0, range_std=0.05)
     with pytest.raises(InvalidInputError, match="max_iterations"):
         rs.beacon_slam(run.data, max_iterations=bad)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"noise_std": 2.2e154}, "noise_std"),
+        ({"max_attempts": 10**6}, "max_attempts"),
+        ({"max_iterations": True}, "max_iterations"),
+        ({"random_starts": 10**9}, "random_starts"),
+    ],
+)
+def test_calibration_counts_and_noise_have_upper_limits(kwargs, match):
+    """noise_std near 2.2e154 overflowed calibrate_unknown_emission's chi-square test; the
+    search's counts had no upper limit (a run that never passes would go on for days)."""
+    ranges = np.ones((6, 6))
+    with pytest.raises(InvalidInputError, match=match):
+        rs.calibrate(ranges, **kwargs)
+    if "noise_std" in kwargs:
+        with pytest.raises(InvalidInputError, match=match):
+            rs.calibrate_unknown_emission(ranges, **kwargs)

@@ -30,6 +30,9 @@ from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.mdu.basin_probe import LOWER_RTOL, lower_minimum_nearby
 from rangeslam.mdu.core import (
+    MAX_ATTEMPTS,
+    MAX_RANDOM_STARTS,
+    MAX_SDP_ITERATIONS,
     ConvexIterationOptions,
     canonical_frame,
     checked_options,
@@ -204,12 +207,12 @@ def parse_calibration(
 ) -> CalibrationProblem:
     """The front door of :func:`calibrate`: every input checked once."""
     r, observed, scale = validated_ranges(ranges, mask, dim, noise_std)
-    for name, value, low in (
-        ("max_attempts", options.max_attempts, 1),
-        ("max_iterations", options.max_iterations, 1),
-        ("random_starts", random_starts, 0),
+    for name, value, low, high in (
+        ("max_attempts", options.max_attempts, 1, MAX_ATTEMPTS),
+        ("max_iterations", options.max_iterations, 1, MAX_SDP_ITERATIONS),
+        ("random_starts", random_starts, 0, MAX_RANDOM_STARTS),
     ):
-        check_int(value, name, low)
+        check_int(value, name, low, high)
     refine = as_flag(refine, "refine")
     if robust and not refine:
         raise InvalidInputError(
@@ -542,12 +545,13 @@ def calibrate(
             fewer, wrong picks are reported, not searched for). ``False`` or None: never robust.
             (The values of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`; "huber" and
             "tukey" are refused.)
-        max_attempts: convex-iteration runs at most: four from Z = I with the fit weight times 1,
+        max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I with the fit weight times 1,
             10, 0.1 and 100, then from random Z cycling the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
-            random starting points (a last resort; only with ``refine``).
+            (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
-        max_iterations: SDP solves per convex-iteration run; None: 50, and 3 in robust runs.
+        max_iterations: SDP solves per convex-iteration run (1 to MAX_SDP_ITERATIONS, 10000);
+            None: 50, and 3 in robust runs.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._validation import (
+    MAX_METRES,
     as_dim,
     as_float_array,
     as_mask,
@@ -57,6 +58,9 @@ from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS
 __all__ = [
     "EDM_STARTS",
     "EMBEDDING_RTOL",
+    "MAX_ATTEMPTS",
+    "MAX_RANDOM_STARTS",
+    "MAX_SDP_ITERATIONS",
     "SIGMA_FLOOR",
     "WEIGHT_FACTORS",
     "ConvexIterationOptions",
@@ -157,10 +161,18 @@ def canonical_frame(receivers: np.ndarray, sources: np.ndarray):
 
 
 def check_noise_std(noise_std) -> float | None:
-    """The range noise standard deviation, metres: None or a finite real number >= 0."""
+    """The range noise standard deviation, metres: None or a real number in [0, MAX_METRES]
+    (2.2e154 overflowed the chi-square test of calibrate_unknown_emission)."""
     return as_scalar(
-        noise_std, "noise_std", low=0.0, allow_none=True, expected="non-negative (metres) or None"
-    )
+        noise_std, "noise_std", low=0.0, high=MAX_METRES, allow_none=True,
+        expected=f"in [0, {MAX_METRES:g}] metres, or None",
+    )  # fmt: skip
+
+
+#: Upper limits of the search's counts: beyond them a run that never passes would run for days.
+MAX_ATTEMPTS = 1000
+MAX_SDP_ITERATIONS = 10_000
+MAX_RANDOM_STARTS = 100_000
 
 
 def validated_ranges(ranges: ArrayLike, mask: ArrayLike | None, dim: int, noise_std):
@@ -338,11 +350,15 @@ def checked_options(options: ConvexIterationOptions) -> ConvexIterationOptions:
     """The convex-iteration settings checked at the door (InvalidInputError naming each), as
     Python numbers."""
     return ConvexIterationOptions(
-        max_attempts=as_scalar(options.max_attempts, "max_attempts", low=1, integer=True),
+        max_attempts=as_scalar(
+            options.max_attempts, "max_attempts", low=1, high=MAX_ATTEMPTS, integer=True
+        ),
         fit_weight=as_scalar(
             options.fit_weight, "fit_weight", low=0.0, low_open=True, expected="positive and finite"
         ),
-        max_iterations=as_scalar(options.max_iterations, "max_iterations", low=1, integer=True),
+        max_iterations=as_scalar(
+            options.max_iterations, "max_iterations", low=1, high=MAX_SDP_ITERATIONS, integer=True
+        ),
         gap_tol=as_scalar(
             options.gap_tol,
             "gap_tol",
