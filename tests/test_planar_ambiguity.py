@@ -20,9 +20,10 @@ import rangeslam
 from rangeslam.app.experiments import fig3_scene
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.mdu.planarity import BLIND_POWER, planarity_power
+from rangeslam.mdu.planarity import planarity_power
 from rangeslam.sim.trajectories import lemniscate
 from rangeslam.status import Status
+from rangeslam.verdict.thresholds import BLIND_POWER
 
 _ROOM = (5.0, 4.0, 2.6)
 

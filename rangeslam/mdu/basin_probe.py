@@ -18,13 +18,9 @@ import numpy as np
 from rangeslam.mdu.core import information_model
 from rangeslam.solvers.least_squares import UnfoldingFit, refine_unfolding, unfolding_jacobian
 from rangeslam.verdict import gauge_free_covariance, weak_moves
-from rangeslam.verdict.thresholds import PROBE_DIRECTIONS, PROBE_SPREADS
+from rangeslam.verdict.thresholds import LOWER_RTOL, PROBE_DIRECTIONS, PROBE_SPREADS
 
-__all__ = ["LOWER_RTOL", "lower_minimum_nearby"]
-
-#: A probe's fit is a lower minimum when its sum of squared residuals is below the answer's by
-#: more than this fraction (least squares from the answer itself returns it to round-off).
-LOWER_RTOL = 1e-6
+__all__ = ["lower_minimum_nearby"]
 
 
 def lower_minimum_nearby(

@@ -28,7 +28,7 @@ from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.mdu.basin_probe import LOWER_RTOL, lower_minimum_nearby
+from rangeslam.mdu.basin_probe import lower_minimum_nearby
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -62,6 +62,7 @@ from rangeslam.verdict.crlb import mdu_crlb
 from rangeslam.verdict.thresholds import (
     AGREEMENT_STARTS,
     EXACT_RTOL,
+    LOWER_RTOL,
     PROBE_OUTLIER_K,
     PROBE_SPREADS,
     RELATIVE_RMS,
@@ -550,8 +551,7 @@ def calibrate(
         random_starts: when no convex-iteration run passes, least squares from up to this many
             (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with ``refine``).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
-        max_iterations: SDP solves per convex-iteration run (1 to MAX_SDP_ITERATIONS, 10000);
-            None: 50, and 3 in robust runs.
+        max_iterations: SDP solves per run (1 to MAX_SDP_ITERATIONS); None: 50, 3 if robust.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
         rng: numpy Generator (or seed) for the random restarts.

@@ -16,16 +16,9 @@ from scipy.stats import f as f_dist
 from rangeslam.solvers.least_squares import refine_unfolding, unfolding_residuals
 from rangeslam.status import Status
 from rangeslam.verdict import PASSED, Check, flatness_check
-from rangeslam.verdict.thresholds import CHI2_LEVEL
+from rangeslam.verdict.thresholds import BLIND_POWER, CHI2_LEVEL
 
-__all__ = ["BLIND_POWER", "dimension_check", "flat_rival_check", "lifted_ssr", "planarity_power"]
-
-#: Without noise_std the planarity F-test counts as blind when it would miss 3-D data whose fold
-#: is this many times the noise in the 2-D residual (:func:`planarity_power`): the odds of
-#: CHI2_LEVEL, 1000. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power
-#: 5e5) or 3 (none) is blind; from 5 positions (power 17.5) the test saw every planar walk
-#: under 3-D landmarks of issue 35's S4 (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
-BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
+__all__ = ["dimension_check", "flat_rival_check", "lifted_ssr", "planarity_power"]
 
 
 def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:

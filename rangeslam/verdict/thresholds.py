@@ -13,11 +13,13 @@ __all__ = [
     "AGREEMENT_STARTS",
     "AMBIGUITY_CHI2",
     "AMBIGUITY_MARGIN",
+    "BLIND_POWER",
     "CHI2_LEVEL",
     "EXACT_RTOL",
     "FLAT_FACTOR",
     "INLIER_K",
     "KEPT_SIGMAS",
+    "LOWER_RTOL",
     "MSAC_INLIER_K",
     "NOISE_QUANTILE",
     "OFFSET_RANK_RTOL",
@@ -123,6 +125,16 @@ SAME_RTOL = 1e-5
 #: Random least-squares (calibrate) or GTSAM (slam) starts that must not find another answer of
 #: equal cost.
 AGREEMENT_STARTS = 3
+#: A start reached a lower minimum than the answer when its sum of squared residuals is below
+#: the answer's by more than this fraction (least squares from the answer itself returns it to
+#: round-off); the lower one replaces the answer (calibrate's probe and agreement starts).
+LOWER_RTOL = 1e-6
+#: Without noise_std the planarity F-test counts as blind when it would miss 3-D data whose fold
+#: is this many times the noise in the 2-D residual (:func:`planarity_power`): the odds of
+#: CHI2_LEVEL, 1000. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power
+#: 5e5) or 3 (none) is blind; from 5 positions (power 17.5) the test saw every planar walk
+#: under 3-D landmarks of issue 35's S4 (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
+BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
 #: Random least-squares starts on a robust calibration's inliers, looking for a lower minimum
 #: (at most ``random_starts``).
 ROBUST_CHECK_STARTS = 30
