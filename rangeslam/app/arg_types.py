@@ -17,8 +17,15 @@ __all__ = [
     "positive_float",
     "positive_int",
     "seed",
+    "shown",
     "writable_dir",
 ]
+
+
+def shown(text: str) -> str:
+    """``text`` as an error message quotes it: as typed when printable, else Python's repr (a
+    control character or newline in a value would break the one-line message)."""
+    return text if text.isprintable() else repr(text)
 
 
 def writable_dir(text: str) -> Path:
@@ -30,7 +37,9 @@ def writable_dir(text: str) -> Path:
         probe.write_text("")
         probe.unlink()
     except OSError as exc:
-        raise argparse.ArgumentTypeError(f"cannot write to --out {text}: {exc.strerror}") from exc
+        raise argparse.ArgumentTypeError(
+            f"cannot write to --out {shown(text)}: {exc.strerror}"
+        ) from exc
     return path
 
 
@@ -38,7 +47,7 @@ def non_negative(text: str) -> float:
     """A float >= 0."""
     value = float(text)
     if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0; got {text}")
+        raise argparse.ArgumentTypeError(f"must be >= 0; got {shown(text)}")
     return value
 
 
@@ -55,9 +64,9 @@ def noise_level(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of metres; got {text}") from None
+        raise argparse.ArgumentTypeError(f"must be a number of metres; got {shown(text)}") from None
     if not 0 <= value <= SIGMA_MAX:
-        raise argparse.ArgumentTypeError(f"must be from 0 to {SIGMA_MAX:g} m; got {text}")
+        raise argparse.ArgumentTypeError(f"must be from 0 to {SIGMA_MAX:g} m; got {shown(text)}")
     return value
 
 
@@ -71,7 +80,7 @@ def fraction(text: str) -> float:
     """A float in [0, 1]."""
     value = float(text)
     if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1]; got {text}")
+        raise argparse.ArgumentTypeError(f"must be in [0, 1]; got {shown(text)}")
     return value
 
 
@@ -80,9 +89,9 @@ def positive_int(text: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}") from None
+        raise argparse.ArgumentTypeError(f"must be a positive integer; got {shown(text)}") from None
     if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer; got {text}")
+        raise argparse.ArgumentTypeError(f"must be a positive integer; got {shown(text)}")
     return value
 
 
@@ -91,9 +100,9 @@ def positive_float(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number; got {text}") from None
+        raise argparse.ArgumentTypeError(f"must be a positive number; got {shown(text)}") from None
     if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number; got {text}")
+        raise argparse.ArgumentTypeError(f"must be a positive number; got {shown(text)}")
     return value
 
 
@@ -105,9 +114,9 @@ def int_in(low: int, high: int):
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer; got {text}") from None
+            raise argparse.ArgumentTypeError(f"must be an integer; got {shown(text)}") from None
         if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"must be from {low} to {high}; got {text}")
+            raise argparse.ArgumentTypeError(f"must be from {low} to {high}; got {shown(text)}")
         return value
 
     parse.__name__ = "integer"
@@ -118,6 +127,6 @@ def npz_file(text: str) -> Path:
     """An output .npz path whose folder is created if need be and can be written to (--out)."""
     path = Path(text)
     if path.suffix.lower() != ".npz":
-        raise argparse.ArgumentTypeError(f"must name an .npz file; got {text}")
+        raise argparse.ArgumentTypeError(f"must name an .npz file; got {shown(text)}")
     writable_dir(str(path.parent))
     return path

@@ -28,9 +28,13 @@ def _at_least(minimum: int, what: str):
         try:
             value = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be an integer; got {text}") from None
+            raise argparse.ArgumentTypeError(
+                f"must be an integer; got {arg_types.shown(text)}"
+            ) from None
         if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum} ({what}); got {text}")
+            raise argparse.ArgumentTypeError(
+                f"must be >= {minimum} ({what}); got {arg_types.shown(text)}"
+            )
         return value
 
     return parse
@@ -40,7 +44,7 @@ def _absorption(text: str) -> float:
     """A float in (0, 1]."""
     value = arg_types.fraction(text)
     if value == 0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1]; got {text}")
+        raise argparse.ArgumentTypeError(f"must be in (0, 1]; got {arg_types.shown(text)}")
     return value
 
 
@@ -48,7 +52,7 @@ def _bound(text: str) -> float:
     """A float in [0, 1)."""
     value = arg_types.fraction(text)
     if value >= 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1); got {text}")
+        raise argparse.ArgumentTypeError(f"must be in [0, 1); got {arg_types.shown(text)}")
     return value
 
 

@@ -82,6 +82,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 
 from rangeslam._validation import MAX_METRES, as_flag, as_rng, as_scalar, check_int, frozen
+from rangeslam.baselines.filter_verdict import off_the_batch_minimum
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -223,12 +224,8 @@ def filtered_answer(r, observed, dim, window: _Window, steps: StepModel, options
 def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounded: bool):
     """The :class:`SlamResult`: residual status (:func:`residual_status`), SOLVER_FAILED when
     the filter diverged; the answer in the canonical frame with its covariances rotated."""
-    rec, src, rec_cov, src_cov = (
-        answer.receivers,
-        answer.sources,
-        answer.receiver_cov,
-        answer.source_cov,
-    )
+    rec, src, rec_cov, src_cov = (answer.receivers, answer.sources, answer.receiver_cov,
+                                  answer.source_cov)  # fmt: skip
     finite = bool(np.all(np.isfinite(rec)) and np.all(np.isfinite(src)))
     diverged = answer.diverged or not finite
     res = (
@@ -241,6 +238,9 @@ def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounded: b
     status, why = residual_status(
         ssr, observed, dim, noise_std, scale, chi_square=noise_std is not None, bounded=bounded
     )
+    if status is Status.CONVERGED and noise_std is None and finite:
+        off = off_the_batch_minimum(rec, src, r, observed)
+        status, why = (Status.INCONSISTENT, why + off) if off else (status, why)
     if diverged:
         status = Status.SOLVER_FAILED
     if finite:
