@@ -148,7 +148,7 @@ def test_a_failing_trial_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch):
         (["bench", "fig4"], "invalid choice"),
         (["bench", "fig5", "--trials", "0"], "must be a positive integer"),
         (["bench", "fig5", "--jobs", "-2"], "must be a positive integer"),
-        (["bench", "fig3", "--sigmas", "-0.1"], "must be >= 0"),
+        (["bench", "fig3", "--sigmas", "-0.1"], "must be from 0 to 10 m"),
         (["bench", "fig5", "--bounds", "maybe"], "invalid choice"),
     ],
 )
