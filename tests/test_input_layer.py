@@ -441,3 +441,13 @@ def test_calibration_counts_and_noise_have_upper_limits(kwargs, match):
     if "noise_std" in kwargs:
         with pytest.raises(InvalidInputError, match=match):
             rs.calibrate_unknown_emission(ranges, **kwargs)
+
+
+@pytest.mark.parametrize("estimator", ["multilaterate", "multilaterate_with_offset"])
+def test_multilateration_noise_std_has_an_upper_limit(estimator):
+    """noise_std=1e171 overflowed the chi-square test (the fuzz at seed 522445)."""
+    rng = np.random.default_rng(522445)
+    anchors = rng.uniform(0.0, 4.0, (8, 3))
+    ranges = np.linalg.norm(anchors - rng.uniform(0.0, 4.0, 3), axis=1)
+    with pytest.raises(InvalidInputError, match="noise_std"):
+        getattr(rs, estimator)(anchors, ranges, noise_std=1e171)

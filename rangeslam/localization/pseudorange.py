@@ -28,6 +28,7 @@ from scipy.optimize import least_squares
 
 from rangeslam._robust import robust_mode
 from rangeslam._validation import (
+    MAX_METRES,
     as_float_array,
     as_mask,
     as_points,
@@ -460,7 +461,7 @@ def multilaterate_with_offset(
     """
     rng = as_rng(rng)
     robust = robust_mode(robust, ("on",)) is not None  # True: on; None or False: off
-    noise_std = as_scalar(noise_std, "noise_std", low=0.0, allow_none=True)
+    noise_std = as_scalar(noise_std, "noise_std", low=0.0, high=MAX_METRES, allow_none=True)
     inlier_threshold, max_hypotheses = check_robust_options(inlier_threshold, max_hypotheses)
     prob = _parse_offset_problem(anchors, ranges, weights, mask, (inlier_threshold, max_hypotheses))
     d, n_use = prob.dim, prob.n_use

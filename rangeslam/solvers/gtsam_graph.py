@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._validation import (
+    MAX_METRES,
     as_flag,
     as_float_array,
     as_mask,
@@ -513,7 +514,12 @@ def parse_graph_problem(
     check_reached(observed, stepped)
     r = as_ranges(ranges, "ranges", shape=(m, len(s)), observed=observed)
     noise_std = as_scalar(
-        noise_std, "noise_std", low=0.0, low_open=True, expected="positive and finite"
+        noise_std,
+        "noise_std",
+        low=0.0,
+        low_open=True,
+        high=MAX_METRES,
+        expected="positive, at most 1e12 m",
     )
     robust = robust_mode(robust, ROBUST_KERNELS, default_kernel="huber")
     lm = check_lm_options(max_iterations, lambda_upper_bound)
