@@ -451,3 +451,15 @@ def test_multilateration_noise_std_has_an_upper_limit(estimator):
     ranges = np.linalg.norm(anchors - rng.uniform(0.0, 4.0, 3), axis=1)
     with pytest.raises(InvalidInputError, match="noise_std"):
         getattr(rs, estimator)(anchors, ranges, noise_std=1e171)
+
+
+def test_wall_crlb_refuses_offsets_beyond_metres():
+    """Wall offsets of 4e157 m reached LAPACK (LinAlgError: the fuzz at seed 900171)."""
+    room = rs.Room.shoebox([4.0, 3.0, 2.5])
+    rng = np.random.default_rng(900171)
+    mics = rng.uniform(0.5, 2.0, (6, 3))
+    source = np.array([[1.0, 1.0, 1.0]])
+    offsets = np.array(room.offsets, dtype=float)
+    offsets[0] = 4e157
+    with pytest.raises(InvalidInputError, match="offsets"):
+        rs.wall_crlb(mics, source, room.normals, offsets, 1e-3)

@@ -27,6 +27,7 @@ from rangeslam._validation import (
     as_mask,
     as_point,
     as_points,
+    check_metres,
     real_scalar,
     shape_str,
 )
@@ -127,6 +128,7 @@ def wall_crlb(
         raise InvalidInputError(f"offsets must have shape ({k_n},); got {shape_str(o.shape)}")
     if not np.all(np.isfinite(o)):
         raise InvalidInputError(f"offsets must be finite; got {o}")
+    check_metres(o, "offsets", "wall offsets", min_scale=False)
     sigma = _check_sigma(sigma)
     if points is None:
         p = s[0] + (o - n @ s[0])[:, None] * n
