@@ -228,8 +228,16 @@ def test_integer_seed_is_accepted():
         ((-np.ones((6, 6)),), {}, "non-negative"),
         ((np.full((6, 6), np.nan),), {}, "finite where observed"),
         ((np.ones((6, 6)),), {"noise_std": -1.0}, "noise_std must be"),
-        ((np.ones((6, 6)),), {"max_attempts": 0}, "max_attempts must be an integer >= 1"),
-        ((np.ones((6, 6)),), {"random_starts": -1}, "random_starts must be an integer >= 0"),
+        (
+            (np.ones((6, 6)),),
+            {"max_attempts": 0},
+            r"max_attempts must be an integer in \[1, 1000\]",
+        ),
+        (
+            (np.ones((6, 6)),),
+            {"random_starts": -1},
+            r"random_starts must be an integer in \[0, 100000\]",
+        ),
         ((np.ones((3, 6)),), {}, "under-determined: 18 observed ranges for 21 unknowns"),
         ((np.zeros((6, 6)),), {}, "must not all be zero"),
         ((np.ones((6, 6)),), {"fit_weight": -1.0}, "fit_weight must be positive"),

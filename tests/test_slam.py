@@ -63,7 +63,7 @@ def test_bad_step_bounds(rng):
         slam(r, step_bounds=(lo, 1.2 * steps))
     with pytest.raises(InvalidInputError, match="lower must be >= 0"):
         slam(r, step_bounds=(-steps, steps))
-    with pytest.raises(InvalidInputError, match="noise_std must be non-negative"):
+    with pytest.raises(InvalidInputError, match=r"noise_std must be in \[0, 1e\+12\] metres"):
         slam(r, noise_std=-1.0)
 
 
