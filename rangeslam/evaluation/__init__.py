@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 from rangeslam.evaluation.metrics import (
-    BEATS_BOUND,
-    MISSES_BOUND,
+    ATTAINED_RTOL,
     SHOEBOX_WALLS,
     ApeStatistics,
     BoundComparison,
@@ -22,8 +21,7 @@ from rangeslam.evaluation.metrics import (
 from rangeslam.verdict.crlb import MDUBound, mdu_crlb, multilateration_crlb, wall_crlb
 
 __all__ = [
-    "BEATS_BOUND",
-    "MISSES_BOUND",
+    "ATTAINED_RTOL",
     "SHOEBOX_WALLS",
     "ApeStatistics",
     "BoundComparison",
