@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rangeslam._validation import as_rng
+from rangeslam._validation import as_rng, check_int
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.evaluation.metrics import (
     mean_nees,
@@ -25,6 +25,7 @@ from rangeslam.geometry.room import Room
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.mdu.calibration import Calibration, calibrate
 from rangeslam.sim.scenes import add_outliers, add_range_noise, echo_ranges, random_points_in_room
+from rangeslam.solvers.least_squares import refine_unfolding
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict.crlb import mdu_crlb
 
@@ -186,6 +187,10 @@ class CalibrationExperiment:
         mic_error: RMS microphone error after the best rigid motion (with reflection), metres.
         mic_crlb: the receiver-gauge CRLB of that RMS error, metres (NaN at sigma = 0, inf when
             the configuration is flexible to first order).
+        oracle_error: the oracle's microphone error, metres: :func:`calibrate`'s own cost (least
+            squares on the ranges) minimised from the truth; what the search should reach.
+        oracle_rms: the oracle's Monte-Carlo RMS error over fresh noise draws on the same scene,
+            metres (NaN when none were asked for, 0 without noise).
     """
 
     scene: CalibrationScene
@@ -194,15 +199,26 @@ class CalibrationExperiment:
     result: Calibration
     mic_error: float
     mic_crlb: float
+    oracle_error: float
+    oracle_rms: float
+
+
+def _calibration_oracle(scene: CalibrationScene, ranges: np.ndarray) -> float:
+    """RMS microphone error (metres) of least squares on ``ranges`` (M, K) from the truth."""
+    oracle = refine_unfolding(scene.mics, scene.sources, ranges, np.ones(ranges.shape, bool))
+    return align(oracle.receivers, scene.mics, reflection=True).rmse
 
 
 def calibration_experiment(
-    sigma: float, rng: np.random.Generator, **calibrate_options
+    sigma: float, rng: np.random.Generator, *, oracle_draws: int = 0, **calibrate_options
 ) -> CalibrationExperiment:
     """A Fig. 3 scene, ranges with N(0, sigma^2) noise, :func:`calibrate`, and the error vs CRLB.
 
     ``calibrate_options`` go to :func:`calibrate` (noise_std defaults to sigma, rng to ``rng``).
+    ``oracle_draws`` fresh noise draws on the same scene give the oracle's Monte-Carlo RMS error
+    (``oracle_rms``), the figure its bound is checked against.
     """
+    draws = check_int(oracle_draws, "oracle_draws", 0, 10_000)
     scene = fig3_scene(rng)
     ranges = add_range_noise(scene.ranges, sigma, rng=rng) if sigma > 0 else scene.ranges
     calibrate_options.setdefault("noise_std", sigma)
@@ -210,7 +226,15 @@ def calibration_experiment(
     result = calibrate(ranges, **calibrate_options)
     error = align(result.receivers, scene.mics, reflection=True).rmse
     bound = receiver_crlb(scene.mics, scene.sources, sigma)
-    return CalibrationExperiment(scene, ranges, sigma, result, error, bound)
+    oracle_error = _calibration_oracle(scene, ranges) if sigma > 0 else 0.0
+    mc = [_calibration_oracle(scene, add_range_noise(scene.ranges, sigma, rng=rng))
+          for _ in range(draws if sigma > 0 else 0)]  # fmt: skip
+    oracle_rms = float(np.sqrt(np.mean(np.square(mc)))) if mc else float("nan")
+    if sigma <= 0 and draws:
+        oracle_rms = 0.0
+    return CalibrationExperiment(
+        scene, ranges, sigma, result, error, bound, oracle_error, oracle_rms
+    )
 
 
 def receiver_crlb(receivers: np.ndarray, sources: np.ndarray, sigma: float, **priors) -> float:
@@ -243,6 +267,11 @@ class SlamExperiment(HasStatus):
             reflection), metres.
         source_error: landmark RMS error of EDM + GTSAM after the trajectory's alignment, each
             landmark taken up to its mirror image in the trajectory's plane (eq. 12 is planar).
+        oracle_error, oracle_source_error: the same errors of the oracle: the GTSAM graph
+            :func:`rangeslam.mdu.slam` ends with (range factors, step priors, kernel, noise)
+            minimised from the truth (0 at sigma = 0, where the truth is its minimum).
+        oracle_rms: the oracle's Monte-Carlo RMS trajectory error over fresh noise (and bound
+            placement) draws on the same walk, metres (NaN when none were asked for).
         crlb: receiver-gauge CRLB of the trajectory error with the information the method
             uses: the ranges and, with step bounds, the step prior ``slam`` reads them as
             (:func:`rangeslam.evaluation.mdu_crlb`); inf when not identifiable, NaN at sigma = 0.
@@ -267,6 +296,9 @@ class SlamExperiment(HasStatus):
     error: float
     baseline_error: float
     source_error: float
+    oracle_error: float
+    oracle_source_error: float
+    oracle_rms: float
     crlb: float
     crlb_ranges: float
     nees: float
@@ -309,14 +341,90 @@ def _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior):
     return base.receivers, base.sources
 
 
+def place_step_bounds(
+    steps: np.ndarray, placement: str, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) step bounds, each (M - 1,), metres, of width 40% of the true ``steps``
+    (M - 1,): "centred" on them (the paper's +-20%) or "random" (each true step uniform inside
+    its bounds: the model the "uniform" step prior assumes)."""
+    if placement == "centred":
+        lower = 0.8 * steps
+    elif placement == "random":
+        lower = steps * (1 - 0.4 * rng.uniform(size=len(steps)))
+    else:
+        raise InvalidInputError(
+            f"bounds_placement must be 'centred' or 'random'; got {placement!r}"
+        )
+    return lower, lower + 0.4 * steps
+
+
+def _slam_oracle(
+    traj, landmarks, ranges, sigma: float, step_bounds, slam_options: dict
+) -> tuple[float, float]:
+    """(trajectory, landmark) RMS errors (metres) of :func:`rangeslam.mdu.slam`'s final graph
+    minimised from the truth ``traj`` (M, 3), ``landmarks`` (K, 3), with the noise it was told
+    (else the true ``sigma``); (0, 0) without noise, where the truth is the minimum."""
+    from rangeslam.solvers.gtsam_graph import refine_graph
+
+    if sigma <= 0:
+        return 0.0, 0.0
+    fit = refine_graph(
+        traj,
+        landmarks,
+        ranges,
+        noise_std=slam_options.get("noise_std") or sigma,
+        step_bounds=step_bounds,
+        step_sigma=slam_options.get("step_sigma"),
+        step_prior=slam_options.get("step_prior", "uniform"),
+        robust=slam_options.get("robust"),
+        covariances=False,
+        max_iterations=5000,
+    )
+    a = align(fit.receivers, traj, reflection=True)
+    return a.rmse, planar_source_error(a, fit.sources, landmarks, float(traj[0, 2]))
+
+
+def _slam_bounds(traj, landmarks, sigma, step_bounds, slam_options) -> tuple[float, float]:
+    """Receiver-gauge CRLBs (metres) of the trajectory: with the step prior :func:`slam` reads
+    the bounds as (floored at its noise), and from the ranges alone."""
+    ranges_only = receiver_crlb(traj, landmarks, sigma)
+    if step_bounds is None:
+        return ranges_only, ranges_only
+    floor = slam_options.get("step_sigma") or slam_options.get("noise_std") or sigma
+    step_prior = slam_options.get("step_prior", "uniform")
+    bound = receiver_crlb(
+        traj, landmarks, sigma, step_bounds=step_bounds, step_prior=step_prior, step_sigma=floor
+    )
+    return bound, ranges_only
+
+
+def _slam_oracle_rms(traj, landmarks, sigma, placement, slam_options, draws: int, rng) -> float:
+    """The oracle's Monte-Carlo RMS trajectory error (metres) on this walk: ``draws`` fresh range
+    noise (and, with ``placement``, step-bound placement) draws, each minimised from the truth;
+    NaN when ``draws`` is 0, 0 without noise."""
+    from rangeslam.sim.trajectories import step_lengths
+
+    if draws == 0:
+        return float("nan")
+    if sigma <= 0:
+        return 0.0
+    steps, errors = step_lengths(traj), []
+    for _ in range(draws):
+        ranges = add_range_noise(range_matrix(traj, landmarks), sigma, rng=rng)
+        bounds = None if placement is None else place_step_bounds(steps, placement, rng)
+        errors.append(_slam_oracle(traj, landmarks, ranges, sigma, bounds, slam_options)[0])
+    return float(np.sqrt(np.mean(np.square(errors))))
+
+
 def slam_experiment(
     m: int,
     sigma: float,
     bounds: bool,
     rng: np.random.Generator,
     *,
-    bounds_placement: str = "centred",
+    bounds_placement: str = "random",
     baseline: bool = True,
+    oracle_draws: int = 0,
     **slam_options,
 ) -> SlamExperiment:
     """Fig. 5: the lemniscate of eq. (12) from a random phase, M steps of t_n = 0.3 n, a
@@ -326,7 +434,9 @@ def slam_experiment(
     ``bounds_placement``: "centred" (the paper's +-20% of the true step) or "random" (the true
     step uniform inside bounds of the same width: the model the "uniform" step prior assumes, so
     the one in which its covariances can be judged, and a check that nothing relies on the truth
-    sitting in the middle). ``baseline=False`` skips GTSAM alone (its fields are then NaN)."""
+    sitting in the middle; the default). ``baseline=False`` skips GTSAM alone (its fields are
+    then NaN). ``oracle_draws`` fresh noise draws on the same walk give the oracle's Monte-Carlo
+    RMS error (``oracle_rms``), the figure its bound is checked against."""
     from rangeslam.mdu.slam import slam
     from rangeslam.sim.trajectories import lemniscate, step_lengths
 
@@ -339,15 +449,11 @@ def slam_experiment(
         ranges = add_range_noise(ranges, sigma, rng=rng)
     steps = step_lengths(traj)
     step_prior = slam_options.get("step_prior", "uniform")
-    if bounds_placement == "centred" or (bounds_placement == "random" and not bounds):
-        lower = 0.8 * steps
-    elif bounds_placement == "random":
-        lower = steps * (1 - 0.4 * rng.uniform(size=m - 1))
-    else:
+    if bounds_placement not in ("centred", "random"):
         raise InvalidInputError(
             f"bounds_placement must be 'centred' or 'random'; got {bounds_placement!r}"
         )
-    step_bounds = (lower, lower + 0.4 * steps) if bounds else None
+    step_bounds = place_step_bounds(steps, bounds_placement, rng) if bounds else None
     slam_options.setdefault("noise_std", sigma)
     t0 = time.perf_counter()
     result = slam(ranges, step_bounds=step_bounds, rng=rng, **slam_options)
@@ -358,15 +464,19 @@ def slam_experiment(
         base_x, base_s = np.full_like(traj, np.nan), np.full_like(landmarks, np.nan)
     else:
         base_x, base_s = _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior)
-    ranges_only = receiver_crlb(traj, landmarks, sigma)
-    bound = ranges_only
-    if step_bounds is not None:  # the prior slam (and GTSAM alone) uses: floored at its noise
-        floor = slam_options.get("step_sigma") or slam_options.get("noise_std") or sigma
-        bound = receiver_crlb(
-            traj, landmarks, sigma, step_bounds=step_bounds, step_prior=step_prior,
-            step_sigma=floor,
-        )  # fmt: skip
+    bound, ranges_only = _slam_bounds(traj, landmarks, sigma, step_bounds, slam_options)
     nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
+    oracle = _slam_oracle(traj, landmarks, ranges, sigma, step_bounds, slam_options)
+    placement = bounds_placement if bounds else None
+    oracle_rms = _slam_oracle_rms(
+        traj,
+        landmarks,
+        sigma,
+        placement,
+        slam_options,
+        check_int(oracle_draws, "oracle_draws", 0, 10_000),
+        rng,
+    )
     return SlamExperiment(
         trajectory=traj,
         landmarks=landmarks,
@@ -381,6 +491,9 @@ def slam_experiment(
         error=a.rmse,
         baseline_error=align(base_x, traj, reflection=True).rmse if baseline else float("nan"),
         source_error=planar_source_error(a, result.sources, landmarks, float(traj[0, 2])),
+        oracle_error=oracle[0],
+        oracle_source_error=oracle[1],
+        oracle_rms=oracle_rms,
         crlb=bound,
         crlb_ranges=ranges_only,
         nees=nees,
