@@ -53,7 +53,7 @@ def run_bench(
     sigmas=None,
     steps=None,
     bounds=(True, False),
-    placement: str = "centred",
+    placement: str = "random",
     tum: bool = False,
 ) -> int:
     """Plan, run and write a benchmark: CSV per trial (rewritten as trials finish, so a run

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rangeslam._validation import check_int
 from rangeslam.app.defaults import FIG3_SIGMAS, FIG5_SIGMAS, FIG5_STEPS
 from rangeslam.app.progress import Progress
 from rangeslam.app.reports import markdown, versions, write_csv, write_summary, write_tum
@@ -65,6 +66,10 @@ METHOD_NAMES = {
 SUCCESS_M = 0.10
 #: Steps of the EKF's delayed-initialisation window in ``compare``.
 EKF_WINDOW = 5
+#: Fresh noise draws per trial on which the oracle (the estimators' cost minimised from the
+#: truth) is run: its Monte-Carlo RMS is what a cell's bound is checked against.
+ORACLE_DRAWS = 16
+MAX_ORACLE_DRAWS = 1000
 
 
 @dataclass(frozen=True)
@@ -111,23 +116,33 @@ def plan(
     sigmas: Sequence[float] | None = None,
     steps: Sequence[int] | None = None,
     bounds: Sequence[bool] = (True, False),
-    placement: str = "centred",
+    placement: str = "random",
+    oracle_draws: int = ORACLE_DRAWS,
 ) -> list[Trial]:
     """The trials of a run, cell by cell. fig3: one cell per sigma (default FIG3_SIGMAS); fig5 and
     compare: one per (sigma, bounds, M) (defaults FIG5_SIGMAS, both, FIG5_STEPS), the bounds
-    centred on the true steps (the paper's +-20%) or placed at random around them (see
-    :func:`rangeslam.app.experiments.slam_experiment`)."""
+    placed at random around the true steps (the default: real odometry bounds are not centred on
+    the truth) or centred on them (the paper's +-20%; see
+    :func:`rangeslam.app.experiments.slam_experiment`). Every trial also runs the oracle on
+    ``oracle_draws`` fresh noise draws of its scene (the check of the bound)."""
     if bench not in BENCHES:
         raise InvalidInputError(f"bench must be one of {BENCHES}; got {bench!r}")
     if not (isinstance(trials, int) and trials >= 1):
         raise InvalidInputError(f"trials must be a positive integer; got {trials!r}")
     if placement not in ("centred", "random"):
         raise InvalidInputError(f"placement must be 'centred' or 'random'; got {placement!r}")
+    draws = ("oracle_draws", check_int(oracle_draws, "oracle_draws", 0, MAX_ORACLE_DRAWS))
     if bench == "fig3":
-        cells = [(("sigma", float(s)),) for s in (FIG3_SIGMAS if sigmas is None else sigmas)]
+        cells = [(("sigma", float(s)), draws) for s in (FIG3_SIGMAS if sigmas is None else sigmas)]
     else:
         cells = [
-            (("sigma", float(s)), ("bounds", bool(b)), ("m", int(m)), ("placement", placement))
+            (
+                ("sigma", float(s)),
+                ("bounds", bool(b)),
+                ("m", int(m)),
+                ("placement", placement),
+                draws,
+            )
             for s in (FIG5_SIGMAS if sigmas is None else sigmas)
             for b in bounds
             for m in (FIG5_STEPS if steps is None else steps)
@@ -148,10 +163,14 @@ def _fig3_trial(params: dict, rng: np.random.Generator, outcome: TrialOutcome) -
     from rangeslam.app.experiments import calibration_experiment
 
     t0 = time.perf_counter()
-    e = calibration_experiment(params["sigma"], rng)
+    e = calibration_experiment(params["sigma"], rng, oracle_draws=params.get("oracle_draws", 0))
     outcome.seconds["calibrate"] = time.perf_counter() - t0
     outcome.row.update(
-        mic_error_m=e.mic_error, crlb_m=e.mic_crlb, converged=bool(e.result.converged)
+        mic_error_m=e.mic_error,
+        crlb_m=e.mic_crlb,
+        oracle_error_m=e.oracle_error,
+        oracle_rms_m=e.oracle_rms,
+        converged=bool(e.result.converged),
     )
 
 
@@ -163,7 +182,12 @@ def _slam_trial(
     from rangeslam.app.experiments import slam_experiment
 
     e = slam_experiment(
-        params["m"], params["sigma"], params["bounds"], rng, bounds_placement=params["placement"]
+        params["m"],
+        params["sigma"],
+        params["bounds"],
+        rng,
+        bounds_placement=params["placement"],
+        oracle_draws=params.get("oracle_draws", 0),
     )
     outcome.seconds["edm_gtsam"] = e.seconds
     outcome.row.update(
@@ -173,6 +197,9 @@ def _slam_trial(
         edm_gtsam_error_m=e.error,
         gtsam_error_m=e.baseline_error,
         landmark_error_m=e.source_error,
+        oracle_error_m=e.oracle_error,
+        oracle_landmark_error_m=e.oracle_source_error,
+        oracle_rms_m=e.oracle_rms,
         nees=e.nees,
         nees_dof=e.nees_dof,
         converged=bool(e.converged),
@@ -216,6 +243,7 @@ def _ekf_trial(e, params: dict, rng: np.random.Generator, outcome: TrialOutcome)
         outcome.seconds[name] = time.perf_counter() - t0
         outcome.row[f"{name}_error_m"] = trajectory_rmse(out.receivers, e.trajectory)
         outcome.row[f"{name}_converged"] = bool(out.converged)
+        outcome.row["ekf_filtered_steps"] = params["m"] - min(EKF_WINDOW, params["m"])
         estimates[name] = out.receivers
     return estimates
 
@@ -289,7 +317,9 @@ class _CellTracker:
         self.names: dict[int, str] = {}
         for t in trials:
             self.left[t.cell] = self.left.get(t.cell, 0) + 1
-            self.names[t.cell] = ", ".join(f"{k}={v}" for k, v in t.params if k != "placement")
+            self.names[t.cell] = ", ".join(
+                f"{k}={v}" for k, v in t.params if k not in ("placement", "oracle_draws")
+            )
         self.progress = progress
         self.on_outcome = on_outcome
 
@@ -347,30 +377,40 @@ def bench_methods(bench: str) -> list[str]:
     return [m for m in SLAM_METHODS if bench == "compare" or not m.startswith("ekf")]
 
 
+#: What a table says in place of a bound the oracle does not attain.
+NOT_ATTAINED = "not attained: oracle only"
+
+
 def _summary_header(bench: str) -> list[str]:
     """The Markdown header of a run's summary table."""
+    yardstick = [
+        "RMS CRLB",
+        "oracle RMS (Monte Carlo)",
+        "oracle / CRLB",
+        "bound",
+    ]
     if bench == "fig3":
         return [
             "sigma (mm)",
             "trials",
             "failed",
             "not identifiable",
+            *(f"{h} (mm)" if "RMS" in h else h for h in yardstick),
             "RMS error (mm)",
-            "RMS CRLB (mm)",
-            "RMS error / RMS CRLB",
-            "regime",
+            "error / oracle",
+            "error / CRLB",
             "median error (mm)",
-            "< 3x CRLB",
             "converged",
             "time median (s)",
         ]
     methods = bench_methods(bench)
     header = ["sigma (mm)", "bounds", "M", "trials", "failed", "not identifiable"]
-    header += ["RMS CRLB (cm), with the step prior", "RMS CRLB (cm), ranges only"]
+    header += [f"{h} (cm)" if "RMS" in h else h for h in yardstick]
     header += [
-        f"{METHOD_NAMES[m]}: RMS (cm), / CRLB, regime; median (cm), < 10 cm" for m in methods
+        f"{METHOD_NAMES[m]}: RMS (cm), / oracle, / CRLB; median (cm), < 10 cm" for m in methods
     ]
     header += [
+        "landmarks RMS (cm): EDM + GTSAM, oracle",
         "NEES / dof",
         "EDM start kept",
         "time median (s): "
@@ -379,35 +419,54 @@ def _summary_header(bench: str) -> list[str]:
     return header
 
 
-def _ratio_text(c: BoundComparison) -> str:
-    """'0.93x attains' (or the regime alone when there is no ratio)."""
-    return c.regime if not np.isfinite(c.ratio) else f"{c.ratio:.2f}x {c.regime}"
+def _yardstick_cells(c: BoundComparison, scale: float) -> list[str]:
+    """The cell's bound, the oracle's Monte-Carlo RMS, their ratio and whether the bound is
+    attained (in units of 1 / ``scale`` metres); the bound is '-' where it is not."""
+    if not c.trials:
+        return ["inf" if c.unidentifiable else "-", "-", "-", c.regime]
+    bound = f"{c.rms_bound * scale:.3g}" if c.attained else f"({c.rms_bound * scale:.3g})"
+    return [
+        bound,
+        f"{c.rms_oracle * scale:.3g}",
+        f"{c.efficiency:.2f}",
+        "attained" if c.attained else NOT_ATTAINED,
+    ]
+
+
+def _against(c: BoundComparison) -> list[str]:
+    """'error / oracle' and 'error / CRLB' of one method; the latter '-' where not attained."""
+    search = f"{c.search:.2f}" if np.isfinite(c.search) else "-"
+    return [search, f"{c.ratio:.2f}" if c.attained else "-"]
+
+
+def _comparison_record(c: BoundComparison) -> dict:
+    """The JSON record of a comparison: every figure, the bound only where attained."""
+    return {
+        "rms_error_m": c.rms_error,
+        "rms_oracle_m": c.rms_oracle,
+        "rms_crlb_m": c.rms_bound,
+        "lower_bound_m": c.lower_bound,
+        "error_over_oracle": c.search,
+        "oracle_over_crlb": c.efficiency,
+        "error_over_crlb": c.ratio,
+        "regime": c.regime,
+        "unidentifiable": c.unidentifiable,
+    }
 
 
 def _fig3_cell(cell_rows: list[dict], ok: list[dict], rec: dict, times: dict) -> list[str]:
-    """One Fig. 3 cell: RMS error against the RMS of the per-trial CRLBs (mm), their ratio and
-    regime, the median error, success and convergence rates, median time; fills ``rec`` with the
-    same figures and returns the Markdown row."""
+    """One Fig. 3 cell: the yardstick (bound, oracle, whether attained), the RMS error against
+    the oracle and (where attained) the bound, the median error, the convergence rate, the
+    median time (mm); fills ``rec`` with the same figures and returns the Markdown row."""
     first, n, failed = cell_rows[0], rec["trials"], rec["failed"]
-    err, crlb = _column(ok, "mic_error_m"), _column(ok, "crlb_m")
-    cmp = rms_against_bound(err, crlb)
-    med_e = float(np.median(err)) if ok else np.nan
-    success = (
-        float(np.sum(err < 3 * crlb)) / n if first["sigma"] > 0 else float(np.sum(err < 1e-3)) / n
+    err = _column(ok, "mic_error_m")
+    cmp = rms_against_bound(
+        err, _column(ok, "crlb_m"), _column(ok, "oracle_error_m"), _oracle_rms(ok)
     )
+    med_e = float(np.median(err)) if ok else np.nan
     conv = float(np.sum(_column(ok, "converged"))) / n
     _, t = _stats([times[id(r)].get("calibrate", np.nan) for r in cell_rows])
-    rec.update(
-        rms_error_m=cmp.rms_error,
-        rms_crlb_m=cmp.rms_bound,
-        ratio=cmp.ratio,
-        regime=cmp.regime,
-        unidentifiable=cmp.unidentifiable,
-        median_error_m=med_e,
-        success=success,
-        converged=conv,
-        median_seconds=t,
-    )
+    rec.update(_comparison_record(cmp), median_error_m=med_e, converged=conv, median_seconds=t)
     # at zero noise there is no bound: the RMS error over every trial, for the exact recovery
     rms_all = float(np.sqrt(np.nanmean(err**2))) if ok else np.nan
     rms_e = cmp.rms_error if cmp.trials else rms_all
@@ -416,69 +475,69 @@ def _fig3_cell(cell_rows: list[dict], ok: list[dict], rec: dict, times: dict) ->
         str(n),
         str(failed),
         str(cmp.unidentifiable),
+        *_yardstick_cells(cmp, 1e3),
         f"{rms_e * 1e3:.3g}",
-        f"{cmp.rms_bound * 1e3:.3g}" if cmp.trials else "-",
-        f"{cmp.ratio:.2f}" if np.isfinite(cmp.ratio) else "-",
-        cmp.regime,
+        *_against(cmp),
         f"{med_e * 1e3:.3g}",
-        f"{success * 100:.0f}%",
         f"{conv * 100:.0f}%",
         f"{t:.2f}",
     ]
 
 
+def _oracle_rms(rows: list[dict]) -> np.ndarray:
+    """Per trial, the oracle's Monte-Carlo RMS error where it was run, else its error on the
+    trial's own data (metres)."""
+    mc, same = _column(rows, "oracle_rms_m"), _column(rows, "oracle_error_m")
+    return np.where(np.isfinite(mc), mc, same)
+
+
+def _method_cell(e: np.ndarray, cmp: BoundComparison, n: int) -> str:
+    """One method's Fig. 5 cell: RMS (cm), / oracle, / CRLB; median (cm), success rate."""
+    finite = e[np.isfinite(e)]
+    rms_all = float(np.sqrt(np.mean(finite**2))) if finite.size else np.nan
+    rms = cmp.rms_error if cmp.trials else rms_all
+    _, med = _stats(e)
+    search, ratio = _against(cmp)
+    success = float(np.sum(e < SUCCESS_M)) / n
+    return f"{rms * 100:.2f}, {search}, {ratio}; {med * 100:.2f}, {success * 100:.0f}%"
+
+
 def _slam_cell(
     cell_rows: list[dict], ok: list[dict], rec: dict, times: dict, methods: list[str]
 ) -> list[str]:
-    """One Fig. 5 / compare cell: the RMS of the per-trial CRLBs (with the step prior where the
-    methods use one, and of the ranges alone), each method's RMS error against it, ratio and
-    regime, median error and success rate, the mean NEES per dof, how often the EDM start was
-    kept, median times; fills ``rec`` with the same figures and returns the Markdown row."""
+    """One Fig. 5 / compare cell: the yardstick (the RMS of the per-trial CRLBs with the step
+    prior the methods use, the oracle's Monte-Carlo RMS, whether it attains the bound), each
+    method's RMS error against the oracle and, where attained, the bound, median error and
+    success rate, the landmark errors, the mean NEES per dof, how often the EDM start was kept,
+    median times; fills ``rec`` with the same figures and returns the Markdown row."""
     first, n = cell_rows[0], rec["trials"]
-    crlb, crlb_ranges = _column(ok, "crlb_m"), _column(ok, "crlb_ranges_m")
-    free = rms_against_bound(crlb_ranges, crlb_ranges)
+    crlb, oracle, oracle_mc = _column(ok, "crlb_m"), _column(ok, "oracle_error_m"), _oracle_rms(ok)
+    yardstick = rms_against_bound(oracle, crlb, oracle, oracle_mc)
     cells = [
         f"{first['sigma'] * 1e3:g}",
         "+-20%" if first["bounds"] else "none",
         str(first["m"]),
         str(n),
         str(rec["failed"]),
+        str(yardstick.unidentifiable),
+        *_yardstick_cells(yardstick, 100),
     ]
-    comparisons = {}
+    rec.update(_comparison_record(yardstick))
     for m in methods:
         e = _column(ok, f"{m}_error_m")
-        cmp = comparisons[m] = rms_against_bound(e, crlb)
+        cmp = rms_against_bound(e, crlb, oracle, oracle_mc)
+        if m.startswith("ekf") and not np.any(_column(ok, "ekf_filtered_steps") > 0):
+            cells.append("batch fit (no step filtered)")
+        else:
+            cells.append(_method_cell(e, cmp, n))
         _, med = _stats(e)
-        success = float(np.sum(e < SUCCESS_M)) / n
-        rec[m] = {
-            "rms_error_m": cmp.rms_error,
-            "ratio": cmp.ratio,
-            "regime": cmp.regime,
-            "median_error_m": med,
-            "success": success,
-        }
-        # with no finite bound (not identifiable), the RMS over every trial, without a ratio
-        rms_all = (
-            float(np.sqrt(np.mean(e[np.isfinite(e)] ** 2))) if np.isfinite(e).any() else np.nan
-        )
-        rms = f"{(cmp.rms_error if cmp.trials else rms_all) * 100:.2f}"
-        cells.append(f"{rms}, {_ratio_text(cmp)}; {med * 100:.2f}, {success * 100:.0f}%")
-    ref = comparisons[methods[0]]
-    cells[5:5] = [
-        str(ref.unidentifiable),
-        f"{ref.rms_bound * 100:.2f}" if ref.trials else "inf",
-        f"{free.rms_bound * 100:.2f}" if free.trials else "inf",
-    ]
+        rec[m] = {**_comparison_record(cmp), "median_error_m": med}
+        rec[m]["success"] = float(np.sum(e < SUCCESS_M)) / n
+    lm, lm_oracle = _column(ok, "landmark_error_m"), _column(ok, "oracle_landmark_error_m")
+    rec.update(landmark_rms_m=_finite_rms(lm), oracle_landmark_rms_m=_finite_rms(lm_oracle))
     ratio, _, _ = mean_nees(_column(ok, "nees"), _column(ok, "nees_dof"))
     kept = float(np.mean(_column(ok, "edm_start_kept"))) if ok else float("nan")
-    rec.update(
-        rms_crlb_m=ref.rms_bound,
-        rms_crlb_ranges_m=free.rms_bound,
-        unidentifiable=ref.unidentifiable,
-        unidentifiable_ranges=free.unidentifiable,
-        nees_over_dof=ratio,
-        edm_start_kept=kept,
-    )
+    rec.update(nees_over_dof=ratio, edm_start_kept=kept)
     t = {
         m: _stats([times[id(r)].get(m, np.nan) for r in cell_rows])[1]
         for m in ("edm_gtsam", "ekf")
@@ -487,20 +546,30 @@ def _slam_cell(
     rec["median_seconds"] = t
     return [
         *cells,
+        f"{rec['landmark_rms_m'] * 100:.2f}, {rec['oracle_landmark_rms_m'] * 100:.2f}",
         f"{ratio:.2f}",
         f"{kept * 100:.0f}%",
         ", ".join(f"{v:.2f}" for v in t.values()),
     ]
 
 
+def _finite_rms(values: np.ndarray) -> float:
+    """RMS of the finite values (NaN when none)."""
+    v = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+
 def summary_table(
     bench: str, rows: Sequence[dict], seconds: Sequence[dict]
 ) -> tuple[list[str], list[list[str]], list[dict]]:
-    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. The
-    yardstick is the RMS error over trials against the RMS of the per-trial CRLBs (with the step
-    prior where the methods use one), with their ratio and regime (``rms_against_bound``); trials
-    whose bound is inf are counted as not identifiable and left out of both. Errors in cm (mm in
-    fig3); a failed trial counts as a failure of every method and is left out of the RMS."""
+    """(Markdown header, Markdown rows, JSON records) summarising each cell of a run. Two
+    yardsticks (``rms_against_bound``): the oracle (the estimators' cost minimised from the
+    truth; error / oracle measures the search) and the RMS of the per-trial CRLBs (with the step
+    prior where the methods use one), quoted as a lower bound only in the cells where the
+    oracle's Monte-Carlo RMS is within 10% of it ("attained"); elsewhere the table says "not
+    attained: oracle only" and gives the bound in parentheses. Trials whose bound is inf are
+    counted as not identifiable and left out. Errors in cm (mm in fig3); a failed trial counts as
+    a failure of every method and is left out of the RMS."""
     times = {id(r): s for r, s in zip(rows, seconds, strict=True)}
     table, records = [], []
     for cell_rows in _cells(rows).values():

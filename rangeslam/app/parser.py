@@ -276,8 +276,9 @@ def _add_slam_bench_options(slam: argparse.ArgumentParser) -> None:
     slam.add_argument(
         "--placement",
         choices=("centred", "random"),
-        default="centred",
-        help="step bounds centred on the true steps (the paper) or the true step uniform in them",
+        default="random",
+        help="the true step uniform in its step bounds (default: real odometry bounds are not "
+        "centred on the truth) or bounds centred on the true steps (the paper's setting)",
     )
 
 
