@@ -1,4 +1,4 @@
-"""Issue 18, item 1: the cost of the EDM start, before and after the cheap start.
+"""The cost of the EDM start, before and after the cheap start.
 
     python benchmarks/bench_edm_start.py [--trials 10] [--seed 0] [--steps 5 8 10]
         [--starts cheap full] [--calibration-trials 50] [--skip-slam] [--skip-calibration]
@@ -8,9 +8,9 @@ SLAM: random smooth non-planar 3-D walks (``random_walk``, 0.3 m steps, turn std
 random convex rooms (6 walls), a loudspeaker uniform in the room and its 6 first-order images
 nearest the walk (7 landmarks); 1 cm range noise, ``noise_std`` NOT given; step bounds +-20% of
 the true steps, or none. Methods, on the same ranges: ``slam`` with each ``edm_start`` (``full``:
-the schedule before issue 18, every convex-iteration run of up to 50 SDP solves; ``cheap``: stop at
+the older schedule, every convex-iteration run of up to 50 SDP solves; ``cheap``: stop at
 the first run the verdict accepts, runs stopped early on the embedding) and GTSAM alone, best final
-cost of 3 GTSAM-style random starts (the peer of the issue's table). Error: trajectory RMS after the
+cost of 3 GTSAM-style random starts (the peer). Error: trajectory RMS after the
 best rigid motion with reflection; success: error < 10 cm.
 
 Calibration: the Fig. 3 scene (6 microphones in a 1 m cube, a loudspeaker and its 5 nearest
@@ -161,7 +161,7 @@ def calibration_rows(args, rng) -> list[list[str]]:
 
 
 def regime_walk_row(walks: int, seed: int) -> list[str]:
-    """Issue 18's first criterion on the regime map's walks (``RegimeCell("random", 8, True,
+    """The cheap start's criterion on the regime map's walks (``RegimeCell("random", 8, True,
     0.01)``): ``slam`` without ``noise_std`` against GTSAM best of 3 random starts given the
     noise, ``walks`` scenes drawn from ``seed``, paired per walk in this process."""
     from rangeslam.app.regimes import RegimeCell, draw_scene, run_random_starts
@@ -200,13 +200,13 @@ def main() -> None:
     ap.add_argument("--skip-calibration", action="store_true")
     ap.add_argument(
         "--regime-walks", type=int, default=0,
-        help="also issue 18's first criterion on this many regime-map walks per seed (--seeds)",
+        help="also the cheap start's criterion on this many regime-map walks per seed (--seeds)",
     )  # fmt: skip
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     args = ap.parse_args()
     count_solves()
     rng = np.random.default_rng(args.seed)
-    print(f"# The EDM start, issue 18 (seed {args.seed}; {machine()})\n")
+    print(f"# The EDM start (seed {args.seed}; {machine()})\n")
     if not args.skip_slam:
         print(f"## slam, {args.trials} walks per row, 1 cm, noise_std not given\n")
         header = [

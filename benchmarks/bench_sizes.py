@@ -1,4 +1,4 @@
-"""Issue 18, item 5: the EDM start at the sizes people have.
+"""The EDM start at the sizes people have.
 
     python benchmarks/bench_sizes.py [--trials 5] [--seed 0] [--steps 60 100 200]
         [--arrays 100x60] [--max-sdp-points N]
@@ -96,7 +96,7 @@ def main() -> None:
     ap.add_argument("--arrays", nargs="*", default=["100x60"], help="M x K, e.g. 100x60")
     ap.add_argument("--max-sdp-points", type=int, default=subsets.MAX_SDP_POINTS)
     args = ap.parse_args()
-    print(f"# The EDM start at size, issue 18 item 5 (seed {args.seed}; {machine()})\n")
+    print(f"# The EDM start at size (seed {args.seed}; {machine()})\n")
     print(f"SDP of at most {args.max_sdp_points} points; {args.trials} trials a row\n")
     header = [
         "estimator", "size", "converged", "RMS err (cm)", "RMS bound (cm)", "ratio",

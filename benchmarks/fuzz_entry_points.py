@@ -1,10 +1,10 @@
-"""Fuzz every public entry point of rangeslam (issue 35, "Done when").
+"""Fuzz every public entry point of rangeslam .
 
 Each entry point (every function and user-facing classmethod of ``rangeslam.__all__``, the EKF
 baseline the issue names, and the ``rangeslam`` command through ``rangeslam.app.cli.main``) is
 called on a small valid problem built with the package's own simulators, either as it is, with
 its geometry made degenerate (a duplicated point, points coplanar or collinear within 1e-4 m), or
-with one argument replaced by a value of one of the issue's families: magnitudes scaled by
+with one argument replaced by a value of one of the hostile families: magnitudes scaled by
 1e-200..1e200, integers too large for a float, complex numbers, numeric strings, strings, arrays
 where a scalar belongs (or a scalar where an array belongs), NaN/inf, empty arrays, wrong shapes,
 None. hypothesis draws the family, the problem's seed, the argument and the value (seeded with

@@ -45,7 +45,7 @@ def shape_str(shape: tuple[int, ...]) -> str:
 #: Largest magnitude of a coordinate or range the input layer takes, metres (1e12 m is about
 #: seven times the Earth-Sun distance): beyond it squared distances lose every digit of the
 #: geometry the solvers need and soon overflow (ranges scaled by 1e200 made LinAlgError and
-#: OverflowError deep in the solvers, issue 35).
+#: OverflowError deep in the solvers).
 MAX_METRES = 1e12
 #: Smallest scale of coordinates or ranges, metres (a nanometre): an array whose largest entry is
 #: positive but below it (a problem scaled by 1e-200) is refused; all zeros are left to the

@@ -21,9 +21,11 @@ def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
     tmp_path = tmp_path / "rangeslam-out"
     assert "| room | wall | true offset [m]" in out and "| shoebox | True |" in out
     assert (
-        "| sigma (mm) | trials | failed | not identifiable | RMS error (mm) | RMS CRLB (mm)" in out
+        "| sigma (mm) | trials | failed | not identifiable | RMS CRLB (mm) | "
+        "oracle RMS (Monte Carlo) (mm) | oracle / CRLB | bound | RMS error (mm) |" in out
     )
-    assert "EKF + RTS: RMS (cm), / CRLB, regime" in out
+    assert "EKF + RTS: RMS (cm), / oracle, / CRLB" in out
+    assert "beats" not in out
     for name in (
         "room_shoebox.png",
         "room_cut_corner.png",

@@ -182,8 +182,9 @@ def test_known_step_length_is_finite(rng):
 
 def test_rms_against_bound_is_rms_not_median():
     """The yardstick is sqrt(mean(error^2)) against sqrt(mean(bound^2)); inf bounds are counted
-    as not identifiable and left out of both; the regime follows the stated thresholds."""
-    from rangeslam.evaluation import BEATS_BOUND, MISSES_BOUND, rms_against_bound
+    as not identifiable and left out of both; the bound is attained only where the oracle's RMS
+    is within ATTAINED_RTOL of it, and only then is an error set against it."""
+    from rangeslam.evaluation import ATTAINED_RTOL, rms_against_bound
 
     errors = np.array([1.0, 1.0, 1.0, 6.0, 7.0])
     bounds = np.array([2.0, 2.0, 2.0, 2.0, np.inf])
@@ -191,10 +192,33 @@ def test_rms_against_bound_is_rms_not_median():
     assert c.trials == 4 and c.unidentifiable == 1
     np.testing.assert_allclose(c.rms_error, np.sqrt(39 / 4), rtol=1e-15)
     np.testing.assert_allclose(c.rms_bound, 2.0, rtol=1e-15)
-    assert c.regime == "misses" and c.ratio > MISSES_BOUND  # the median ratio would say 0.5
-    assert rms_against_bound([1.0], [1.0 / (0.9 * BEATS_BOUND)]).regime == "beats"
-    assert rms_against_bound([1.0], [1.0]).regime == "attains"
+    # no oracle: the errors are their own; 1.56x the bound is not attaining it (the median
+    # ratio would say 0.5)
+    assert c.regime == "not attained" and np.isnan(c.ratio) and np.isnan(c.lower_bound)
+    below = rms_against_bound([1.0], [1.0 / (1 - 2 * ATTAINED_RTOL)])
+    assert below.regime == "not attained" and np.isnan(below.lower_bound)
+    assert rms_against_bound([1.0], [1.0]).regime == "attained"
     assert rms_against_bound([1.0, 2.0], [np.inf, np.inf]).regime == "not identifiable"
     assert rms_against_bound([0.0], [np.nan]).regime == "no bound"
     with pytest.raises(InvalidInputError, match="same length"):
         rms_against_bound([1.0, 2.0], [1.0])
+
+
+def test_the_oracle_judges_the_bound_and_the_search():
+    """With an oracle: search is error / oracle on the same data, efficiency is the oracle's
+    Monte-Carlo RMS over the bound; an error below a bound the oracle does not attain is never
+    reported against it."""
+    from rangeslam.evaluation import rms_against_bound
+
+    errors, oracle, mc = np.array([2.0, 2.0]), np.array([1.0, 1.0]), np.array([1.05, 0.95])
+    c = rms_against_bound(errors, [1.0, 1.0], oracle, mc)
+    np.testing.assert_allclose([c.search, c.efficiency], [2.0, np.sqrt((1.05**2 + 0.95**2) / 2)])
+    assert c.attained and c.lower_bound == 1.0 and c.ratio == pytest.approx(2.0)
+    # the oracle at a third of the bound (a bound that is not one here): oracle only
+    low = rms_against_bound([0.3, 0.3], [1.0, 1.0], [0.3, 0.3])
+    assert not low.attained and np.isnan(low.ratio) and low.search == pytest.approx(1.0)
+    # a trial without an oracle is left out of all three
+    part = rms_against_bound([1.0, 5.0], [1.0, 1.0], [1.0, np.nan])
+    assert part.trials == 1 and part.attained
+    with pytest.raises(InvalidInputError, match="oracle_rms"):
+        rms_against_bound([1.0], [1.0], [1.0], [1.0, 2.0])

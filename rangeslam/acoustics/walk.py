@@ -534,7 +534,7 @@ def _first_fit(prob: _WalkProblem, ranges, mask, chosen: _StartChoice, sopts, rn
             dim=dim,
             rng=rng,
             # the full schedule: on tracked ranges of simulated RIRs (0.35 mm residuals) the cheap
-            # start's lowest-cost run was a flexible one, flagged NOT_IDENTIFIABLE (issue 18 note)
+            # start's lowest-cost run was a flexible one, flagged NOT_IDENTIFIABLE
             **{"edm_start": "full", **sopts},
         )
     except SolverError as exc:

@@ -62,7 +62,7 @@ METHOD_NAMES = {
     "ekf": "EKF",
     "ekf_rts": "EKF + RTS",
 }
-#: Trajectory error under which a SLAM trial counts as a success, metres (issue 4).
+#: Trajectory error under which a SLAM trial counts as a success, metres.
 SUCCESS_M = 0.10
 #: Steps of the EKF's delayed-initialisation window in ``compare``.
 EKF_WINDOW = 5

@@ -235,7 +235,7 @@ def criterion_table(
     methods: Sequence[str] = REGIME_METHODS,
     rival: str = "gtsam_k",
 ) -> tuple[list[str], list[list[str]]]:
-    """Issue 18's test of each cell: does ``lead`` (EDM + GTSAM) succeed at least as often as
+    """The test of each cell: does ``lead`` (EDM + GTSAM) succeed at least as often as
     every other method of ``methods``, with a 90th percentile of the error at most ``rival``'s
     (GTSAM best of k at equal time; ties within :data:`P90_TIE_RTOL` + :data:`P90_TIE_M`)?
     Returns (header, a row per cell of the finished trials)."""

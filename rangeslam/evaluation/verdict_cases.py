@@ -1,4 +1,4 @@
-"""Cases for the verdict benchmark: does "converged" mean right? (issue 17)
+"""Cases for the verdict benchmark: does "converged" mean right?
 
 Each :class:`VerdictCase` is one call of an estimator on data drawn at random from an ``rng``,
 with the truth it was built from. The TRUTH, never the estimator, decides what is right:
@@ -15,8 +15,8 @@ with the truth it was built from. The TRUTH, never the estimator, decides what i
   of the scene size. Real data use stated tolerances instead (see the ``real_*`` builders).
 - *the call contradicted*: the ``noise_std`` passed is a third of the noise drawn ("noise_std
   /3"), so the residuals contradict the model the caller declared, and INCONSISTENT is what
-  issue 17 asks the chi-square test to say. A right estimate flagged INCONSISTENT there is
-  "flagged-inconsistent-call", counted apart from the false alarms (the issue's own count adds
+  the chi-square test is asked to say. A right estimate flagged INCONSISTENT there is
+  "flagged-inconsistent-call", counted apart from the false alarms (the strict count adds
   them to the false alarms; the benchmark prints both).
 
 :func:`classify` turns a case and what the estimator returned (a result or a package error) into

@@ -206,7 +206,7 @@ class ConvexIterationOptions:
         max_iterations: SDP solves per run.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace.
-        start: one of :data:`EDM_STARTS`: "full" (the schedule before issue 18: every run to
+        start: one of :data:`EDM_STARTS`: "full" (the older schedule: every run to
             ``gap_tol`` or a stall) or "cheap" (the estimator stops at the first run its verdict
             accepts, and the first run also stops once its rank-d embedding has settled: see
             :data:`EMBEDDING_RTOL`).
@@ -438,7 +438,7 @@ def unfolding_check(
                                     tail=tail)  # fmt: skip
     if not consistency.passed:
         return consistency
-    # 3-D data in dim=2 first; what was noted is named with it (issue 35, S4)
+    # 3-D data in dim=2 first; what was noted is named with it
     dimension = dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms,
                                 noise_std)  # fmt: skip
     source_check, sources_note = sources_verdict(
@@ -552,7 +552,7 @@ def sources_verdict(
         ), ""
     failed = points_failures(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
     # A flat array or walk held fixed is bent towards each source's side: the mirrors judged
-    # with everything refitted (issue 35, S3), so the note names every source reported.
+    # with everything refitted, so the note names every source reported.
     mirrors = landmark_mirrors(receivers, sources, ranges, observed, sigma, exact_rms)
     named = {i for i, _ in failed}
     refitted = [j for j in np.flatnonzero(mirrors.ambiguous) if j not in named]

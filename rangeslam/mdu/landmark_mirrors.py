@@ -3,7 +3,7 @@
 A microphone that moves in a plane hears a landmark and its reflection through that plane at the
 same ranges, so the ranges fix every landmark only up to that reflection; a walk that is nearly
 planar leaves the two sides a cost gap of a few noise variances, which the data cannot decide
-either (issue 18: the EDM answer put every landmark on one side of the walk's plane). Both sides
+either (the EDM answer was seen to put every landmark on one side of the walk's plane). Both sides
 are tried here, landmark by landmark against the fitted trajectory (the mirror image refined
 locally, :func:`rangeslam.verdict.mirror_point`), and a landmark whose mirror image fits within
 :func:`rangeslam.verdict.ambiguity_check`'s margin is reported as ambiguous with its other
@@ -12,7 +12,7 @@ position, rather than one side picked silently.
 Held fixed, a flat trajectory (or array) is not quite flat: least squares bends it off its plane
 by what the noise pushes it (up to FLAT_FACTOR sqrt(sigma scale), :func:`rangeslam.verdict.
 flatness_check`) to fit the landmarks on the side they are on, and the mirror image then costs
-tens of noise variances more against it (issue 35, S3: six coplanar microphones of the Fig. 3
+tens of noise variances more against it (six coplanar microphones of the Fig. 3
 scene, 1 mm noise, three of six mirrors flagged though each fits exactly with the microphones
 refitted). So where the points hearing a landmark may be flat, a mirror that fails against
 them held fixed is judged again with everything refitted (:func:`refitted_gap`).

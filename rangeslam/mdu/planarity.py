@@ -96,7 +96,7 @@ def dimension_check(
     NOT_IDENTIFIABLE when the test cannot be made (no redundant ranges in 3-D), or, without
     ``noise_std`` (metres), when it cannot see 3-D data (:func:`planarity_power` over
     BLIND_POWER): the residual is then all the noise estimate has, and a landmark's height
-    folds into it and into its in-plane distances (issue 35, S4: a walk of 3 steps under 3-D
+    folds into it and into its in-plane distances (a walk of 3 steps under 3-D
     landmarks converged with dim=2, landmarks 0.6-3.3 m off). With ``noise_std`` the residual
     test sees a fold over the noise; one under it can still shift a landmark of a nearly
     straight walk by metres, which only a walk of 2 steps (no redundant range in 3-D) showed

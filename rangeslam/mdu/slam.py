@@ -583,7 +583,7 @@ def slam(
             answer the verdict accepts, once GTSAM from AGREEMENT_STARTS random starts found no
             rival and confirmed it (a start that ends clearly lower replaces it), each run also
             stopped once its rank-d embedding settled; "full": every run to the eigen-gap
-            tolerance until one passes the residual test (the schedule before issue 18).
+            tolerance until one passes the residual test (the older schedule).
         rng: Generator or seed for the random restarts.
 
     Size: above :data:`rangeslam.mdu.subsets.MAX_SDP_POINTS` steps plus landmarks, the SDP holds

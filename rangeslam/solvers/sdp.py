@@ -44,7 +44,7 @@ FALLBACK_SOLVER = "SCS"
 
 METHODS = ("convex_iteration", "trace_min", "trace_max")
 #: Largest lambda of eq. (10) (``fit_weight``): beyond it the fit's weights swamp the SDP's
-#: conditioning (1e307 made SCS fail to allocate with a bare ValueError, issue 35); 1e20 still
+#: conditioning (1e307 made SCS fail to allocate with a bare ValueError); 1e20 still
 #: solved, and the package's own settings stay below 1e4.
 MAX_FIT_WEIGHT = 1e12
 

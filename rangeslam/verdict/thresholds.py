@@ -133,7 +133,7 @@ LOWER_RTOL = 1e-6
 #: is this many times the noise in the 2-D residual (:func:`planarity_power`): the odds of
 #: CHI2_LEVEL, 1000. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power
 #: 5e5) or 3 (none) is blind; from 5 positions (power 17.5) the test saw every planar walk
-#: under 3-D landmarks of issue 35's S4 (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
+#: under 3-D landmarks (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
 BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
 #: Random least-squares starts on a robust calibration's inliers, looking for a lower minimum
 #: (at most ``random_starts``).
