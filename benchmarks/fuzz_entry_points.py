@@ -1,4 +1,4 @@
-"""Fuzz every public entry point of rangeslam .
+"""Fuzz every public entry point of rangeslam.
 
 Each entry point (every function and user-facing classmethod of ``rangeslam.__all__``, the EKF
 baseline the issue names, and the ``rangeslam`` command through ``rangeslam.app.cli.main``) is
