@@ -17,9 +17,12 @@ import numpy as np
 __all__ = [
     "DPI",
     "MARKERS",
+    "NOT_ATTAINED",
     "clip_to_box",
     "legend_below",
     "log_ticks",
+    "mark_not_attained",
+    "overflow",
     "plain_log_axis",
     "plot_bound",
     "save_figure",
@@ -30,6 +33,8 @@ __all__ = [
 DPI = 130
 #: One marker per curve, in the order curves are drawn.
 MARKERS = ("o", "s", "^", "v", "D", "P", "X", "<", ">", "h")
+#: What a plot says where a Cramer-Rao bound is not attained by the oracle (so not drawn).
+NOT_ATTAINED = "bound not attained: oracle only"
 
 
 def log_ticks(lo: float, hi: float, *, max_ticks: int = 9) -> np.ndarray:
@@ -80,42 +85,54 @@ def plain_log_axis(
 
 def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D") -> None:
     """Draw a lower bound against ``x`` where it is finite (dashed, with markers, so isolated
-    points show) and mark with a triangle at the top edge, labelled 'bound infinite', each x
-    where it is infinite (not identifiable). NaN (no data) is left out."""
+    points show; broken where it is not) and mark with a triangle at the top edge, labelled
+    'bound infinite' (in the legend 'bound infinite: not identifiable'), each x where it is
+    infinite. NaN (no bound, or one not
+    attained) is left out."""
     x, bound = np.asarray(x, dtype=float), np.asarray(bound, dtype=float)
     finite = np.isfinite(bound) & (bound > 0)
     if finite.any():
-        ax.plot(x[finite], bound[finite], ls="--", marker=marker, color=color, ms=5, label=label)
+        shown = np.where(finite, bound, np.nan)
+        ax.plot(x, shown, ls="--", marker=marker, color=color, ms=5, label=label)
     inf = np.isinf(bound)
     if inf.any():
-        edge = ax.get_xaxis_transform()  # x in data, y in axes fraction
-        ax.plot(
-            x[inf],
-            np.full(inf.sum(), 0.97),
-            ls="none",
-            marker="^",
-            color=color,
-            mfc="none",
-            ms=7,
-            transform=edge,
-            clip_on=False,
-            label=f"{label}: infinite",
-        )
-        for xi in x[inf]:
-            ax.annotate(
-                "bound\ninfinite",
-                (xi, 0.93),
-                xycoords=edge,
-                ha="center",
-                va="top",
-                fontsize=6,
-                color=color,
-            )
+        style = {"color": color, "marker": "^", "label": "bound infinite: not identifiable"}
+        _top_marks(ax, x[inf], "bound\ninfinite", **style)
+
+
+def mark_not_attained(
+    ax, x, *, color: str = "0.35", text: str = "not\nattained", label: str = NOT_ATTAINED
+) -> None:
+    """Mark each ``x`` where the bound is not attained by the oracle (and so not drawn): a hollow
+    diamond at the top edge, ``text`` under it, ``label`` in the legend."""
+    x = np.asarray(x, dtype=float)
+    if x.size:
+        _top_marks(ax, x, text, color=color, marker="D", label=label)
+
+
+def _top_marks(ax, x, text: str, *, color: str, marker: str, label: str) -> None:
+    """Hollow ``marker`` at the top edge of ``ax`` at each ``x`` (data), ``text`` under each."""
+    edge = ax.get_xaxis_transform()  # x in data, y in axes fraction
+    ax.plot(
+        x,
+        np.full(len(x), 0.97),
+        ls="none",
+        marker=marker,
+        color=color,
+        mfc="none",
+        ms=6,
+        transform=edge,
+        clip_on=False,
+        label=label,
+    )
+    for xi in x:
+        ax.annotate(text, (xi, 0.93), xycoords=edge, ha="center", va="top", fontsize=6, color=color)
 
 
 def legend_below(fig, axes, *, ncol: int = 3, fontsize: float = 8) -> None:
     """One legend for the figure below the axes (outside the data), from the labelled artists
-    of ``axes`` (duplicates by label dropped). Leaves room for it under the plots."""
+    of ``axes`` (duplicates by label dropped), in at most ``ncol`` columns: fewer when the
+    labels are too long for the figure's width. The figure grows by the legend's height."""
     handles, labels = [], []
     for ax in np.ravel(axes):
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
@@ -124,18 +141,44 @@ def legend_below(fig, axes, *, ncol: int = 3, fontsize: float = 8) -> None:
                 labels.append(lab)
     if not handles:
         return
-    rows = int(np.ceil(len(labels) / ncol))
-    fig.legend(
-        handles,
-        labels,
-        loc="lower center",
-        ncol=min(ncol, len(labels)),
-        fontsize=fontsize,
-        frameon=False,
-        bbox_to_anchor=(0.5, 0.0),
-    )
-    height = fig.get_figheight()
-    fig.tight_layout(rect=(0, min(0.45, (0.25 * rows + 0.1) / height), 1, 1))
+    renderer = fig.canvas.get_renderer()
+    for cols in range(min(ncol, len(labels)), 0, -1):
+        legend = fig.legend(
+            handles,
+            labels,
+            loc="lower center",
+            ncol=cols,
+            fontsize=fontsize,
+            frameon=False,
+            bbox_to_anchor=(0.5, 0.0),
+        )
+        box = legend.get_window_extent(renderer)
+        if cols == 1 or box.width <= 0.98 * fig.bbox.width:
+            break
+        legend.remove()
+    legend_in = box.height / fig.dpi + 0.1
+    fig.set_figheight(fig.get_figheight() + legend_in)  # the panels keep their height
+    fig.tight_layout(rect=(0, legend_in / fig.get_figheight(), 1, 1))
+
+
+def overflow(fig) -> list[str]:
+    """The texts of ``fig`` drawn (titles, labels, tick labels, legend entries, annotations)
+    that reach beyond its canvas, so a plain ``savefig`` would cut them off; empty when all
+    fit. Call after the layout is made."""
+    from matplotlib.text import Text
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    x0, y0, x1, y1 = fig.bbox.extents
+    out = []
+    for text in fig.findobj(Text):
+        hidden = text.axes is not None and not text.axes.get_visible()
+        if hidden or not (text.get_visible() and text.get_text()):
+            continue
+        box = text.get_window_extent(renderer)
+        if box.x0 < x0 - 1 or box.y0 < y0 - 1 or box.x1 > x1 + 1 or box.y1 > y1 + 1:
+            out.append(text.get_text())
+    return out
 
 
 def verdict_title(title: str, converged: bool | None) -> str:
@@ -158,10 +201,12 @@ def clip_to_box(
 
 def save_figure(fig, path: str | Path, *, legend_space: bool = False) -> Path:
     """Write ``fig`` to ``path`` at :data:`DPI` after a tight layout (kept when the layout was
-    made for a legend below the axes: ``legend_space``), close it, return the path."""
+    made for a legend below the axes: ``legend_space``), close it, return the path. The image
+    takes in every artist (``bbox_inches='tight'``): a title or legend wider than the layout
+    grows the image rather than being cut off."""
     if not legend_space:
         fig.tight_layout()
     out = Path(path)
-    fig.savefig(out, dpi=DPI)
+    fig.savefig(out, dpi=DPI, bbox_inches="tight", pad_inches=0.1)
     plt.close(fig)
     return out

@@ -1,4 +1,6 @@
-"""Plots with matplotlib (imported lazily by the CLI; the math modules never import this)."""
+"""Plots with matplotlib (imported lazily by the CLI; the math modules never import this). The
+benchmark figures (Fig. 3, Fig. 5) live in :mod:`rangeslam.app.bench_plot`, the Plaza figure in
+:mod:`rangeslam.app.plaza_plot`; their plot functions are importable from here too."""
 
 from __future__ import annotations
 
@@ -12,17 +14,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from rangeslam.app.bench_plot import plot_fig3, plot_fig5, rms_and_bound
 from rangeslam.app.plaza_plot import plot_plaza
-from rangeslam.app.plot_style import (
-    MARKERS,
-    clip_to_box,
-    legend_below,
-    plain_log_axis,
-    plot_bound,
-    save_figure,
-    verdict_title,
-)
-from rangeslam.evaluation.metrics import rms_against_bound
+from rangeslam.app.plot_style import clip_to_box, legend_below, save_figure, verdict_title
 from rangeslam.geometry.room import Room
 
 __all__ = [
@@ -215,126 +209,6 @@ def _scatter_clipped(ax, pts, axes, box, *, label: str, **style) -> None:
             clip_on=False,
             label=f"{label}, beyond the plot",
         )
-
-
-def rms_and_bound(errors, bounds) -> tuple[float, float]:
-    """(RMS error, RMS bound) of one cell as the comparison plots draw them: over the trials with
-    a finite bound; where every bound is inf, the RMS of all finite errors and inf (drawn as
-    'bound infinite'); where there is no bound (zero noise), that RMS and NaN."""
-    errors = np.asarray(errors, dtype=float)
-    cmp = rms_against_bound(errors, bounds)
-    if cmp.trials:
-        return cmp.rms_error, cmp.rms_bound
-    finite = errors[np.isfinite(errors)]
-    rms = float(np.sqrt(np.mean(finite**2))) if finite.size else float("nan")
-    return rms, float("inf") if cmp.unidentifiable else float("nan")
-
-
-def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
-    """The Fig. 3 analogue: microphone error after alignment against the range noise, every trial
-    as a dot, the RMS error over trials as a line against the RMS of the per-trial CRLBs (the
-    bound is on the mean squared error; ``rows`` of a ``bench fig3`` run; keys status, sigma
-    [m], mic_error_m, crlb_m), on log axes labelled at the noise levels used. Trials whose bound
-    is inf are left out of both; a bound inf in every trial is marked at the top edge."""
-    ok = [r for r in rows if r["status"] == "ok" and r["sigma"] > 0]
-    sigmas = sorted({r["sigma"] for r in ok})
-    fig, ax = plt.subplots(figsize=(6.4, 5.2))
-    if sigmas:
-        x = np.array([r["sigma"] for r in ok]) * 1e3
-        jitter = np.exp(np.random.default_rng(0).uniform(-0.06, 0.06, len(x)))
-        ax.scatter(
-            x * jitter,
-            [r["mic_error_m"] * 1e3 for r in ok],
-            s=10,
-            marker="o",
-            alpha=0.35,
-            c="tab:blue",
-            label="one trial",
-        )
-        pairs = np.array(
-            [
-                rms_and_bound(
-                    [r["mic_error_m"] for r in ok if r["sigma"] == s],
-                    [r["crlb_m"] for r in ok if r["sigma"] == s],
-                )
-                for s in sigmas
-            ]
-        )
-        s_mm = np.array(sigmas) * 1e3
-        ax.plot(s_mm, pairs[:, 0] * 1e3, "o-", c="tab:blue", ms=7, label="RMS error (calibrate)")
-        plot_bound(ax, s_mm, pairs[:, 1] * 1e3, label="RMS of the CRLBs")
-        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(pairs[:, 1]).any() else 0.0)
-        plain_log_axis(ax, "x", ticks=s_mm)
-    ax.set_xlabel("range noise sigma [mm]")
-    ax.set_ylabel("microphone RMS error after alignment [mm]")
-    ax.set_title("Fig. 3: zero-knowledge array calibration (RMS over trials)")
-    ax.grid(alpha=0.3, which="major")
-    legend_below(fig, [ax], ncol=3)
-    return save_figure(fig, path, legend_space=True)
-
-
-def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Path:
-    """The Fig. 5 analogue: trajectory error against the number of steps, with and without step
-    bounds (columns) and per noise level (rows); per method the RMS error over trials (markers)
-    and the 25-75% band, against the RMS of the per-trial CRLBs with the step prior the methods
-    use (``crlb_m``; marked where infinite); one legend below the panels."""
-    rows = [r for r in rows if r["status"] == "ok"]
-    sigmas = sorted({r["sigma"] for r in rows})
-    bounds = sorted({r["bounds"] for r in rows}, reverse=True)
-    fig, axs = plt.subplots(
-        max(len(sigmas), 1),
-        max(len(bounds), 1),
-        figsize=(5.5 * max(len(bounds), 1), 4.0 * max(len(sigmas), 1) + 1.2),
-        squeeze=False,
-    )
-    for i, sigma in enumerate(sigmas):
-        for j, b in enumerate(bounds):
-            cell = [r for r in rows if r["sigma"] == sigma and r["bounds"] == b]
-            _fig5_panel(axs[i][j], cell, methods)
-            ax = axs[i][j]
-            ax.set_title(
-                f"sigma = {sigma * 1e3:g} mm, " + ("+-20% step bounds" if b else "no bounds")
-            )
-    fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (RMS over trials, band 25-75%)")
-    legend_below(fig, axs, ncol=4)
-    return save_figure(fig, path, legend_space=True)
-
-
-def _fig5_panel(ax, cell: list[dict], methods: dict[str, str]) -> None:
-    """One Fig. 5 panel: the rows of one (sigma, bounds) cell against M (integer ticks at the
-    numbers of steps used), errors in cm on a log axis with plain labels."""
-    steps = sorted({r["m"] for r in cell})
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    bound = {m: np.array([r["crlb_m"] for r in cell if r["m"] == m], float) for m in steps}
-    for k, (key, name) in enumerate(methods.items()):
-        per_m = [
-            np.array([r.get(f"{key}_error_m", np.nan) for r in cell if r["m"] == m], float)
-            for m in steps
-        ]
-        if not any(np.isfinite(v).any() for v in per_m):
-            continue
-        rms = [rms_and_bound(v, bound[m])[0] * 100 for v, m in zip(per_m, steps, strict=True)]
-        q = np.array(
-            [
-                np.nanpercentile(v * 100, [25, 75]) if np.isfinite(v).any() else [np.nan] * 2
-                for v in per_m
-            ]
-        )
-        colour = colours[k % len(colours)]
-        ax.plot(steps, rms, ls="-", marker=MARKERS[k % len(MARKERS)], c=colour, label=name)
-        ax.fill_between(steps, q[:, 0], q[:, 1], alpha=0.12, color=colour, lw=0)
-    if steps:
-        crlb = [rms_and_bound(bound[m], bound[m])[1] * 100 for m in steps]
-        with_prior = any(r["bounds"] for r in cell)
-        label = "RMS CRLB" + (" (ranges + step prior)" if with_prior else " (ranges)")
-        plot_bound(ax, steps, crlb, label=label)
-        plain_log_axis(ax, "y", headroom=0.15 if np.isinf(crlb).any() else 0.0)
-        ax.xaxis.set_major_locator(matplotlib.ticker.FixedLocator(steps))
-        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%d"))
-        ax.set_xlim(steps[0] - 0.5, steps[-1] + 0.5)
-    ax.set_xlabel("number of steps M")
-    ax.set_ylabel("trajectory RMS error [cm]")
-    ax.grid(alpha=0.3, which="major")
 
 
 def _top_view_axes(ax) -> None:
