@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rangeslam.beacons import beacon_slam, beacon_slam_incremental, simulate_beacon_run
+from rangeslam.beacons.defaults import resolve_options
 from rangeslam.beacons.graph import key_c, key_l, key_x, range_error
 from rangeslam.beacons.native import NativeRanges, ScaleSecant, influence, weight
 from rangeslam.beacons.options import BeaconSlamOptions
@@ -64,7 +65,7 @@ def test_native_factor_is_the_joint_model_at_its_scale(model, robust, rng):
 def test_influence_is_the_derivative_of_the_kernel_loss(robust):
     """psi = rho' (central differences of GTSAM's own loss) and weight = psi / u."""
     base = gtsam.noiseModel.Isotropic.Sigma(1, 1.0)
-    cfg = BeaconSlamOptions(robust=robust)
+    cfg = BeaconSlamOptions(robust=robust, range_sigma=1.0)
     native = NativeRanges(cfg, 1)
     model = native.noise(gtsam, 0) if robust is not None else base
     u = np.linspace(-9, 9, 37) + 0.013
@@ -158,7 +159,7 @@ def test_incremental_reaches_the_batch_optimum(rng):
     incremental run ends at the batch's optimum (cost and mean APE within 1 %; a run of this
     kind with the scale's secant alone ended 0.21 m off against the batch's 0.09 m)."""
     run = _twenty_beacons_run(rng, 4000)
-    cfg = BeaconSlamOptions(range_sigma=0.3)
+    cfg = resolve_options(BeaconSlamOptions(range_sigma=0.3), run.data)  # as the runs see it
     batch = beacon_slam(run.data, start_pose=run.poses[0], range_sigma=0.3)
     incremental = beacon_slam_incremental(run.data, start_pose=run.poses[0], range_sigma=0.3)
     assert batch.converged and incremental.converged, incremental.message

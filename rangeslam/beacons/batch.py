@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_point, check_int, frozen
 from rangeslam.beacons.data import RangeOdometry, all_heard_placed, check_data, dead_reckoning
+from rangeslam.beacons.defaults import resolve_options
 from rangeslam.beacons.graph import (
     beacon_array,
     build_graph,
@@ -86,7 +87,7 @@ def beacon_slam(
     check_data(data)
     max_iterations = check_int(max_iterations, "max_iterations", 1, MAX_LM_ITERATIONS)
     check_initialisation(initialisation, rng)
-    cfg = BeaconSlamOptions.from_settings(settings)
+    cfg = resolve_options(BeaconSlamOptions.from_settings(settings), data)
     start = as_point(start_pose, "start_pose", dim=3)
     dr = dead_reckoning(data.odometry, start)
     if initialisation == "edm":
@@ -200,4 +201,5 @@ def _verdict(
         initial_poses=frozen(init.poses),
         initial_beacons=frozen(init.beacons),
         seconds=seconds,
+        cost=float(report.cost),
     )

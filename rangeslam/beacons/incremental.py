@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_point, frozen
 from rangeslam.beacons.batch import Refinement, refine
 from rangeslam.beacons.data import RangeOdometry, all_heard_placed, check_data, dead_reckoning
+from rangeslam.beacons.defaults import resolve_options
 from rangeslam.beacons.graph import (
     beacon_array,
     gauge_prior,
@@ -318,7 +319,7 @@ def beacon_slam_incremental(
     check_initialisation(initialisation, rng)
     if factorization is None:
         factorization = "CHOLESKY" if initialisation == "edm" else "QR"
-    cfg = BeaconSlamOptions.from_settings(settings)
+    cfg = resolve_options(BeaconSlamOptions.from_settings(settings), data)
     isam_cfg = IsamSettings(int(update_every), relinearize_threshold, factorization, initialisation)
     start = as_point(start_pose, "start_pose", dim=3)
     run = IsamRun(data, cfg, isam_cfg, start)

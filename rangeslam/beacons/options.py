@@ -67,37 +67,41 @@ class BeaconSlamOptions:
         range_calibration: the range model (:data:`RANGE_CALIBRATIONS`): "affine" (default),
             "scale", "offset" or None.
         per_beacon: one calibration per beacon instead of one shared by all.
-        range_sigma: standard deviation of a range [m].
+        range_sigma: standard deviation of a range [m]; None (default): the ranges' own noise
+            (:func:`~rangeslam.beacons.defaults.range_noise`).
         odometry_sigma: (3,) per-step standard deviations along and across the track [m] and of
-            the heading [rad].
+            the heading [rad]; None (default): from the median step
+            (:func:`~rangeslam.beacons.defaults.odometry_noise`).
         robust: kernel on the range factors: "huber" (default; also True), "cauchy", "tukey",
             or None / False (:data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`).
         calibration_sigma: zero-mean prior standard deviations of the scale error s and the
             offset b [m] (weak: they only keep the graph determinate).
-        window_length: metres of travel per EDM window.
+        window_length: metres of travel per EDM window; None (default): a few median ranges
+            (:data:`~rangeslam.beacons.defaults.WINDOW_RANGES`).
         keyframes: about how many ranges per window enter its EDM, shared among the beacons
             heard (each gets at least ``min_ranges``); the SDP has one point per keyframe pose
             plus one per beacon.
         min_ranges, min_spread: a beacon is placed in a window only when heard at least
-            ``min_ranges`` times from poses spread ``min_spread`` metres across their line.
+            ``min_ranges`` times from poses spread ``min_spread`` metres across their line
+            (None, the default: two range sigmas,
+            :data:`~rangeslam.beacons.defaults.MIN_SPREAD_SIGMAS`).
+
+    Settings left at None are derived from the data by
+    :func:`~rangeslam.beacons.defaults.resolve_options` (never from one data set's scale).
         pose_weight: weight of the dead-reckoned pose-pose distances in a window's EDM fit
             (ranges weigh 1).
     """
 
     range_calibration: str | None = "affine"
     per_beacon: bool = False
-    # 1 m is about twice the spread of Plaza1's ranges after the affine calibration (0.54 m):
-    # the 3-sigma inlier gate of ``range_inlier`` then flags none of them.
-    range_sigma: float = 1.0
-    # 0.01 m, 0.01 m, 0.002 rad per 0.2 s step: of the size of the drift of Plaza1's odometry
-    # against its ground truth over 100-300 steps.
-    odometry_sigma: np.ndarray = (0.01, 0.01, 0.002)
+    range_sigma: float | None = None
+    odometry_sigma: np.ndarray | None = None
     robust: str | None = "huber"
     calibration_sigma: tuple[float, float] = (0.2, 10.0)
-    window_length: float = 150.0
+    window_length: float | None = None
     keyframes: int = 24
     min_ranges: int = 6
-    min_spread: float = 1.0
+    min_spread: float | None = None
     pose_weight: float = 10.0
 
     def __post_init__(self) -> None:
@@ -105,12 +109,14 @@ class BeaconSlamOptions:
         one_of(self.range_calibration, "range_calibration", RANGE_CALIBRATIONS)
         robust = robust_mode(self.robust, ROBUST_KERNELS, default_kernel="huber")
         object.__setattr__(self, "robust", robust)
-        osig = as_float_array(self.odometry_sigma, "odometry_sigma")
-        if osig.shape != (3,) or not np.all(np.isfinite(osig)) or np.any(osig <= 0):
-            raise InvalidInputError(
-                "odometry_sigma must be three positive numbers (along [m], across [m], heading "
-                f"[rad] per step); got {self.odometry_sigma!r}"
-            )
+        osig = None
+        if self.odometry_sigma is not None:
+            osig = as_float_array(self.odometry_sigma, "odometry_sigma")
+            if osig.shape != (3,) or not np.all(np.isfinite(osig)) or np.any(osig <= 0):
+                raise InvalidInputError(
+                    "odometry_sigma must be three positive numbers (along [m], across [m], "
+                    f"heading [rad] per step) or None (from the data); got {self.odometry_sigma!r}"
+                )
         csig = as_float_array(self.calibration_sigma, "calibration_sigma")
         if csig.shape != (2,) or not np.all(np.isfinite(csig)) or np.any(csig <= 0):
             raise InvalidInputError(
@@ -118,14 +124,18 @@ class BeaconSlamOptions:
                 f"and of the offset b [m]); got {self.calibration_sigma!r}"
             )
         for name in ("range_sigma", "window_length", "min_spread", "pose_weight"):
-            object.__setattr__(self, name, positive_number(getattr(self, name), name))
+            value = getattr(self, name)
+            if value is not None or name == "pose_weight":
+                object.__setattr__(self, name, positive_number(value, name))
         for name in ("keyframes", "min_ranges"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, int | np.integer) and value >= 3):
                 raise InvalidInputError(f"{name} must be an integer >= 3; got {value!r}")
             object.__setattr__(self, name, int(value))
-        shortest = min_window_length(self.min_spread)
-        if self.window_length < shortest:
+        shortest = min_window_length(1.0 if self.min_spread is None else self.min_spread)
+        if self.window_length is not None and self.min_spread is None:
+            shortest = 0.0  # checked once min_spread is derived from the data
+        if self.window_length is not None and self.window_length < shortest:
             raise InvalidInputError(
                 f"window_length must be >= {shortest:.4g} m (2 sqrt(2) min_spread: a shorter "
                 f"window's poses can never spread min_spread = {self.min_spread:g} m across their "

@@ -40,6 +40,8 @@ class BeaconSlamResult(HasStatus):
         initial_poses: (N + 1, 3) the initialisation the optimiser started from (None if none).
         initial_beacons: (B, 2) likewise (NaN for beacons not placed).
         seconds: wall time of the whole estimate [s].
+        cost: the final cost of the estimator's own objective (GTSAM's graph error: half the sum
+            of squared whitened residuals under the robust kernel); NaN when it has none.
     """
 
     method: str
@@ -54,6 +56,7 @@ class BeaconSlamResult(HasStatus):
     initial_poses: np.ndarray | None = None
     initial_beacons: np.ndarray | None = None
     seconds: float = float("nan")
+    cost: float = float("nan")
 
 
 #: A range offset beyond this fraction of a beacon's median range, or a range scale further than

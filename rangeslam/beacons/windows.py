@@ -35,10 +35,13 @@ WINDOW_ITERATIONS = 5
 # (eigen-gap) is left out of the stitching. Plaza1's windows reach 0.05 after 5 iterations.
 MAX_WINDOW_GAP = 0.1
 # Stitching: drift of the dead reckoning between consecutive windows' corrections (sigma of x, y
-# [m] and heading [rad]) and the scale of a submap beacon's sigma.
-STITCH_DRIFT_XY = 1.0
+# as a fraction of the window's length, heading [rad]: dead reckoning drifts with the distance
+# travelled; 1 m on Plaza1's 150 m windows), the scale of a submap beacon's sigma and its floor
+# as a fraction of ``min_spread`` (0.1 m on Plaza1).
+STITCH_DRIFT_XY = 1.0 / 150.0
 STITCH_DRIFT_THETA = 0.05
 STITCH_BEACON_SIGMA = 1.0
+STITCH_SIGMA_FLOOR = 0.1
 # A beacon's 2-D position needs ranges from 3 poses off one line: a window shorter than this
 # many mean steps cannot place one (and there would be up to N / 3 windows to stitch).
 MIN_POSES_PER_WINDOW = 3
@@ -339,10 +342,11 @@ def place_window(
     return sub
 
 
-def stitch_graph(submaps: list[Submap], n_windows: int, n_beacons: int):
+def stitch_graph(submaps: list[Submap], n_windows: int, n_beacons: int, cfg: BeaconSlamOptions):
     """The stitching graph and its start: T_0 = identity (gauge), consecutive T_w equal up to the
-    drift, beta_j = T_w(p_jw) (Huber) per beacon placed in window w, beta_j starting at the mean
-    of its p_jw. Returns (graph, values, placed (n_beacons,))."""
+    drift (:data:`STITCH_DRIFT_XY` window lengths), beta_j = T_w(p_jw) (Huber) per beacon placed
+    in window w, beta_j starting at the mean of its p_jw. Returns (graph, values, placed
+    (n_beacons,))."""
     import gtsam
 
     graph = gtsam.NonlinearFactorGraph()
@@ -350,9 +354,8 @@ def stitch_graph(submaps: list[Submap], n_windows: int, n_beacons: int):
     graph.add(
         gtsam.PriorFactorPose2(_key_t(0), gtsam.Pose2(), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6))
     )
-    drift = gtsam.noiseModel.Diagonal.Sigmas(
-        np.array([STITCH_DRIFT_XY, STITCH_DRIFT_XY, STITCH_DRIFT_THETA])
-    )
+    drift_xy = STITCH_DRIFT_XY * cfg.window_length
+    drift = gtsam.noiseModel.Diagonal.Sigmas(np.array([drift_xy, drift_xy, STITCH_DRIFT_THETA]))
     for w in range(n_windows):
         values.insert(_key_t(w), gtsam.Pose2())
         if w > 0:
@@ -361,7 +364,8 @@ def stitch_graph(submaps: list[Submap], n_windows: int, n_beacons: int):
     sums = np.zeros((n_beacons, 2))
     for s in submaps:
         for j, p, spread, count in zip(s.beacons, s.positions, s.spread, s.counts, strict=True):
-            sigma = STITCH_BEACON_SIGMA * max(spread, 0.1) / np.sqrt(max(count, 1) / 10.0)
+            floor = STITCH_SIGMA_FLOOR * cfg.min_spread
+            sigma = STITCH_BEACON_SIGMA * max(spread, floor) / np.sqrt(max(count, 1) / 10.0)
             model = robust_noise_model(gtsam, gtsam.noiseModel.Isotropic.Sigma(2, sigma), "huber")
             keys = [_key_t(s.window), _key_b(int(j))]
             graph.add(gtsam.CustomFactor(model, keys, placed_error(p)))
@@ -376,7 +380,7 @@ def stitch_graph(submaps: list[Submap], n_windows: int, n_beacons: int):
 
 
 def stitch(
-    submaps: list[Submap], n_windows: int, n_beacons: int
+    submaps: list[Submap], n_windows: int, n_beacons: int, cfg: BeaconSlamOptions
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fuse the windows' beacons: one rigid correction per window and one position per beacon.
 
@@ -386,7 +390,7 @@ def stitch(
     """
     import gtsam
 
-    graph, values, placed = stitch_graph(submaps, n_windows, n_beacons)
+    graph, values, placed = stitch_graph(submaps, n_windows, n_beacons, cfg)
     params = gtsam.LevenbergMarquardtParams()
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     corrections = np.array(
@@ -445,7 +449,7 @@ def edm_initialisation(
     travelled, window_of_pose = windows(data, cfg.window_length)
     n_windows = int(window_of_pose[-1]) + 1
     submaps, log = window_submaps(data, dr, window_of_pose, cfg)
-    corrections, beacons0, placed = stitch(submaps, n_windows, data.n_beacons)
+    corrections, beacons0, placed = stitch(submaps, n_windows, data.n_beacons, cfg)
     centres = (np.arange(n_windows) + 0.5) * cfg.window_length
     corrections[:, 2] = np.unwrap(corrections[:, 2])  # theta() is wrapped; interpolate unwrapped
     frames = np.column_stack([np.interp(travelled, centres, corrections[:, k]) for k in range(3)])

@@ -1,0 +1,121 @@
+"""Beacon SLAM's defaults come from the data (issue 36, item 2): a 3 x 3 m room and a 300 x 300 m
+field with the same defaults and only the stated noise.
+
+The constants of rangeslam.beacons.defaults were chosen on CMU Plaza1 and on simulation seeds 1
+and 2; the seeds below were drawn after that change (secrets.randbelow(10**6)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rangeslam import InvalidInputError
+from rangeslam.beacons import RangeOdometry, beacon_slam, simulate_beacon_run
+from rangeslam.beacons.defaults import (
+    WINDOW_RANGES,
+    odometry_noise,
+    range_noise,
+    resolve_options,
+)
+from rangeslam.beacons.options import BeaconSlamOptions
+from rangeslam.evaluation.metrics import ape, ape_statistics
+
+pytest.importorskip("gtsam")
+
+HELD_OUT_SEEDS = (524759, 163842)
+
+# Two scenes 100 times apart: a robot 5 cm/s in a room with UWB ranges (5 cm), and one at 6 m/s
+# in a field with ranges of 1 m; odometry noise 5 % of a step and 2 mrad per step.
+SCENES = {
+    "room 3 x 3 m": dict(
+        n_steps=2000, step_length=0.01, radius=1.0, range_std=0.05, odometry_std=(5e-4, 0.002)
+    ),
+    "field 300 x 300 m": dict(
+        n_steps=2000, step_length=1.2, radius=100.0, range_std=1.0, odometry_std=(0.06, 0.002)
+    ),
+}
+# "At or below" the peer: both stop on Levenberg-Marquardt's relative decrease, which leaves two
+# runs into one minimum this far apart in APE (measured: 2e-4 relative).
+SAME_MINIMUM = 0.01
+
+
+def _stated(scene: dict) -> dict:
+    """The noise the simulation states, as the estimator's settings."""
+    d, theta = scene["odometry_std"]
+    return dict(range_sigma=scene["range_std"], odometry_sigma=(d, d, theta))
+
+
+def _ape(result, run) -> float:
+    fit = ape(result.poses[:, :2], run.poses[:, :2], result.beacons, run.beacons)
+    return ape_statistics(fit.errors).mean
+
+
+def _best_of_3_peer(run, stated: dict, seed: int):
+    """Plain GTSAM: the same graph from the dead-reckoned poses and beacons drawn from N(0, I)
+    (GTSAM's RangeISAMExample), three starts, the lowest final cost kept (it cannot see the
+    truth)."""
+    runs = [
+        beacon_slam(
+            run.data,
+            start_pose=run.poses[0],
+            initialisation="random",
+            rng=np.random.default_rng([seed, k]),
+            **stated,
+        )
+        for k in range(3)
+    ]
+    return min(runs, key=lambda r: r.cost)
+
+
+@pytest.mark.parametrize("seed", HELD_OUT_SEEDS)
+@pytest.mark.parametrize("scene", SCENES, ids=list(SCENES))
+def test_defaults_serve_a_room_and_a_field(scene, seed):
+    """Defaults plus the stated noise: converged, APE at or below a plain GTSAM best-of-3 peer's
+    (up to SAME_MINIMUM), and within the scene's range sigma (measured 0.2-0.5 sigma)."""
+    kw = SCENES[scene]
+    run = simulate_beacon_run(np.random.default_rng(seed), **kw)
+    ours = beacon_slam(run.data, start_pose=run.poses[0], **_stated(kw))
+    assert ours.converged, ours.message
+    peer = _best_of_3_peer(run, _stated(kw), seed)
+    assert _ape(ours, run) <= (1.0 + SAME_MINIMUM) * _ape(peer, run)
+    # the error is at the scale of the noise, not of the scene
+    assert _ape(ours, run) < kw["range_std"]
+
+
+@pytest.mark.parametrize("scene", SCENES, ids=list(SCENES))
+def test_noise_is_read_from_the_data(scene):
+    """Without stated noise the range sigma comes from the ranges' second differences (within
+    20 % of the simulated one: measured 1-10 %) and the odometry's from the median step."""
+    kw = SCENES[scene]
+    run = simulate_beacon_run(np.random.default_rng(HELD_OUT_SEEDS[0]), **kw)
+    assert range_noise(run.data) == pytest.approx(kw["range_std"], rel=0.2)
+    np.testing.assert_allclose(odometry_noise(run.data)[:2], 0.05 * kw["step_length"], rtol=0.05)
+    cfg = resolve_options(BeaconSlamOptions(), run.data)
+    assert cfg.min_spread == pytest.approx(2 * cfg.range_sigma)
+    # the window spans a few median ranges at either scale
+    assert cfg.window_length == pytest.approx(WINDOW_RANGES * np.median(run.data.ranges))
+
+
+def test_stated_settings_are_kept(rng):
+    run = simulate_beacon_run(rng, n_steps=200)
+    given = BeaconSlamOptions(
+        range_sigma=0.7, odometry_sigma=(0.1, 0.2, 0.3), window_length=40.0, min_spread=2.0
+    )
+    cfg = resolve_options(given, run.data)
+    assert (cfg.range_sigma, cfg.window_length, cfg.min_spread) == (0.7, 40.0, 2.0)
+    np.testing.assert_array_equal(cfg.odometry_sigma, [0.1, 0.2, 0.3])
+
+
+def test_a_window_too_short_for_the_derived_spread_is_refused(rng):
+    """min_spread derived from the data still bounds a stated window_length."""
+    run = simulate_beacon_run(rng, n_steps=200)
+    with pytest.raises(InvalidInputError, match="window_length must be >= "):
+        resolve_options(BeaconSlamOptions(window_length=1e-6, range_sigma=1.0), run.data)
+
+
+def test_exact_ranges_give_a_positive_noise_floor():
+    data = RangeOdometry.create(
+        np.arange(4.0), [[1.0, 0.0]] * 3, [0, 1, 2, 3], [0, 0, 0, 0], [5.0, 4.0, 3.0, 2.0]
+    )
+    assert 0 < range_noise(data) <= 1e-5
