@@ -132,10 +132,11 @@ def test_a_trial_runs_every_method_on_a_reproducible_scene():
     assert np.array_equal(a.ranges, b.ranges) and not np.array_equal(a.ranges, c.ranges)
 
 
-def fake_row(m, error, bound, seconds=1.0, status="ok"):
+def fake_row(m, error, bound, seconds=1.0, status="ok", oracle=None):
     row = dict(
         regime=f"random 3-D, M={m}, bounds, 10 mm", walk="random", m=m, bounds=True,
         sigma=0.01, dim=3, missing=0.0, wrong=0.0, trial=0, seed=0, status="ok", crlb_m=bound,
+        oracle_error_m=bound if oracle is None else oracle,
     )  # fmt: skip
     for name in REGIME_METHODS:
         row.update(
@@ -158,8 +159,17 @@ def test_tables_compute_each_figure_of_merit():
     tables = {title: table for title, _, table in regime_tables(rows)}
     (success,) = tables["success (SLAM: error < 10 cm; calibration: < 5 cm)"]
     assert success[:3] == ["random 3-D, M=6, bounds, 10 mm", "2", "50%"]
-    (ratio,) = tables["RMS error / RMS bound (n.i.: trials not identifiable)"]
-    assert ratio[2] == f"{np.sqrt((0.02**2 + 0.2**2) / 2) / 0.01:.2f}x"
+    title = (
+        "RMS error / the oracle's, and / RMS bound where the oracle attains it (n.i.: trials not "
+        "identifiable)"
+    )
+    (ratio,) = tables[title]
+    r = np.sqrt((0.02**2 + 0.2**2) / 2) / 0.01
+    assert ratio[2] == f"{r:.2f}x oracle, {r:.2f}x bound"  # the oracle at the bound: attained
+    # an oracle at half the bound: the bound is not one here, the oracle alone is quoted
+    low = [fake_row(6, 0.02, 0.01, oracle=0.005), fake_row(6, 0.02, 0.01, oracle=0.005)]
+    (ratio,) = {t: table for t, _, table in regime_tables(low)}[title]
+    assert ratio[2] == "4.00x oracle, oracle only"
     (flag,) = tables["flagged by its own verdict, or failed"]
     assert flag[2] == "failed 50%" and flag[3] == "50%"  # EDM only has no verdict
 
@@ -209,7 +219,7 @@ def test_cli_writes_the_tables_and_figures(tmp_path, monkeypatch, capsys):
     for stem in ("regimes", "regimes_calibration"):
         with open(tmp_path / f"{stem}_trials.csv") as f:
             assert len(list(csv.DictReader(f))) == 1
-    for name in ("regimes_summary.md", "regimes_success.png", "regimes_bound.png"):
+    for name in ("regimes_summary.md", "regimes_success.png", "regimes_oracle.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert "GTSAM, best of k (equal time)" in capsys.readouterr().out
 

@@ -176,6 +176,23 @@ def least_squares_starts(
     return MethodRun(best.receivers, best.sources, seconds, float(iterations), starts)
 
 
+def calibration_oracle_error(receivers, sources, ranges, cell: CalibrationCell) -> float:
+    """The oracle's receiver error, metres: least squares on the ``ranges`` (M, K) (Huber at its
+    95%-efficiency scale with wrong picks) from the true ``receivers`` (M, d) and
+    ``sources`` (K, d); 0 without noise."""
+    from rangeslam._robust import ROBUST_KERNEL_CONSTANTS
+    from rangeslam.geometry.alignment import align
+    from rangeslam.solvers.least_squares import refine_unfolding
+
+    if cell.sigma <= 0:
+        return 0.0
+    mask = np.isfinite(ranges)
+    scale = ROBUST_KERNEL_CONSTANTS["huber"] * cell.sigma
+    loss = {"loss": "huber", "loss_scale": scale} if cell.wrong else {}
+    fit = refine_unfolding(receivers, sources, np.nan_to_num(ranges), mask, **loss)
+    return align(fit.receivers, receivers, reflection=True).rmse
+
+
 def run_calibration_trial(
     cell: CalibrationCell, trial: int, seed: int, *, max_starts: int = 200
 ) -> dict:
@@ -189,6 +206,7 @@ def run_calibration_trial(
     receivers, sources, ranges = calibration_scene(cell, rng)
     row = {"regime": cell.label, **asdict(cell), "trial": trial, "seed": seed, "status": "ok"}
     row["crlb_m"] = receiver_crlb(receivers, sources, cell.sigma)
+    row["oracle_error_m"] = calibration_oracle_error(receivers, sources, ranges, cell)
     full = run_calibrate(ranges, cell, rng)
     runs = {
         "calibrate": full,

@@ -268,26 +268,45 @@ def run_slam(scene: RegimeScene, cell: RegimeCell, rng) -> tuple[MethodRun, Meth
     return edm, full
 
 
-def graph_from_random_start(scene: RegimeScene, cell: RegimeCell, rng):
-    """GTSAM's graph (range factors, the step prior of ``slam``, Huber with wrong picks) from one
-    GTSAM-style random start: the :class:`~rangeslam.solvers.gtsam_graph.GraphFit`, or None
-    when GTSAM failed."""
+def graph_from(scene: RegimeScene, cell: RegimeCell, x0: np.ndarray, s0: np.ndarray):
+    """GTSAM's graph (range factors, the step prior of ``slam``, Huber with wrong picks) from
+    receivers ``x0`` (M, d) and sources ``s0`` (K, d): the
+    :class:`~rangeslam.solvers.gtsam_graph.GraphFit`, or None when GTSAM failed."""
     from rangeslam.errors import SolverError
-    from rangeslam.mdu.slam import nominal_steps, random_start
     from rangeslam.solvers.gtsam_graph import refine_graph
 
-    observed = scene.mask
-    steps = nominal_steps(scene.step_bounds, np.nan_to_num(scene.ranges), observed)
-    size = float(np.max(scene.ranges[observed]))
-    x0, s0 = random_start(steps, scene.landmarks.shape[0], cell.dim, size, rng)
     try:
         return refine_graph(
-            x0, s0, np.nan_to_num(scene.ranges), noise_std=cell.sigma, mask=observed,
+            x0, s0, np.nan_to_num(scene.ranges), noise_std=cell.sigma, mask=scene.mask,
             step_bounds=scene.step_bounds, robust="huber" if cell.wrong else None,
             covariances=False, max_iterations=5000,
         )  # fmt: skip
     except SolverError:
         return None
+
+
+def graph_from_random_start(scene: RegimeScene, cell: RegimeCell, rng):
+    """:func:`graph_from` one GTSAM-style random start."""
+    from rangeslam.mdu.slam import nominal_steps, random_start
+
+    observed = scene.mask
+    steps = nominal_steps(scene.step_bounds, np.nan_to_num(scene.ranges), observed)
+    size = float(np.max(scene.ranges[observed]))
+    x0, s0 = random_start(steps, scene.landmarks.shape[0], cell.dim, size, rng)
+    return graph_from(scene, cell, x0, s0)
+
+
+def oracle_error(scene: RegimeScene, cell: RegimeCell) -> float:
+    """The oracle's trajectory error, metres: the graph every GTSAM method minimises, from the
+    truth (0 without noise; NaN when GTSAM failed)."""
+    from rangeslam.geometry.alignment import align
+
+    if cell.sigma <= 0:
+        return 0.0
+    fit = graph_from(scene, cell, scene.trajectory, scene.landmarks)
+    if fit is None:
+        return float("nan")
+    return align(fit.receivers, scene.trajectory, reflection=True).rmse
 
 
 def run_random_starts(
@@ -389,6 +408,7 @@ def run_regime_trial(
     scene = draw_scene(cell, rng)
     row = {"regime": cell.label, **asdict(cell), "trial": trial, "seed": seed, "status": "ok"}
     row["crlb_m"] = scene_bound(scene, cell)
+    row["oracle_error_m"] = oracle_error(scene, cell)
     edm, full = run_slam(scene, cell, rng)
     runs = {
         "edm": edm,
