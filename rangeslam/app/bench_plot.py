@@ -33,6 +33,7 @@ __all__ = [
     "fig5_landmark_panel",
     "fig5_trajectory_panel",
     "judge_bound",
+    "oracle_label",
     "oracle_yardstick",
     "plot_fig3",
     "plot_fig5",
@@ -74,6 +75,14 @@ def oracle_yardstick(rows: list[dict]) -> np.ndarray:
     NaN where the row has neither (no oracle was run)."""
     mc, same = column(rows, "oracle_rms_m"), column(rows, "oracle_error_m")
     return np.where(np.isfinite(mc), mc, same)
+
+
+def oracle_label(what: str, rows: list[dict], *, where: str = "") -> str:
+    """The oracle's legend entry: 'oracle: ``what``', with '(``where``Monte-Carlo RMS over fresh
+    noise)' when any row has its Monte-Carlo figure (``oracle_rms_m``), which is then drawn."""
+    if np.isfinite(column(rows, "oracle_rms_m")).any():
+        return f"oracle: {what} ({where}Monte-Carlo RMS over fresh noise)"
+    return f"oracle: {what}"
 
 
 def judge_bound(rows: list[dict], error_key: str) -> tuple[BoundComparison, float]:
@@ -134,7 +143,8 @@ def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
         rms = [rms_and_bound(column(c, "mic_error_m"), column(c, "crlb_m"))[0] for c in cells]
         s_mm = np.array(sigmas) * 1e3
         ax.plot(s_mm, np.array(rms) * 1e3, "o-", c="tab:blue", ms=7, label="RMS error (calibrate)")
-        labels = ("oracle: calibrate's cost minimised from the truth", "RMS CRLB, where attained")
+        oracle = oracle_label("calibrate's cost minimised from the truth", ok)
+        labels = (oracle, "RMS CRLB, where attained")
         top = draw_yardsticks(ax, s_mm, cells, "mic_error_m", labels=labels, scale=1e3)
         plain_log_axis(ax, "y", headroom=0.2 if top else 0.0)
         plain_log_axis(ax, "x", ticks=s_mm)
@@ -183,14 +193,15 @@ def plot_fig5(path: str | Path, rows: list[dict], methods: dict[str, str]) -> Pa
     sigmas = sorted({r["sigma"] for r in rows})
     bounds = sorted({r["bounds"] for r in rows}, reverse=True)
     n_rows, n_cols = max(len(sigmas), 1), 2 * max(len(bounds), 1)
+    oracle = oracle_label("GTSAM graph minimised from the truth", rows, where="trajectory: ")
     fig, axs = plt.subplots(n_rows, n_cols, figsize=(4.6 * n_cols, 3.9 * n_rows), squeeze=False)
     for i, sigma in enumerate(sigmas):
         for j, b in enumerate(bounds):
             cell = [r for r in rows if r["sigma"] == sigma and r["bounds"] == b]
             setting = f"sigma = {sigma * 1e3:g} mm, " + ("+-20% step bounds" if b else "no bounds")
-            fig5_trajectory_panel(axs[i][2 * j], cell, methods)
+            fig5_trajectory_panel(axs[i][2 * j], cell, methods, oracle=oracle)
             axs[i][2 * j].set_title(f"trajectory\n{setting}", fontsize=10)
-            fig5_landmark_panel(axs[i][2 * j + 1], cell)
+            fig5_landmark_panel(axs[i][2 * j + 1], cell, oracle=oracle)
             axs[i][2 * j + 1].set_title(f"landmarks (image sources)\n{setting}", fontsize=10)
     fig.suptitle("Fig. 5: range-only SLAM on the lemniscate (RMS over trials, band 25-75%)")
     legend_below(fig, axs, ncol=3)
@@ -237,9 +248,9 @@ def _step_axis(ax, steps, ylabel: str, *, headroom: bool) -> None:
     ax.grid(alpha=0.3, which="major")
 
 
-def fig5_trajectory_panel(ax, cell: list[dict], methods: dict[str, str]) -> None:
+def fig5_trajectory_panel(ax, cell: list[dict], methods: dict[str, str], *, oracle: str) -> None:
     """One Fig. 5 trajectory panel: the rows of one (sigma, bounds) cell against M, errors in cm:
-    each method, the oracle's RMS, the bound where the oracle attains it."""
+    each method, the oracle's RMS (labelled ``oracle``), the bound where the oracle attains it."""
     steps = sorted({r["m"] for r in cell})
     for k, (key, name) in enumerate(methods.items()):
         per_m = _method_errors(cell, key, steps)
@@ -249,25 +260,22 @@ def fig5_trajectory_panel(ax, cell: list[dict], methods: dict[str, str]) -> None
     top = False
     if steps:
         prior = " (ranges + step prior)" if any(r["bounds"] for r in cell) else " (ranges)"
-        labels = (
-            "oracle: GTSAM graph minimised from the truth",
-            f"RMS CRLB{prior}, where attained",
-        )
+        labels = (oracle, f"RMS CRLB{prior}, where attained")
         cells = [[r for r in cell if r["m"] == m] for m in steps]
         top = draw_yardsticks(ax, steps, cells, "edm_gtsam_error_m", labels=labels, scale=100)
     _step_axis(ax, steps, "trajectory RMS error [cm]", headroom=top)
 
 
-def fig5_landmark_panel(ax, cell: list[dict]) -> None:
+def fig5_landmark_panel(ax, cell: list[dict], *, oracle: str) -> None:
     """One Fig. 5 landmark panel (the loudspeaker and its image sources): EDM + GTSAM's RMS
-    landmark error over trials (and the 25-75% band) and the oracle's, in cm, against M."""
+    landmark error over trials (and the 25-75% band) and the oracle's (labelled ``oracle``; on
+    the trials' own data), in cm, against M."""
     steps = sorted({r["m"] for r in cell})
     per_m = [column([r for r in cell if r["m"] == m], "landmark_error_m") for m in steps]
     if any(np.isfinite(v).any() for v in per_m):
         _curve(ax, steps, per_m, k=1, label="EDM + GTSAM", scale=100)
-    oracle = [column([r for r in cell if r["m"] == m], "oracle_landmark_error_m") for m in steps]
-    if any(np.isfinite(v).any() for v in oracle):
-        rms = np.array([_rms_finite(v) for v in oracle]) * 100
-        label = "oracle: GTSAM graph minimised from the truth"
-        ax.plot(steps, rms, label=label, zorder=3, **ORACLE_STYLE)
+    best = [column([r for r in cell if r["m"] == m], "oracle_landmark_error_m") for m in steps]
+    if any(np.isfinite(v).any() for v in best):
+        rms = np.array([_rms_finite(v) for v in best]) * 100
+        ax.plot(steps, rms, label=oracle, zorder=3, **ORACLE_STYLE)
     _step_axis(ax, steps, "landmark RMS error [cm]", headroom=False)
