@@ -1,6 +1,6 @@
 """Problem 1 on real echoes: the dEchorate room from its 30 calibrated microphones.
 
-    python benchmarks/bench_dechorate.py [--data ../shared/data/dechorate] [--seeds 5]
+    python benchmarks/bench_dechorate.py [--data dechorate] [--seeds 5]
 
 Each loudspeaker alone and both together, with the default (data-driven) inlier rule and with a
 fixed threshold of three samples (3 c / fs). Errors against the dataset's calibrated geometry:
@@ -12,7 +12,6 @@ EURASIP JASMP 2021.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 from _common import machine, markdown_table, timed
@@ -22,16 +21,16 @@ from rangeslam.datasets import load_dechorate
 from rangeslam.datasets.dechorate import ECHO_LABELS
 from rangeslam.evaluation.metrics import wall_errors
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "dechorate"
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT)
+    ap.add_argument(
+        "--data",
+        default="dechorate",
+        help="a path, or a name under $RANGESLAM_DATA (else ../shared/data)",
+    )
     ap.add_argument("--seeds", type=int, default=5)
     args = ap.parse_args()
-    if not (args.data / "echo_toa.csv").is_file():
-        raise SystemExit(f"dEchorate data not found at {args.data}; pass --data")
     data = load_dechorate(args.data)
     walls = [lab.split("_")[0] for lab in ECHO_LABELS[1:]]
     rows, summary = [], []

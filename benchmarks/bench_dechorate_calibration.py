@@ -1,6 +1,6 @@
 """Zero-knowledge calibration on real echoes: the 30 dEchorate microphones from echoes alone.
 
-    python benchmarks/bench_dechorate_calibration.py [--data ../shared/data/dechorate]
+    python benchmarks/bench_dechorate_calibration.py [--data dechorate]
 
 Ranges from the 30 microphones to the 14 virtual sources of loudspeakers 0 and 1 (direct path and
 six first-order echoes each); positions unknown to the solver. Microphone error: distance to the
@@ -13,7 +13,6 @@ dataset for echo-aware signal processing", EURASIP JASMP 2021.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 from _common import machine, markdown_table, timed
@@ -21,15 +20,15 @@ from _common import machine, markdown_table, timed
 from rangeslam import align, calibrate
 from rangeslam.datasets import load_dechorate
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "dechorate"
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT)
+    ap.add_argument(
+        "--data",
+        default="dechorate",
+        help="a path, or a name under $RANGESLAM_DATA (else ../shared/data)",
+    )
     args = ap.parse_args()
-    if not (args.data / "echo_toa.csv").is_file():
-        raise SystemExit(f"dEchorate data not found at {args.data}; pass --data")
     data = load_dechorate(args.data)
     ranges = np.hstack([data.ranges(0), data.ranges(1)])
     configs = [

@@ -1,7 +1,7 @@
 """Held-out dEchorate-style calibration: new loudspeakers with simulated real-style pick errors.
 
     python benchmarks/bench_dechorate_heldout.py [--scenes 20] [--seed 0] [--loudspeakers 2 4]
-        [--data ../shared/data/dechorate] [--no-real] [--dump results.pkl]
+        [--data dechorate] [--no-real] [--dump results.pkl]
 
 The 30 dEchorate microphones stay where they are; each scene draws L new loudspeakers in the
 dEchorate room (at least 0.5 m from the walls and every mic) and their direct + six first-order
@@ -28,8 +28,6 @@ from rangeslam import align, calibrate
 from rangeslam.datasets import load_dechorate
 from rangeslam.sim.echo_picks import CLEAN, simulate_loudspeakers
 from rangeslam.status import Status
-
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "dechorate"
 
 #: A calibration is "right" when the median mic error is at most MEDIAN_OK and the worst MAX_OK.
 MEDIAN_OK, MAX_OK = 0.03, 0.10
@@ -129,15 +127,17 @@ def summary(cases) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DEFAULT)
+    ap.add_argument(
+        "--data",
+        default="dechorate",
+        help="a path, or a name under $RANGESLAM_DATA (else ../shared/data)",
+    )
     ap.add_argument("--scenes", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--loudspeakers", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--no-real", action="store_true", help="skip the real configurations")
     ap.add_argument("--dump", type=Path, help="pickle every case (inputs, answer) to this file")
     args = ap.parse_args()
-    if not (args.data / "echo_toa.csv").is_file():
-        raise SystemExit(f"dEchorate data not found at {args.data}; pass --data")
     data = load_dechorate(args.data)
     cases = []
 

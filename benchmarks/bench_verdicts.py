@@ -1,4 +1,4 @@
-"""Does "converged" mean right? The verdict benchmark of issue 17.
+"""Does "converged" mean right? The verdict benchmark.
 
     python benchmarks/bench_verdicts.py --cases 500 --seed 1 --out /tmp/verdicts [--data DIR]
 
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import signal
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from _common import machine, markdown_table
 
+from rangeslam.datasets import data_root
 from rangeslam.evaluation.verdict_cases import (
     OUTCOMES,
     CaseOutcome,
@@ -34,9 +34,8 @@ from rangeslam.evaluation.verdict_cases import (
     run_case,
 )
 
-DEFAULT_DATA = Path(
-    os.environ.get("RANGESLAM_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")
-)
+#: The folder holding dechorate/: $RANGESLAM_DATA, else ../shared/data (rangeslam.datasets).
+DEFAULT_DATA = data_root()
 #: Share of the simulated cases per estimator (chosen for the run time: calibrate's robust
 #: regimes take up to a minute a case, multilateration milliseconds).
 WEIGHTS = {
@@ -110,7 +109,7 @@ def summary_rows(records: list[tuple[str, str, str]]) -> list[list]:
 
 
 def false_alarm_text(total: Counter) -> str:
-    """The false-alarm rate two ways: issue 17's (every flag on a right estimate, over the right
+    """The false-alarm rate two ways: the strict count (every flag on a right estimate, over the right
     estimates) and with a right flag of a contradicted call ("flagged-inconsistent-call": the
     noise_std passed was a third of the truth's, and the status says INCONSISTENT) not counted
     as a false alarm, over the cases where CONVERGED is the right verdict."""
@@ -121,7 +120,7 @@ def false_alarm_text(total: Counter) -> str:
     issue = f"{flags}/{cases} = {100 * flags / max(cases, 1):.1f}%"
     restated = f"{wrong}/{right} = {100 * wrong / max(right, 1):.1f}%"
     return (
-        f"false alarms {issue} (issue's count); {restated} without INCONSISTENT on a "
+        f"false alarms {issue} (strict count); {restated} without INCONSISTENT on a "
         "contradicted call"
     )
 

@@ -1,6 +1,6 @@
 """Unsynchronised microphones and unknown emission times: the xtdoa real data and a simulation.
 
-    python benchmarks/bench_xtdoa.py real [--data ../shared/data/xtdoa] [--subsets 200] [--sizes 6 8 11]
+    python benchmarks/bench_xtdoa.py real [--data xtdoa] [--subsets 200] [--sizes 6 8 11]
     python benchmarks/bench_xtdoa.py sim [--draws 100] [--noisy 40]
     python benchmarks/bench_xtdoa.py robust [--runs 3] [--seed 0]
 
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from _common import machine, markdown_table
@@ -45,7 +44,6 @@ from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.clock_offsets import clock_offsets_crlb
 from rangeslam.mdu.emission import calibrate_unknown_emission
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "xtdoa"
 ROOM = np.array([10.0, 10.0, 3.0])
 
 
@@ -124,7 +122,11 @@ def _scene(rng):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("part", choices=("real", "sim", "robust"))
-    ap.add_argument("--data", type=Path, default=DEFAULT)
+    ap.add_argument(
+        "--data",
+        default="xtdoa",
+        help="a path, or a name under $RANGESLAM_DATA (else ../shared/data)",
+    )
     ap.add_argument("--subsets", type=int, default=200)
     ap.add_argument("--sizes", type=int, nargs="+", default=list(range(6, 22)))
     ap.add_argument("--draws", type=int, default=100)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 __all__ = [
     "DataFormatError",
+    "DataNotFoundError",
     "DegenerateGeometryError",
     "InvalidInputError",
     "RangeSlamError",
@@ -30,6 +31,11 @@ class DegenerateGeometryError(RangeSlamError, ValueError):
 
 class DataFormatError(InvalidInputError):
     """A data file is malformed; the message names the file and, where it can, the row."""
+
+
+class DataNotFoundError(InvalidInputError, FileNotFoundError):
+    """A data set or data file is not where it was looked for; the message names the paths tried
+    and ``$RANGESLAM_DATA``."""
 
 
 class SolverError(RangeSlamError, RuntimeError):

@@ -17,7 +17,6 @@ DEFAULT_SEED = 20261121
 settings.register_profile("repeatable", derandomize=True, database=None)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
-_REPO = Path(__file__).resolve().parents[1]
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -41,13 +40,13 @@ def rng(request: pytest.FixtureRequest) -> np.random.Generator:
 
 @pytest.fixture
 def dechorate_dir() -> Path:
-    """Path of the dEchorate data: $RANGESLAM_DATA/dechorate, else <repo>/../shared/data/dechorate."""
-    env = os.environ.get("RANGESLAM_DATA")
-    base = Path(env) if env else _REPO.parent / "shared" / "data"
-    path = (base / "dechorate").resolve()
-    if not path.is_dir():
-        pytest.skip(
-            f"dEchorate data not found at {path}; set RANGESLAM_DATA to the directory that "
-            "contains dechorate/"
-        )
-    return path
+    """Path of the dEchorate data, as the loaders find it (rangeslam.datasets.data_path:
+    $RANGESLAM_DATA/dechorate, else ../shared/data/dechorate); skip, naming the paths tried, when
+    it is absent."""
+    from rangeslam.datasets import data_path
+    from rangeslam.errors import DataNotFoundError
+
+    try:
+        return data_path("dechorate").resolve()
+    except DataNotFoundError as exc:
+        pytest.skip(str(exc))

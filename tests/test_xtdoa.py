@@ -6,9 +6,6 @@ clock offsets and the emission times unknown. The thresholds are the issue's (16
 published medians beaten, under the floor of the measured positions (a few centimetres).
 """
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.io import savemat
@@ -22,22 +19,17 @@ from rangeslam.app.xtdoa_bench import (
     summary_rows,
 )
 from rangeslam.datasets import xtdoa
-
-_REPO = Path(__file__).resolve().parents[1]
+from rangeslam.errors import DataNotFoundError
 
 
 @pytest.fixture(scope="module")
 def data():
-    """The xtdoa data: $RANGESLAM_DATA/xtdoa, else <repo>/../shared/data/xtdoa; skip if absent."""
-    env = os.environ.get("RANGESLAM_DATA")
-    base = Path(env) if env else _REPO.parent / "shared" / "data"
-    path = (base / "xtdoa").resolve()
-    if not (path / "real_data_M12_K65.mat").is_file():
-        pytest.skip(
-            f"xtdoa data not found at {path}; set RANGESLAM_DATA to the directory that "
-            "contains xtdoa/"
-        )
-    return xtdoa(path)
+    """The xtdoa data, as the loader finds it ($RANGESLAM_DATA/xtdoa, else ../shared/data/xtdoa);
+    skip, naming the paths tried, when it is absent."""
+    try:
+        return xtdoa()
+    except DataNotFoundError as exc:
+        pytest.skip(str(exc))
 
 
 def test_loader_shapes(data):

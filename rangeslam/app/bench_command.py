@@ -330,24 +330,12 @@ def _write_plaza_tum(out: Path, stem: str, dataset, kept: dict) -> Path:
 def run_xtdoa_bench(args: argparse.Namespace) -> int:
     """The xtdoa protocol (:mod:`rangeslam.app.xtdoa_bench`): a CSV row per solve (rewritten as
     solves finish), the Markdown table (printed) and a JSON summary; progress on standard error."""
-    import os
-
     from rangeslam.app import xtdoa_bench as xb
     from rangeslam.app.progress import Progress
     from rangeslam.app.reports import markdown, versions, write_csv, write_summary
-    from rangeslam.datasets import XTDOA_CITATION, xtdoa
+    from rangeslam.datasets import XTDOA_CITATION, data_path, xtdoa
 
-    path = args.data
-    if path is None:
-        root = os.environ.get("RANGESLAM_DATA")
-        if root is None:
-            print(
-                "rangeslam: pass --data (the xtdoa directory) or set RANGESLAM_DATA",
-                file=sys.stderr,
-            )
-            return 2
-        path = Path(root) / "xtdoa"
-    data = xtdoa(path)
+    data = xtdoa(data_path(args.data, what="--data"))
     out, rows = args.out, []
     t0 = time.perf_counter()
     if getattr(args, "robust", None):

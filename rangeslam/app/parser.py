@@ -191,9 +191,10 @@ def _add_xtdoa_bench(experiments) -> None:
     )
     xtdoa.add_argument(
         "--data",
-        type=Path,
-        default=None,
-        help="the xtdoa directory (default: $RANGESLAM_DATA/xtdoa)",
+        default="xtdoa",
+        metavar="PATH",
+        help="the xtdoa directory: a path, or a name under $RANGESLAM_DATA (else under "
+        "../shared/data)",
     )
     xtdoa.add_argument(
         "--subsets", type=arg_types.positive_int, default=200, help="random subsets per K"

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from rangeslam._validation import frozen, shape_str
+from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 from rangeslam.geometry.room import Room
 
@@ -87,9 +88,11 @@ def _vectors(data: dict, key: str, path: Path, n: int | None = None) -> np.ndarr
     return arr
 
 
-def load_dechorate(path: str | Path) -> DEchorate:
-    """Load the dEchorate subset from a directory holding positions.json and echo_toa.csv."""
-    root = Path(path)
+def load_dechorate(path: str | Path = "dechorate") -> DEchorate:
+    """Load the dEchorate subset from a directory holding positions.json and echo_toa.csv: a
+    path, or a name under the data folder (:func:`rangeslam.datasets.data_path`; default
+    ``dechorate``: ``$RANGESLAM_DATA/dechorate``, else ``../shared/data/dechorate``)."""
+    root = data_path(path, what="dEchorate directory")
     pos_path, toa_path = root / "positions.json", root / "echo_toa.csv"
     for p in (pos_path, toa_path):
         if not p.is_file():
@@ -179,9 +182,10 @@ class DechorateRirs:
     room_code: str
 
 
-def load_dechorate_rirs(path: str | Path) -> DechorateRirs:
-    """Read ``rirs_src0_12mics.npz`` (the file, or the dEchorate directory holding it)."""
-    p = Path(path)
+def load_dechorate_rirs(path: str | Path = "dechorate") -> DechorateRirs:
+    """Read ``rirs_src0_12mics.npz`` (the file, or the dEchorate directory holding it; a path or a
+    name under the data folder, as :func:`load_dechorate`)."""
+    p = data_path(path, what="dEchorate directory or file")
     if p.is_dir():
         p = p / "rirs_src0_12mics.npz"
     if not p.is_file():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from rangeslam._validation import as_float_array, as_scalar, frozen, shape_str
+from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 
 __all__ = ["LoadedRirs", "SilentRirWarning", "load_rirs"]
@@ -113,6 +114,10 @@ def load_rirs(
             - a directory: its WAV files, one mono RIR each, in natural order of their names
               (``mic2.wav`` before ``mic10.wav``);
             - a list of WAV files, one mono RIR each, in the order given.
+
+            Each path is used as given when it exists, else looked up under the data folder
+            (:func:`rangeslam.datasets.data_path`: ``$RANGESLAM_DATA``, else ``../shared/data``),
+            so ``"dechorate/rirs_src0_12mics.npz"`` reads the dEchorate RIRs.
         fs: sampling rate, Hz, for an npz without ``fs``. When the files state one, ``fs`` must
             agree with it (it is a check, never a resampling).
 
@@ -124,12 +129,13 @@ def load_rirs(
         ends before its header says), wrong shapes, NaN or infinite samples, files
         of different lengths or sampling rates (nothing is padded, cropped or resampled), a
         multichannel file among several, ``fs`` missing or contradicting the file.
-        InvalidInputError: no such file, a directory without WAV files, a bad ``fs``.
+        InvalidInputError: no such file (DataNotFoundError, naming the paths tried), a directory
+        without WAV files, a bad ``fs``.
     """
     if fs is not None:
         fs = check_fs(fs)
     if isinstance(path_or_paths, str | Path):
-        p = Path(path_or_paths)
+        p = data_path(path_or_paths, what="RIR file")
         if p.is_dir():
             paths = sorted(
                 (q for q in p.iterdir() if q.suffix.lower() == ".wav" and q.is_file()),
@@ -146,7 +152,7 @@ def load_rirs(
             raise InvalidInputError(
                 f"path_or_paths must be a path or a list of paths; got {path_or_paths!r:.80}"
             )
-        paths = [Path(q) for q in path_or_paths]
+        paths = [data_path(q, what="RIR file") for q in path_or_paths]
         if not paths:
             raise InvalidInputError("path_or_paths must name at least one file; got none")
     else:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from rangeslam._validation import frozen, shape_str
+from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 
 __all__ = ["XTDOA_CITATION", "XTDOA_FILE", "XtdoaDataset", "xtdoa"]
@@ -58,17 +59,20 @@ def _field(data: dict, key: str, path: Path, shape: tuple[int, ...] | None) -> n
     return value
 
 
-def xtdoa(path: str | Path) -> XtdoaDataset:
+def xtdoa(path: str | Path = "xtdoa") -> XtdoaDataset:
     """Load the xtdoa data from ``path`` (the directory holding ``real_data_M12_K65.mat``, or
-    the file itself).
+    the file itself): a path, or a name under the data folder
+    (:func:`rangeslam.datasets.data_path`; default ``xtdoa``: ``$RANGESLAM_DATA/xtdoa``, else
+    ``../shared/data/xtdoa``).
 
-    Raises InvalidInputError when the path does not exist and DataFormatError when the file is
-    not a MATLAB file with ``T`` (M, K), ``W`` (M, K) of 0/1 and ``X_r`` (3, M).
+    Raises DataNotFoundError (an InvalidInputError) when the path does not exist, naming the
+    paths tried; InvalidInputError when the directory does not hold the file; DataFormatError
+    when the file is not a MATLAB file with ``T`` (M, K), ``W`` (M, K) of 0/1 and ``X_r`` (3, M).
     """
     from scipy.io import loadmat
     from scipy.io.matlab import MatReadError
 
-    p = Path(path)
+    p = data_path(path, what="xtdoa directory or file")
     file = p / XTDOA_FILE if p.is_dir() else p
     if not file.is_file():
         raise InvalidInputError(
