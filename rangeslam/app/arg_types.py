@@ -9,6 +9,7 @@ from pathlib import Path
 __all__ = [
     "SEED_MAX",
     "SIGMA_MAX",
+    "float_in",
     "fraction",
     "int_in",
     "noise_level",
@@ -104,6 +105,24 @@ def positive_float(text: str) -> float:
     if not (value > 0 and value < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a positive number; got {shown(text)}")
     return value
+
+
+def float_in(low: float, high: float, unit: str = ""):
+    """An argument type: a number in [low, high] (``unit`` after the limits in the message)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a number; got {shown(text)}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(
+                f"must be from {low:g} to {high:g}{unit}; got {shown(text)}"
+            )
+        return value
+
+    parse.__name__ = "number"
+    return parse
 
 
 def int_in(low: int, high: int):

@@ -18,7 +18,12 @@ from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
 from rangeslam.app.simulate_command import add_simulate_parser
 
-__all__ = ["CliParser", "DefaultsHelpFormatter", "build_parser"]
+__all__ = ["RUN_FS_LIMITS", "SPEED_LIMITS", "CliParser", "DefaultsHelpFormatter", "build_parser"]
+
+#: ``run --fs``: sampling rates of recorded RIRs, Hz.
+RUN_FS_LIMITS = (1000.0, 1_000_000.0)
+#: ``run --c``: speed of sound, m/s (air at -100 to +500 degC is 220-440; water about 1500).
+SPEED_LIMITS = (100.0, 2000.0)
 
 
 class CliParser(argparse.ArgumentParser):
@@ -328,8 +333,9 @@ def _add_run(sub) -> None:
     run.add_argument("rirs", nargs="+", type=Path, metavar="RIRS", help=".npz, .wav or directory")
     run.add_argument(
         "--fs",
-        type=arg_types.positive_float,
-        help="sampling rate, Hz (for an npz without fs; a check for WAVs)",
+        type=arg_types.float_in(*RUN_FS_LIMITS, " Hz"),
+        help=f"sampling rate, Hz, {RUN_FS_LIMITS[0]:g} to {RUN_FS_LIMITS[1]:g} (for an npz "
+        "without fs; a check for the files that state one)",
     )
     known = run.add_mutually_exclusive_group()
     known.add_argument(
@@ -356,8 +362,9 @@ def _add_run(sub) -> None:
     )
     run.add_argument(
         "--c",
-        type=arg_types.positive_float,
-        help="speed of sound, m/s (default: the npz's c, else 343)",
+        type=arg_types.float_in(*SPEED_LIMITS, " m/s"),
+        help=f"speed of sound, m/s, {SPEED_LIMITS[0]:g} to {SPEED_LIMITS[1]:g} (default: the "
+        "npz's c, else 343)",
     )
     run.add_argument("--dim", type=int, choices=(2, 3), default=3, help="2 or 3 (walks; default 3)")
     run.add_argument(

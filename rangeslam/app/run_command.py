@@ -17,7 +17,15 @@ from typing import Any
 
 from rangeslam.app.progress import format_seconds
 
-__all__ = ["RunInputs", "TruthErrors", "errors_against_truth", "read_matrix", "run", "run_inputs"]
+__all__ = [
+    "RunInputs",
+    "TruthErrors",
+    "errors_against_truth",
+    "load_for_run",
+    "read_matrix",
+    "run",
+    "run_inputs",
+]
 
 
 @dataclass(frozen=True)
@@ -69,6 +77,32 @@ def read_matrix(path: Path, flag: str):
     except (OSError, ValueError) as exc:
         raise DataFormatError(f"{flag} {path}: not a readable numeric matrix ({exc})") from exc
     return arr
+
+
+def load_for_run(args: argparse.Namespace):
+    """The RIRs named on the command line (``load_rirs``), with the errors that concern a flag
+    naming it: several files with an .npz among them (RIRS), a --fs the files contradict."""
+    from rangeslam.datasets import load_rirs
+    from rangeslam.errors import DataFormatError, InvalidInputError
+
+    paths = args.rirs
+    if len(paths) > 1 and any(p.suffix.lower() == ".npz" for p in paths):
+        raise InvalidInputError(
+            "RIRS: give one .npz, or WAV files; got " + ", ".join(str(p) for p in paths[:4])
+        )
+    source = paths[0] if len(paths) == 1 else paths
+    if args.fs is None:
+        return load_rirs(source)
+    try:
+        loaded = load_rirs(source)  # the files' own rate, when they state one
+    except DataFormatError:
+        return load_rirs(source, fs=args.fs)  # an npz without fs, or another error, raised again
+    if loaded.fs != args.fs:
+        raise InvalidInputError(
+            f"--fs {args.fs:g}: {source if len(paths) == 1 else paths[0]} is sampled at "
+            f"{loaded.fs:g} Hz (--fs is a check, never a resampling)"
+        )
+    return loaded
 
 
 def _keyframes(args: argparse.Namespace, loaded):
@@ -192,14 +226,14 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
     """Load the RIRs, read what is known, run the pipeline; bad input and warnings recorded."""
     import warnings
 
-    from rangeslam.acoustics.pipeline import load_rirs, run_rirs
+    from rangeslam.acoustics.pipeline import run_rirs
     from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
     loaded = inputs = res = error = None
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always", UserWarning)
         try:
-            loaded = load_rirs(args.rirs[0] if len(args.rirs) == 1 else args.rirs, fs=args.fs)
+            loaded = load_for_run(args)
             inputs = run_inputs(args, loaded)
             started = _announce(loaded, inputs)
             res = run_rirs(

@@ -20,24 +20,56 @@ __all__ = ["add_simulate_parser", "simulate_room", "simulate_walk"]
 #: ``--room`` choices: the rooms of ``rangeslam demo`` (:func:`rangeslam.app.experiments.demo_rooms`).
 ROOMS = {"shoebox": "shoebox", "cut-corner": "cut corner"}
 
+#: --fs and --order: the limits rangeslam.sim.rir checks (MIN_SIM_FS, MAX_SIM_FS, MAX_SIM_ORDER;
+#: tests/test_cli_limits.py checks they agree), here so that --help imports no numpy.
+FS_LIMITS = (1000, 1_000_000)
+MAX_ORDER = 30
+#: --size: each side of a simulated shoebox, metres.
+SIZE_LIMITS = (0.5, 100.0)
+#: --mics of ``simulate room``.
+MAX_MICS = 256
+#: --steps and --rirs-per-step of ``simulate walk``, and the walk's RIRs, (M - 1) K + 1, at most
+#: MAX_WALK_RIRS: 1000 steps of 8 RIRs at 16 kHz took 21 s and 0.4 GB; 100000 steps ran
+#: pyroomacoustics out of memory.
+MAX_STEPS = 1000
+MAX_RIRS_PER_STEP = 64
+MAX_WALK_RIRS = 10_000
+#: --noise: white noise std as a fraction of the largest sample.
+MAX_NOISE = 100.0
 
-def _at_least(minimum: int, what: str):
-    """An argument type: an integer >= ``minimum`` (``what`` says why, in the user's terms)."""
 
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"must be an integer; got {arg_types.shown(text)}"
-            ) from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(
-                f"must be >= {minimum} ({what}); got {arg_types.shown(text)}"
-            )
-        return value
+def _side(text: str) -> float:
+    """A shoebox side in metres, in SIZE_LIMITS."""
+    value = arg_types.positive_float(text)
+    low, high = SIZE_LIMITS
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(
+            f"must be from {low:g} to {high:g} m; got {arg_types.shown(text)}"
+        )
+    return value
 
-    return parse
+
+def _coordinate(text: str) -> float:
+    """A finite coordinate in metres (whether it is in the room is checked with the room)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a number of metres; got {arg_types.shown(text)}"
+        ) from None
+    if not abs(value) < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number; got {arg_types.shown(text)}")
+    return value
+
+
+def _noise(text: str) -> float:
+    """A float in [0, MAX_NOISE]."""
+    value = arg_types.non_negative(text)
+    if not value <= MAX_NOISE:
+        raise argparse.ArgumentTypeError(
+            f"must be from 0 to {MAX_NOISE:g}; got {arg_types.shown(text)}"
+        )
+    return value
 
 
 def _absorption(text: str) -> float:
@@ -85,13 +117,18 @@ def add_simulate_parser(sub) -> None:
     which.add_argument("--room", choices=tuple(ROOMS), default="shoebox", help="the demo's rooms")
     which.add_argument(
         "--size",
-        type=arg_types.positive_float,
+        type=_side,
         nargs=3,
         metavar=("X", "Y", "Z"),
-        help="a shoebox of this size, metres (instead of --room)",
+        help=f"a shoebox of this size, metres, each side {SIZE_LIMITS[0]:g} to "
+        f"{SIZE_LIMITS[1]:g} (instead of --room)",
     )
     room.add_argument(
-        "--mics", type=_at_least(4, "a room in 3-D"), default=8, metavar="M", help="microphones"
+        "--mics",
+        type=arg_types.int_in(4, MAX_MICS),
+        default=8,
+        metavar="M",
+        help=f"microphones, 4 (a room in 3-D) to {MAX_MICS}",
     )
     _add_common(room, fs=48000)
     room.set_defaults(func=simulate_room)
@@ -109,21 +146,27 @@ def add_simulate_parser(sub) -> None:
     )
     walk.add_argument(
         "--size",
-        type=arg_types.positive_float,
+        type=_side,
         nargs=3,
         default=[5.0, 4.0, 2.6],
         metavar=("X", "Y", "Z"),
-        help="the shoebox, metres (the paper's Fig. 5 room)",
+        help=f"the shoebox, metres (the paper's Fig. 5 room), each side {SIZE_LIMITS[0]:g} to "
+        f"{SIZE_LIMITS[1]:g}",
     )
     walk.add_argument(
-        "--steps", type=_at_least(3, "SLAM needs 3 steps"), default=15, metavar="M", help="steps"
+        "--steps",
+        type=arg_types.int_in(3, MAX_STEPS),
+        default=15,
+        metavar="M",
+        help=f"positions of the walk, 3 (SLAM's least) to {MAX_STEPS}; the RIRs, (M - 1) K + 1, "
+        f"at most {MAX_WALK_RIRS}",
     )
     walk.add_argument(
         "--rirs-per-step",
-        type=arg_types.positive_int,
+        type=arg_types.int_in(1, MAX_RIRS_PER_STEP),
         default=8,
         metavar="K",
-        help="RIRs recorded each step (the steps are every K-th RIR)",
+        help=f"RIRs recorded each step, 1 to {MAX_RIRS_PER_STEP} (the steps are every K-th RIR)",
     )
     walk.add_argument(
         "--bounds", type=_bound, default=0.2, help="step bounds: true step times 1 -+ this"
@@ -136,22 +179,31 @@ def _add_common(p: argparse.ArgumentParser, *, fs: int) -> None:
     """The options of both kinds: loudspeaker, seed, sampling rate, room acoustics, noise."""
     p.add_argument(
         "--source",
-        type=float,
+        type=_coordinate,
         nargs=3,
         metavar=("X", "Y", "Z"),
         help="loudspeaker position, metres (default: at random, 0.5 m from the walls)",
     )
     p.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
-    p.add_argument("--fs", type=arg_types.positive_int, default=fs, help="sampling rate, Hz")
+    p.add_argument(
+        "--fs",
+        type=arg_types.int_in(*FS_LIMITS),
+        default=fs,
+        help=f"sampling rate, Hz, {FS_LIMITS[0]} to {FS_LIMITS[1]}",
+    )
     p.add_argument("--absorption", type=_absorption, default=0.2, help="energy absorbed by a wall")
     p.add_argument(
-        "--order", type=arg_types.positive_int, default=3, help="highest reflection order simulated"
+        "--order",
+        type=arg_types.int_in(1, MAX_ORDER),
+        default=3,
+        help=f"highest reflection order simulated, 1 to {MAX_ORDER}",
     )
     p.add_argument(
         "--noise",
-        type=arg_types.non_negative,
+        type=_noise,
         default=0.0,
-        help="std of white noise added to every sample, as a fraction of the largest sample",
+        help=f"std of white noise added to every sample, as a fraction of the largest sample "
+        f"(0 to {MAX_NOISE:g})",
     )
 
 
@@ -248,6 +300,13 @@ def simulate_walk(args: argparse.Namespace) -> int:
     outside = _source_outside(Room.shoebox(args.size), args)
     if outside is not None:
         return _refuse("--source", outside)
+    n_rirs = (args.steps - 1) * args.rirs_per_step + 1
+    if n_rirs > MAX_WALK_RIRS:
+        return _refuse(
+            "--steps",
+            f"{args.steps} positions with {args.rirs_per_step} RIRs a step (--rirs-per-step) are "
+            f"{n_rirs} RIRs; at most {MAX_WALK_RIRS}",
+        )
     try:
         rec = walk_recording(
             args.size,
