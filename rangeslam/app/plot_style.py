@@ -84,16 +84,17 @@ def plain_log_axis(
 
 
 def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D") -> None:
-    """Draw a lower bound against ``x`` where it is finite (dashed, with markers, so isolated
-    points show; broken where it is not) and mark with a triangle at the top edge, labelled
-    'bound infinite' (in the legend 'bound infinite: not identifiable'), each x where it is
-    infinite. NaN (no bound, or one not
+    """Draw a lower bound against ``x`` where it is finite (dashed, with large hollow markers on
+    top, so isolated points show, also over an oracle at the same value; broken where it is
+    not) and mark with a triangle at the top edge, labelled 'bound infinite' (in the legend
+    'bound infinite: not identifiable'), each x where it is infinite. NaN (no bound, or one not
     attained) is left out."""
     x, bound = np.asarray(x, dtype=float), np.asarray(bound, dtype=float)
     finite = np.isfinite(bound) & (bound > 0)
     if finite.any():
         shown = np.where(finite, bound, np.nan)
-        ax.plot(x, shown, ls="--", marker=marker, color=color, ms=5, label=label)
+        style = {"marker": marker, "ms": 9, "mfc": "none", "mew": 1.4, "zorder": 4}
+        ax.plot(x, shown, ls="--", color=color, label=label, **style)  # hollow: over the oracle
     inf = np.isinf(bound)
     if inf.any():
         style = {"color": color, "marker": "^", "label": "bound infinite: not identifiable"}
@@ -103,11 +104,11 @@ def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D")
 def mark_not_attained(
     ax, x, *, color: str = "0.35", text: str = "not\nattained", label: str = NOT_ATTAINED
 ) -> None:
-    """Mark each ``x`` where the bound is not attained by the oracle (and so not drawn): a hollow
-    diamond at the top edge, ``text`` under it, ``label`` in the legend."""
+    """Mark each ``x`` where the bound is not attained by the oracle (and so not drawn): a
+    cross at the top edge, ``text`` under it, ``label`` in the legend."""
     x = np.asarray(x, dtype=float)
     if x.size:
-        _top_marks(ax, x, text, color=color, marker="D", label=label)
+        _top_marks(ax, x, text, color=color, marker="x", label=label)
 
 
 def _top_marks(ax, x, text: str, *, color: str, marker: str, label: str) -> None:
