@@ -403,7 +403,9 @@ def test_gtsam_example_bad_input(p1, kwargs, name):
     ],
 )
 def test_data_must_be_a_plaza_dataset(p1, call):
-    with pytest.raises(InvalidInputError, match="data must be a PlazaDataset"):
+    with pytest.raises(
+        InvalidInputError, match=r"data must be a RangeOdometry .* or a PlazaDataset"
+    ):
         call(p1)
 
 

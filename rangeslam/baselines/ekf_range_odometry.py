@@ -83,7 +83,8 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2
 
 from rangeslam._validation import as_rng, frozen
-from rangeslam.baselines.odometry_only import resolve_start_pose
+from rangeslam.baselines.odometry_only import BaselineData, baseline_data
+from rangeslam.beacons.data import RangeOdometry
 from rangeslam.beacons.options import RANGE_CALIBRATIONS
 from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
@@ -114,6 +115,18 @@ log = logging.getLogger(__name__)
 #   offsets -2.3 to 3.9 m (each pair from one beacon's ranges alone).
 # The default odometry_sigma is a little above the per-step odometry errors measured on Plaza1
 # (about 0.015 m along and across the track per 0.2 s step).
+
+
+# Defaults derived from the data (issue 36: a 3 m room and a 300 m field alike), each set so that
+# Plaza1 keeps the figures above: range_sigma twice the ranges' own noise (a filter keeps no past
+# pose to relinearise, so its ranges carry the linearisation error too; Plaza1 1.1 m, formerly a
+# fixed 1 m), init_spread twice range_sigma (2.2 m, formerly 2 m: a beacon's mirror across the
+# path differs in range by about twice the spread), odometry a tenth of the median step along
+# (0.020 m, formerly 0.02 m) and 0.005 rad per step.
+RANGE_SIGMAS = 2.0
+INIT_SPREAD_SIGMAS = 2.0
+ODOMETRY_STEP_FRACTION = 0.1
+ODOMETRY_HEADING_SIGMA = 0.005
 
 
 class _Filter(ExtendedKalmanFilter):
@@ -212,14 +225,14 @@ class _EkfState:
 
 
 def ekf_range_odometry(
-    data: PlazaDataset,
+    data: RangeOdometry | PlazaDataset,
     *,
     start_pose: ArrayLike | None = None,
-    range_sigma: float = 1.0,
-    odometry_sigma: tuple[float, float] = (0.02, 0.005),
+    range_sigma: float | None = None,
+    odometry_sigma: tuple[float, float] | None = None,
     gate_probability: float = 0.99,
     init_ranges: int = 30,
-    init_spread: float = 2.0,
+    init_spread: float | None = None,
     range_calibration: str | None = "affine",
     per_beacon: bool = False,
     calibration_sigma: tuple[float, float] = (0.2, 10.0),
@@ -229,16 +242,23 @@ def ekf_range_odometry(
     """Poses (N + 1, 3), beacons (B, 2) and the range calibration by EKF SLAM (module notes).
 
     Args:
-        data: a CMU Plaza data set (:func:`rangeslam.datasets.plaza`) or one built like it.
+        data: the odometry and ranges as :func:`rangeslam.beacons.beacon_slam` takes them
+            (:class:`~rangeslam.beacons.RangeOdometry`), or a CMU Plaza data set
+            (:func:`rangeslam.datasets.plaza`) or one built like it.
         start_pose: (3,) x, y [m], heading [rad] of pose 0, taken as exact; default
-            ``data.truth[0]`` (the only use of ground truth, to fix the gauge).
-        range_sigma: range noise standard deviation [m].
-        odometry_sigma: (distance, heading change) noise standard deviation per step [m, rad].
+            ``data.truth[0]`` for a Plaza set (the only use of ground truth, to fix the gauge),
+            the origin facing +x for a RangeOdometry.
+        range_sigma: range noise standard deviation [m]; None (default): :data:`RANGE_SIGMAS`
+            times the ranges' own noise (:func:`rangeslam.beacons.defaults.range_noise`).
+        odometry_sigma: (distance, heading change) noise standard deviation per step [m, rad];
+            None (default): :data:`ODOMETRY_STEP_FRACTION` of the median step, and
+            :data:`ODOMETRY_HEADING_SIGMA`.
         gate_probability: ranges whose squared innovation over its variance exceeds this quantile
             of chi-square with 1 degree of freedom are rejected (0.99: 6.63).
         init_ranges: ranges a beacon needs before it is initialised.
         init_spread: RMS spread [m] of the buffered positions across their principal direction
-            needed before a beacon is initialised.
+            needed before a beacon is initialised; None (default): :data:`INIT_SPREAD_SIGMAS`
+            range sigmas.
         range_calibration: the range model, as :func:`rangeslam.beacons.beacon_slam`'s
             (:data:`rangeslam.beacons.RANGE_CALIBRATIONS`): measured range = (1 + s) *
             distance + b with s and b estimated ("affine", the default), s alone ("scale"), b
@@ -258,14 +278,15 @@ def ekf_range_odometry(
         The status is SOLVER_FAILED when the state or covariance becomes non-finite or the
         covariance loses positive semi-definiteness; the poses after that are NaN.
 
-    Raises InvalidInputError (naming the argument) for a ``data`` that is not a PlazaDataset, a
-    ``start_pose`` that is not a finite (3,) pose, non-positive or non-finite sigmas or spread,
-    ``odometry_sigma`` or ``calibration_sigma`` not of length 2, ``gate_probability`` outside
-    (0, 1), ``range_calibration`` not in RANGE_CALIBRATIONS, ``per_beacon`` not a bool, or
-    ``init_ranges`` or ``n_starts`` not positive integers (``init_ranges`` at least 3).
+    Raises InvalidInputError naming the argument that is out of the ranges above (``data``
+    neither kind, ``init_ranges`` under 3, sigmas, spread or counts not positive, ...).
     """
     t0 = time.perf_counter()
-    start = resolve_start_pose(data, start_pose)
+    data = baseline_data(data, start_pose)  # the fields read below, from either kind of data
+    start = data.start
+    range_sigma, odometry_sigma, init_spread = _from_the_data(
+        data, range_sigma, odometry_sigma, init_spread
+    )
     opts = EkfRangeOptions(
         range_sigma=range_sigma,
         odometry_sigma=odometry_sigma,
@@ -283,13 +304,30 @@ def ekf_range_odometry(
     return _verdict(st, data, opts, poses, time.perf_counter() - t0)
 
 
-def _run_filter(st: _EkfState, data: PlazaDataset, opts: EkfRangeOptions, rng) -> np.ndarray:
+def _from_the_data(data: BaselineData, range_sigma, odometry_sigma, init_spread):
+    """(range_sigma, odometry_sigma, init_spread) with those left at None derived from the data's
+    range noise and median step (the constants above the filter)."""
+    from rangeslam.beacons.defaults import range_noise
+
+    if range_sigma is None:
+        range_sigma = RANGE_SIGMAS * range_noise(data)
+    if odometry_sigma is None:
+        moved = np.abs(np.asarray(data.odometry, dtype=float)[:, 0])
+        moved = moved[np.isfinite(moved) & (moved > 0)]
+        step = float(np.median(moved)) if moved.size else 1e-6 * float(np.median(data.ranges))
+        odometry_sigma = (ODOMETRY_STEP_FRACTION * step, ODOMETRY_HEADING_SIGMA)
+    if init_spread is None and isinstance(range_sigma, float | int | np.number) and range_sigma > 0:
+        init_spread = INIT_SPREAD_SIGMAS * float(range_sigma)
+    return range_sigma, odometry_sigma, init_spread
+
+
+def _run_filter(st: _EkfState, data: BaselineData, opts: EkfRangeOptions, rng) -> np.ndarray:
     """Predict at each pose, then process its ranges in time order; stops at divergence.
     Returns the filtered poses (N + 1, 3) (NaN from the divergence on)."""
     n_poses = len(data.pose_time)
     odometry = np.asarray(data.odometry, dtype=float)
     ranges = np.asarray(data.ranges, dtype=float)
-    beacon_row = np.asarray(data.range_beacon_index)
+    beacon_row = np.asarray(data.range_beacon)
     range_pose = np.asarray(data.range_pose)
     order = np.argsort(range_pose, kind="stable")
     first = np.searchsorted(range_pose[order], np.arange(n_poses + 1), side="left")
@@ -330,7 +368,7 @@ def _predict(ekf: _Filter, step: np.ndarray, q_odo: np.ndarray) -> None:
 
 
 def _buffer_range(
-    st: _EkfState, data: PlazaDataset, j: int, r: int, k: int, opts: EkfRangeOptions, rng
+    st: _EkfState, data: BaselineData, j: int, r: int, k: int, opts: EkfRangeOptions, rng
 ) -> None:
     """Buffer range ``r`` to beacon ``j`` (not yet initialised) with the filter's position; once
     ``init_ranges`` are buffered, try to initialise the beacon (module notes)."""
@@ -408,10 +446,11 @@ def _update_range(st: _EkfState, j: int, r: int, measured: float, opts: EkfRange
 
 
 def _verdict(
-    st: _EkfState, data: PlazaDataset, opts: EkfRangeOptions, poses: np.ndarray, seconds: float
+    st: _EkfState, data: BaselineData, opts: EkfRangeOptions, poses: np.ndarray, seconds: float
 ) -> BeaconSlamResult:
     """The result: beacons and calibration from the final state; SOLVER_FAILED when the filter
-    diverged, else CONVERGED."""
+    diverged; NOT_IDENTIFIABLE when it used no range or left a beacon it heard uninitialised
+    (its ranges never reached the filter: nothing places it); else CONVERGED."""
     n_beacons = len(data.beacon_ids)
     beacons = np.full((n_beacons, 2), np.nan)
     scale = np.full(n_beacons, np.nan)
@@ -423,11 +462,25 @@ def _verdict(
     if st.diverged_at is None and not _healthy(st.ekf):
         st.diverged_at = len(data.pose_time) - 1
     missing = [int(data.beacon_ids[j]) for j in np.flatnonzero(st.offset < 0)]
+    heard = np.isin(np.arange(n_beacons), data.range_beacon)
+    unplaced = [int(data.beacon_ids[j]) for j in np.flatnonzero(heard & (st.offset < 0))]
     notes = [f"{int(st.inlier.sum())} of {len(data.ranges)} ranges used, {st.n_gated} gated out"]
     if missing:
         notes.append(f"beacons never initialised: {missing}")
+    status = Status.CONVERGED
     if st.diverged_at is not None:
+        status = Status.SOLVER_FAILED
         notes.insert(0, f"the filter diverged at pose {st.diverged_at}: non-finite or indefinite")
+    elif unplaced or not st.inlier.any():
+        status = Status.NOT_IDENTIFIABLE
+        notes.insert(
+            0,
+            f"beacons heard but never initialised: {unplaced} (fewer than init_ranges = "
+            f"{opts.init_ranges} ranges from positions spread init_spread = "
+            f"{opts.init_spread:.3g} m across their line)"
+            if unplaced
+            else "no range was used",
+        )
     return BeaconSlamResult(
         method="ekf",
         pose_time=frozen(np.array(data.pose_time, dtype=float)),
@@ -435,7 +488,7 @@ def _verdict(
         beacons=frozen(beacons),
         range_bias=frozen(bias) if opts.has_b else None,
         range_inlier=frozen(st.inlier),
-        status=Status.CONVERGED if st.diverged_at is None else Status.SOLVER_FAILED,
+        status=status,
         message="; ".join(notes),
         range_scale=frozen(scale) if opts.has_s else None,
         seconds=seconds,

@@ -53,7 +53,8 @@ NOISE_FLOOR = 1e-6
 
 
 def range_noise(data: RangeOdometry) -> float:
-    """The ranges' noise standard deviation [m], from the data alone.
+    """The ranges' noise standard deviation [m], from the data alone (``data``: a RangeOdometry
+    or anything with its odometry, range_pose, range_beacon and ranges).
 
     For three consecutive ranges to one beacon at distances s0 < s1 < s2 travelled, the middle
     one minus its linear interpolation from the outer two, r1 - ((1 - w) r0 + w r2) with
@@ -65,7 +66,7 @@ def range_noise(data: RangeOdometry) -> float:
     """
     travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
     parts = []
-    for b in range(data.n_beacons):
+    for b in np.unique(data.range_beacon):
         idx = np.flatnonzero(data.range_beacon == b)
         if len(idx) < 3:
             continue
