@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError
-from rangeslam.beacons import RangeOdometry, beacon_slam, simulate_beacon_run
+from rangeslam.beacons import RangeOdometry, beacon_slam, dead_reckoning, simulate_beacon_run
 from rangeslam.beacons.defaults import (
     WINDOW_RANGES,
     odometry_noise,
@@ -119,3 +119,35 @@ def test_exact_ranges_give_a_positive_noise_floor():
         np.arange(4.0), [[1.0, 0.0]] * 3, [0, 1, 2, 3], [0, 0, 0, 0], [5.0, 4.0, 3.0, 2.0]
     )
     assert 0 < range_noise(data) <= 1e-5
+
+
+def _there_and_back(rng: np.random.Generator, range_std: float = 0.1):
+    """A robot that drives 1,000 steps of 0.12 m forwards round a 15 m curve, then 1,000 steps
+    backwards round a tighter one (negative odometry distances), ranging to four beacons; the
+    truth, and the data with odometry noise (5 mm, 2 mrad) and range noise ``range_std``."""
+    n = 2000
+    d = np.where(np.arange(n) < n // 2, 0.12, -0.12)
+    turn = np.where(np.arange(n) < n // 2, 0.12 / 15.0, 0.12 / 8.0)
+    truth = dead_reckoning(np.column_stack([d, turn]), np.zeros(3))
+    angles = np.array([0.3, 1.9, 3.4, 5.0])
+    beacons = truth[:, :2].mean(axis=0) + 20.0 * np.column_stack([np.cos(angles), np.sin(angles)])
+    heard = np.flatnonzero(rng.random(n + 1) < 0.4)
+    which = rng.integers(0, 4, len(heard))
+    dist = np.linalg.norm(truth[heard, :2] - beacons[which], axis=1)
+    odometry = np.column_stack([d, turn]) + rng.normal(0, 1, (n, 2)) * [0.005, 0.002]
+    data = RangeOdometry.create(
+        np.arange(n + 1) * 0.2, odometry, heard, which, dist + rng.normal(0, range_std, len(heard))
+    )
+    return data, truth, beacons
+
+
+def test_backward_steps_are_taken():
+    """Negative odometry distances are steps backwards: the robot that reverses is mapped as
+    well as the range noise allows (mean APE below the range sigma; measured 0.029-0.036 m with
+    0.1 m ranges), and the window count and noise derivation use the path's length."""
+    data, truth, beacons = _there_and_back(np.random.default_rng(HELD_OUT_SEEDS[1]))
+    res = beacon_slam(data, range_sigma=0.1)
+    assert res.converged, res.message
+    fit = ape(res.poses[:, :2], truth[:, :2], res.beacons, beacons)
+    assert ape_statistics(fit.errors).mean < 0.1
+    assert range_noise(data) == pytest.approx(0.1, rel=0.2)

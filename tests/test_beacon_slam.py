@@ -178,7 +178,6 @@ def _valid():
     ("change", "match"),
     [
         (dict(odometry=[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), "odometry must have shape"),
-        (dict(odometry=[[-1.0, 0.0], [1.0, 0.1]]), "distances must be >= 0; row 0"),
         (dict(odometry=[[np.nan, 0.0], [1.0, 0.1]]), r"odometry must be finite; entry \(0, 0\)"),
         (dict(pose_time=[0.0, 1.0]), "pose_time must have shape"),
         (dict(pose_time=[0.0, 2.0, 1.0]), "pose_time must increase strictly; entry 2"),

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
 
-__all__ = ["MAX_BEACONS", "RangeOdometry", "dead_reckoning"]
+__all__ = ["MAX_BEACONS", "RangeOdometry", "dead_reckoning", "path_length"]
 
 # Beacons are rows of (B, ...) arrays and variables of the factor graph: an index beyond this is
 # refused (one stray id of 10^12 used to allocate ~931 GiB). Sparse or large ids are mapped to
@@ -33,8 +33,10 @@ class RangeOdometry:
 
     Attributes:
         pose_time: (N + 1,) time of each pose [s], strictly increasing (pose 0 is the start).
-        odometry: (N, 2) per step: distance travelled [m] (>= 0) and heading change [rad]; step k
-            takes pose k to pose k + 1, moving then turning (Pose2(d, 0, dtheta)).
+        odometry: (N, 2) per step: distance travelled [m] and heading change [rad]; step k
+            takes pose k to pose k + 1, moving then turning (Pose2(d, 0, dtheta)). A negative
+            distance is a step backwards (the heading unchanged by it); the windows and the
+            derived defaults count the path's length, |d|.
         range_pose: (R,) index of the pose each range was measured from, non-decreasing (time
             order, which the incremental mode needs).
         range_beacon: (R,) beacon of each range, a row index 0..B-1 (B <= MAX_BEACONS).
@@ -63,9 +65,6 @@ class RangeOdometry:
                 f"{shape_str(odo.shape)}"
             )
         _finite(odo, "odometry")
-        if np.any(odo[:, 0] < 0):
-            i = int(np.argmax(odo[:, 0] < 0))
-            raise InvalidInputError(f"odometry distances must be >= 0; row {i} has {odo[i, 0]}")
         t = as_float_array(self.pose_time, "pose_time")
         if t.shape != (len(odo) + 1,):
             raise InvalidInputError(
@@ -228,6 +227,12 @@ def all_heard_placed(data: RangeOdometry, placed: np.ndarray) -> bool:
     """Every beacon that was ranged to got a position (beacons never heard do not count)."""
     heard = np.isin(np.arange(data.n_beacons), data.range_beacon)
     return bool(np.all(placed[heard]))
+
+
+def path_length(odometry: np.ndarray) -> np.ndarray:
+    """(N + 1,) length of the path travelled to each pose [m]: the running sum of |d| (a step
+    backwards lengthens the path too)."""
+    return np.concatenate([[0.0], np.cumsum(np.abs(odometry[:, 0]))])
 
 
 def dead_reckoning(odometry: np.ndarray, start_pose: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam.beacons.data import RangeOdometry
+from rangeslam.beacons.data import RangeOdometry, path_length
 from rangeslam.beacons.options import BeaconSlamOptions, min_window_length
 
 __all__ = [
@@ -64,7 +64,7 @@ def range_noise(data: RangeOdometry) -> float:
     tail. A constant or proportional range error (the calibration) is smooth and drops out.
     Fewer than three ranges to every beacon: the floor.
     """
-    travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
+    travelled = path_length(np.asarray(data.odometry, dtype=float))
     parts = []
     for b in np.unique(data.range_beacon):
         idx = np.flatnonzero(data.range_beacon == b)

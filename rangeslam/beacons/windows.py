@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rangeslam._robust import MAD_TO_STD
-from rangeslam.beacons.data import RangeOdometry, compose_poses
+from rangeslam.beacons.data import RangeOdometry, compose_poses, path_length
 from rangeslam.beacons.graph import placed_error
 from rangeslam.beacons.options import BeaconSlamOptions
 from rangeslam.errors import InvalidInputError, SolverError
@@ -109,7 +109,7 @@ def windows(data: RangeOdometry, length: float) -> tuple[np.ndarray, np.ndarray]
     a beacon (a 2-D position needs ranges from 3 poses off one line), and their number, which
     the stitching loops over, grows without bound as ``length`` shrinks.
     """
-    travelled = np.concatenate([[0.0], np.cumsum(data.odometry[:, 0])])
+    travelled = path_length(data.odometry)
     shortest = MIN_POSES_PER_WINDOW * travelled[-1] / len(data.odometry)
     if length < shortest:
         raise InvalidInputError(
