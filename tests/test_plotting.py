@@ -159,7 +159,8 @@ def test_room_reconstruction_not_converged_far_image_and_sloped_side_view(
     top, side = fig.axes
     assert side.get_xlabel() == "y [m]"
     assert top.get_xlim()[1] < 5 + 0.5 * 5 + 1 and top.get_xlim()[0] > -5
-    assert any("beyond the plot" in t.get_text() for t in fig.texts)
+    assert any("beyond the plot" in t.get_text() for t in fig.axes[0].texts)
+    assert plot_style.overflow(fig) == []
 
 
 def test_room_estimate_walls_only_far_image(rng, tmp_path, keep_figure):

@@ -163,23 +163,31 @@ def legend_below(fig, axes, *, ncol: int = 3, fontsize: float = 8) -> None:
 
 
 def overflow(fig) -> list[str]:
-    """The texts of ``fig`` drawn (titles, labels, tick labels, legend entries, annotations)
-    that reach beyond its canvas, so a plain ``savefig`` would cut them off; empty when all
-    fit. Call after the layout is made."""
-    from matplotlib.text import Text
-
+    """What of ``fig`` reaches beyond its canvas, so a plain ``savefig`` would cut it off: the
+    texts (figure title and notes, axes titles, annotations, legend entries) by their text, an
+    axis (its drawn tick labels and its label) as '<axes title>: x axis'; empty when all fit.
+    Call after the layout is made."""
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     x0, y0, x1, y1 = fig.bbox.extents
-    out = []
-    for text in fig.findobj(Text):
-        hidden = text.axes is not None and not text.axes.get_visible()
-        if hidden or not (text.get_visible() and text.get_text()):
+
+    def beyond(box) -> bool:
+        return box.x0 < x0 - 1 or box.y0 < y0 - 1 or box.x1 > x1 + 1 or box.y1 > y1 + 1
+
+    texts = [*fig.texts, *(t for legend in fig.legends for t in legend.get_texts())]
+    found = []
+    for ax in fig.axes:
+        if not ax.get_visible():
             continue
-        box = text.get_window_extent(renderer)
-        if box.x0 < x0 - 1 or box.y0 < y0 - 1 or box.x1 > x1 + 1 or box.y1 > y1 + 1:
-            out.append(text.get_text())
-    return out
+        texts += [ax.title, *ax.texts]
+        for name, axis in (("x", ax.xaxis), ("y", ax.yaxis)):
+            box = axis.get_tightbbox(renderer)
+            if box is not None and beyond(box):
+                found.append(f"{ax.get_title()}: {name} axis")
+    for text in texts:
+        if text.get_visible() and text.get_text() and beyond(text.get_window_extent(renderer)):
+            found.append(text.get_text())
+    return found
 
 
 def verdict_title(title: str, converged: bool | None) -> str:

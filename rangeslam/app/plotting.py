@@ -121,7 +121,7 @@ def plot_room_reconstruction(
     if estimated_room is None:
         title = f"{title}: no room reconstructed" if title else "no room reconstructed"
     fig.suptitle(verdict_title(title, converged))
-    _note_far(fig, (lo, hi), image_sources, estimated_sources, d=d)
+    _note_far(axs[0][0], (lo, hi), image_sources, estimated_sources, d=d)
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
@@ -138,8 +138,9 @@ def _view_axes(ax, axes, labels, name: str, box) -> None:
     ax.grid(alpha=0.3)
 
 
-def _note_far(fig, box, *point_sets, d: int) -> None:
-    """A note at the figure's bottom-left counting the points of ``point_sets`` (arrays (N, d)
+def _note_far(ax, box, *point_sets, d: int) -> None:
+    """A note above the title of ``ax`` (the first view, so the layout leaves room for it and it
+    does not run into the figure's title) counting the points of ``point_sets`` (arrays (N, d)
     or None) outside ``box`` and the farthest one's distance from the box's centre."""
     lo, hi = box
     pts = [np.reshape(p, (-1, d)) for p in point_sets if p is not None and np.size(p)]
@@ -150,14 +151,17 @@ def _note_far(fig, box, *point_sets, d: int) -> None:
     _, outside = clip_to_box(pts, lo, hi)
     if outside.any():
         far = float(np.max(np.linalg.norm(pts[outside] - (lo + hi) / 2, axis=1)))
-        fig.text(
-            0.01,
-            0.99,
+        ax.annotate(
             f"{int(outside.sum())} estimated point(s) beyond the plot, drawn at its edge "
             f"(farthest {far:.1f} m from the room's centre)",
+            (0, 1),
+            xycoords="axes fraction",
+            xytext=(0, 24),
+            textcoords="offset points",
             fontsize=8,
-            va="top",
+            va="bottom",
             color="tab:red",
+            annotation_clip=False,
         )
 
 
@@ -417,7 +421,7 @@ def plot_room_estimate(
         if room is None:
             ax.set_title(name + " (walls cut through the loudspeaker)", fontsize=10)
     fig.suptitle(verdict_title(title or "room from RIRs", converged))
-    _note_far(fig, (lo, hi), image_sources, source, d=mics.shape[1])
+    _note_far(axs[0][0], (lo, hi), image_sources, source, d=mics.shape[1])
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
@@ -482,7 +486,7 @@ def plot_walk_estimate(
         frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
         ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
     fig.suptitle(verdict_title(title or "walk from RIRs", converged))
-    _note_far(fig, land_window, rec, src, d=d)
+    _note_far(axs[0], land_window, rec, src, d=d)
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
