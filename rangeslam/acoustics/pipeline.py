@@ -29,6 +29,7 @@ clipped one (3 or more consecutive samples at its largest magnitude, the detecto
 
 from __future__ import annotations
 
+import logging
 import math
 import warnings
 from collections.abc import Sequence
@@ -57,8 +58,11 @@ from rangeslam.datasets.rir_files import (
 )
 from rangeslam.errors import InvalidInputError
 from rangeslam.evaluation.metrics import SHOEBOX_WALLS, shoebox_wall_errors, trajectory_rmse
+from rangeslam.logsteps import logged_step
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import HasStatus, Status
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "MEASURED_RIR_OPTIONS",
@@ -432,6 +436,7 @@ class PipelineAnswer:
     keyframes: np.ndarray | None = None
 
 
+@logged_step(log, "room: detecting and labelling echoes, reconstructing the room")
 def _run_array(
     x: np.ndarray, fs: float, pts: np.ndarray, *, c: float, rng, options: RirRunOptions
 ) -> PipelineAnswer:

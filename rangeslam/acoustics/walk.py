@@ -9,6 +9,7 @@ one landmark by the EDM rank test with the trajectory known.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -34,6 +35,7 @@ from rangeslam.acoustics.echoes import (
 )
 from rangeslam.acoustics.tracking import EchoTracks, track_echoes
 from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.logsteps import logged_step
 from rangeslam.mdu.core import (
     canonical_frame,
     residual_status,
@@ -57,6 +59,11 @@ _PRUNE_ROUNDS = 3
 # entry further than this from its landmark's fit is taken for a wrong or merged echo.
 _GATE_K = 4.0
 _GATE_FLOOR = 0.1
+
+log = logging.getLogger(__name__)
+#: detect_echoes_many and track_echoes with their times logged (``rangeslam -v``).
+_detect_logged = logged_step(log, "walk: detecting echoes in every RIR")(detect_echoes_many)
+_track_logged = logged_step(log, "walk: tracking echoes from RIR to RIR")(track_echoes)
 # More than this share of the steps on a bound: the bounds decide the answer, not converged (a
 # 10-step walk given bounds 1.3x too long was 17 cm off with a 2 mm residual; helper review).
 _MAX_PINNED = 0.5
@@ -306,11 +313,11 @@ def walk_from_rirs(
     c, dim, isolation, dopts, topts, sopts = _check_walk_args(
         c, dim, isolation, detect_options, track_options, slam_options
     )
-    dets = tuple(detect_echoes_many(rirs, fs, **dopts))
+    dets = tuple(_detect_logged(rirs, fs, **dopts))
     prob = _parse_walk(dets, step_bounds, keyframes, dim, n_start, min_hits, isolation)
     topts.setdefault("c", c)
     max_step = topts.pop("max_step", _frame_steps(prob.bounds.upper, prob.keys, len(dets)))
-    tracks = track_echoes(dets, max_step, **topts)
+    tracks = _track_logged(dets, max_step, **topts)
     prob = replace(prob, gate_floor=_GATE_FLOOR * (c / dets[0].fs))
     key = tracks.rows(prob.keys)
     mask = _isolated(prob, key)
@@ -509,6 +516,7 @@ def _choose_start(prob: _WalkProblem, key: EchoTracks, mask: np.ndarray) -> _Sta
     return _StartChoice(candidates=candidates, start_cols=start_cols, hits=hits)
 
 
+@logged_step(log, "walk: SLAM on the tracks at the steps (EDM start, then GTSAM)")
 def _first_fit(prob: _WalkProblem, ranges, mask, chosen: _StartChoice, sopts, rng):
     """Steps 3-4: the EDM start on the direct path and the start tracks, then gated GTSAM.
     Returns (start, fit, gate) or a :class:`_Failure`."""
@@ -557,6 +565,7 @@ def _first_fit(prob: _WalkProblem, ranges, mask, chosen: _StartChoice, sopts, rn
     return start, fit0, gate
 
 
+@logged_step(log, "walk: landmarks from the other tracks")
 def _landmarks(prob: _WalkProblem, ranges, mask, candidates, fit0, gate):
     """Step 5: link the candidate tracks into landmarks on the trajectory of ``fit0`` and start
     each by least squares. Returns :class:`_Landmarks` or a :class:`_Failure`."""
@@ -577,6 +586,7 @@ def _landmarks(prob: _WalkProblem, ranges, mask, candidates, fit0, gate):
     )
 
 
+@logged_step(log, "walk: final fit of trajectory and landmarks")
 def _final_fit(prob: _WalkProblem, traj, land: _Landmarks, start_rms: float):
     """Step 6: gated GTSAM on all landmarks, those left with d or fewer ranges dropped, then a
     last run with ``_FINAL_KERNEL``. Returns :class:`_FinalFit` or a :class:`_Failure`."""
@@ -622,6 +632,7 @@ def _final_fit(prob: _WalkProblem, traj, land: _Landmarks, start_rms: float):
     return _FinalFit(fit=fit, ranges=r_all, mask=m_all, columns=cols, gate=gate, n_linked=n_linked)
 
 
+@logged_step(log, "walk: verdict (identifiability, residuals)")
 def _walk_verdict(prob, out: _WalkOut, key, start, land, final: _FinalFit, noise):
     """The residual test (chi-square with a known ``noise``, else relative RMS), the EDM start's
     and GTSAM's convergence, and the steps pinned on a bound; the answer in the canonical frame."""

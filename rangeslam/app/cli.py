@@ -14,15 +14,33 @@ import sys
 
 from rangeslam.app.parser import build_parser
 
-__all__ = ["build_parser", "main"]
+__all__ = ["StderrLog", "build_parser", "main"]
+
+
+class StderrLog(logging.Handler):
+    """rangeslam's log as lines ``rangeslam: message`` on the standard error of the moment."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Print the record's message."""
+        print(f"rangeslam: {record.getMessage()}", file=sys.stderr, flush=True)
+
+
+def _log_to_stderr(*, verbose: bool) -> None:
+    """rangeslam's log on standard error: its steps and times with -v (INFO), else warnings."""
+    log = logging.getLogger("rangeslam")
+    handler = next((h for h in log.handlers if isinstance(h, StderrLog)), None)
+    if handler is None:
+        handler = StderrLog()
+        log.addHandler(handler)
+    level = logging.INFO if verbose else logging.WARNING
+    handler.setLevel(level)
+    log.setLevel(level)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` (default: the command line), run the command, return its exit code."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s"
-    )
+    _log_to_stderr(verbose=getattr(args, "verbose", False))
     from rangeslam.errors import InvalidInputError, RangeSlamError
 
     try:

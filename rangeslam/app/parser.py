@@ -29,6 +29,18 @@ SPEED_LIMITS = (100.0, 2000.0)
 class CliParser(argparse.ArgumentParser):
     """An ArgumentParser whose errors are one line and exit code 2, without the usage dump."""
 
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # -v on every parser of the tree, so it is taken before or after the subcommand; a
+        # parser that does not see it leaves the attribute alone (SUPPRESS), main reads False.
+        self.add_argument(
+            "-v",
+            "--verbose",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="log each step and its time on standard error (anywhere on the line)",
+        )
+
     def error(self, message: str) -> None:
         """Print ``rangeslam: error: message`` and exit with code 2."""
         self.exit(2, f"rangeslam: error: {message}\n")
@@ -52,7 +64,6 @@ def build_parser() -> argparse.ArgumentParser:
         "Exit codes: 0 converged, 1 not converged (the reason is printed), 2 bad input.",
     )
     parser.add_argument("--version", action="version", version=f"rangeslam {_version()}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log what each step does")
     sub = parser.add_subparsers(
         dest="command", required=True, parser_class=CliParser, metavar="COMMAND"
     )
@@ -382,6 +393,11 @@ def _add_run(sub) -> None:
         help="use clipped RIRs (default: leave them out, like silent ones, with a warning)",
     )
     run.add_argument(
-        "--out", type=arg_types.writable_dir, default="rangeslam-run", help="output folder"
+        "--out",
+        type=arg_types.writable_dir,
+        default="rangeslam-run",
+        help="output folder (default rangeslam-run): a run that gets as far as writing first "
+        "deletes an earlier run's files there (run_summary.*, run_*.csv, run_*.png), so the "
+        "folder holds one run; other files are left alone",
     )
     run.set_defaults(func=run_command)

@@ -13,11 +13,13 @@ output; progress never does.
 
 from __future__ import annotations
 
+import logging
 import sys
+import threading
 import time
 from typing import TextIO
 
-__all__ = ["Progress", "format_seconds"]
+__all__ = ["Heartbeat", "Progress", "format_seconds"]
 
 
 def format_seconds(seconds: float) -> str:
@@ -125,3 +127,78 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
             self.bar = None
+
+
+class Heartbeat(logging.Handler):
+    """Progress of one long call whose length is not known in advance (a context manager).
+
+    Every ``interval`` seconds it writes a line on standard error with the time elapsed and the
+    step under way: the latest INFO message of the ``rangeslam`` loggers (the library logs its
+    steps with :func:`rangeslam.logsteps.logged_step`)::
+
+        rangeslam: run: 20 s elapsed; walk: SLAM on the tracks at the steps (EDM start, ...) ...
+
+    Without ``-v`` the records it reads are not printed; with it they are, as before.
+    """
+
+    def __init__(
+        self,
+        label: str,
+        *,
+        interval: float = 10.0,
+        stream: TextIO | None = None,
+        enabled: bool = True,
+    ) -> None:
+        super().__init__(level=logging.INFO)
+        self.label = label
+        self.interval = float(interval)
+        self.stream = sys.stderr if stream is None else stream
+        self.enabled = enabled
+        self.step = ""
+        self.lines = 0
+        self.started = time.perf_counter()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._logger = logging.getLogger("rangeslam")
+        self._saved: tuple[int, bool] | None = None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        """Keep the latest step's message."""
+        self.step = record.getMessage()
+
+    def line(self) -> str:
+        """The line written now."""
+        step = f"; {self.step}" if self.step else ""
+        elapsed = format_seconds(time.perf_counter() - self.started)
+        return f"rangeslam: {self.label}: {elapsed} elapsed{step}"
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.interval):
+            print(self.line(), file=self.stream, flush=True)
+            self.lines += 1
+
+    def __enter__(self) -> Heartbeat:
+        if not self.enabled:
+            return self
+        self.started = time.perf_counter()
+        log = self._logger
+        if not log.isEnabledFor(logging.INFO):  # not verbose: read the steps, do not print them
+            self._saved = (log.level, log.propagate)
+            log.setLevel(logging.INFO)
+            log.propagate = False
+        log.addHandler(self)
+        self._thread = threading.Thread(target=self._beat, name="rangeslam-heartbeat", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        if self._thread is None:
+            return
+        self._stop.set()
+        self._thread.join()
+        self._thread = None
+        self._logger.removeHandler(self)
+        if self._saved is not None:
+            self._logger.setLevel(self._saved[0])
+            self._logger.propagate = self._saved[1]
+            self._saved = None

@@ -9,6 +9,7 @@ Exit 0 converged, 1 not converged, 2 bad input.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import time
 from dataclasses import dataclass, field
@@ -16,16 +17,47 @@ from pathlib import Path
 from typing import Any
 
 from rangeslam.app.progress import format_seconds
+from rangeslam.logsteps import logged_step
 
 __all__ = [
+    "RUN_FILES",
     "RunInputs",
     "TruthErrors",
+    "clear_run_files",
     "errors_against_truth",
     "load_for_run",
     "read_matrix",
     "run",
     "run_inputs",
 ]
+
+
+log = logging.getLogger(__name__)
+#: Seconds between two progress lines of a run.
+HEARTBEAT_SECONDS = 10.0
+
+#: Every file ``rangeslam run`` writes in its --out folder. A run that gets as far as writing
+#: first deletes these (and nothing else) from the folder, so the folder holds one run's files.
+RUN_FILES = (
+    "run_summary.json",
+    "run_summary.md",
+    "run_walls.csv",
+    "run_trajectory.csv",
+    "run_landmarks.csv",
+    "run_room.png",
+    "run_trajectory.png",
+    "run_rir_matrix.png",
+)
+
+
+def clear_run_files(out: Path) -> list[Path]:
+    """Delete the files of an earlier run (:data:`RUN_FILES`) from ``out``; returns them."""
+    gone = [out / name for name in RUN_FILES if (out / name).is_file()]
+    for path in gone:
+        path.unlink()
+    if gone:
+        log.info("run: removed %d files of an earlier run from %s", len(gone), out)
+    return gone
 
 
 @dataclass(frozen=True)
@@ -358,7 +390,16 @@ def errors_against_truth(res, loaded) -> TruthErrors:
 
 
 def run(args: argparse.Namespace) -> int:
-    """`rangeslam run`: the map or the trajectory from RIRs, printed, written and plotted."""
+    """`rangeslam run`: the map or the trajectory from RIRs, printed, written and plotted; a
+    progress line on standard error every 10 s with the step under way."""
+    from rangeslam.app.progress import Heartbeat
+
+    with Heartbeat("run", interval=HEARTBEAT_SECONDS):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The body of :func:`run`."""
     from rangeslam.app.reports import versions, write_summary
     from rangeslam.app.run_report import (
         array_report,
@@ -375,6 +416,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"rangeslam: error: {attempt.error}", file=sys.stderr)
         return 2
     res, loaded = attempt.result, attempt.loaded
+    clear_run_files(args.out)
     errs = errors_against_truth(res, loaded)
     lines = report_header(args, attempt)
     record = run_record(args, attempt)
@@ -382,7 +424,7 @@ def run(args: argparse.Namespace) -> int:
         written = array_report(args.out, res, errs, loaded, lines, record)
     else:
         written = walk_report(args.out, res, errs, lines, record)
-    written += run_plots(args, loaded, res)
+    written += logged_step(log, "run: drawing the plots")(run_plots)(args, loaded, res)
     text = "\n".join(lines)
     (args.out / "run_summary.md").write_text(text + "\n")
     written.insert(0, write_summary(args.out / "run_summary.json", **record, versions=versions()))

@@ -132,6 +132,13 @@ def add_simulate_parser(sub) -> None:
     )
     _add_common(room, fs=48000)
     room.set_defaults(func=simulate_room)
+    _add_walk_parser(kinds)
+
+
+def _add_walk_parser(kinds) -> None:
+    """``simulate walk`` and its options."""
+    from rangeslam.app.parser import DefaultsHelpFormatter
+
     walk = kinds.add_parser(
         "walk",
         formatter_class=DefaultsHelpFormatter,
