@@ -416,6 +416,22 @@ def _slam_oracle_rms(traj, landmarks, sigma, placement, slam_options, draws: int
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
+def _fig5_scene(m: int, sigma: float, rng: np.random.Generator):
+    """(trajectory (M, 3), landmarks (7, 3), ranges (M, 7) with N(0, sigma^2) noise): the
+    lemniscate of eq. (12) from a random phase, a loudspeaker uniform in the Fig. 5 room and its
+    6 first-order images, metres."""
+    from rangeslam.sim.trajectories import lemniscate
+
+    room = Room.shoebox(FIG5_ROOM_SIZE)
+    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
+    source = random_points_in_room(room, 1, rng=rng)[0]
+    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
+    ranges = range_matrix(traj, landmarks)
+    if sigma > 0:
+        ranges = add_range_noise(ranges, sigma, rng=rng)
+    return traj, landmarks, ranges
+
+
 def slam_experiment(
     m: int,
     sigma: float,
@@ -438,21 +454,16 @@ def slam_experiment(
     then NaN). ``oracle_draws`` fresh noise draws on the same walk give the oracle's Monte-Carlo
     RMS error (``oracle_rms``), the figure its bound is checked against."""
     from rangeslam.mdu.slam import slam
-    from rangeslam.sim.trajectories import lemniscate, step_lengths
+    from rangeslam.sim.trajectories import step_lengths
 
-    room = Room.shoebox(FIG5_ROOM_SIZE)
-    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
-    source = random_points_in_room(room, 1, rng=rng)[0]
-    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
-    ranges = range_matrix(traj, landmarks)
-    if sigma > 0:
-        ranges = add_range_noise(ranges, sigma, rng=rng)
-    steps = step_lengths(traj)
-    step_prior = slam_options.get("step_prior", "uniform")
     if bounds_placement not in ("centred", "random"):
         raise InvalidInputError(
             f"bounds_placement must be 'centred' or 'random'; got {bounds_placement!r}"
         )
+    draws = check_int(oracle_draws, "oracle_draws", 0, 10_000)
+    traj, landmarks, ranges = _fig5_scene(m, sigma, rng)
+    step_prior = slam_options.get("step_prior", "uniform")
+    steps = step_lengths(traj)
     step_bounds = place_step_bounds(steps, bounds_placement, rng) if bounds else None
     slam_options.setdefault("noise_std", sigma)
     t0 = time.perf_counter()
@@ -474,7 +485,7 @@ def slam_experiment(
         sigma,
         placement,
         slam_options,
-        check_int(oracle_draws, "oracle_draws", 0, 10_000),
+        draws,
         rng,
     )
     return SlamExperiment(
