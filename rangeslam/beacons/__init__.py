@@ -26,7 +26,8 @@ B. Hamner and S. Roth, "Navigating with ranging radios: five data sets with grou
 Journal of Field Robotics 26(9), 2009).
 
 Modules: :mod:`~rangeslam.beacons.data` (RangeOdometry, dead reckoning),
-:mod:`~rangeslam.beacons.options` (BeaconSlamOptions), :mod:`~rangeslam.beacons.defaults` (the
+:mod:`~rangeslam.beacons.options` (BeaconSlamOptions), :mod:`~rangeslam.beacons.known` (known beacons, fixed or
+under a prior), :mod:`~rangeslam.beacons.defaults` (the
 settings left at None derived from the data: range and odometry noise, window, spread), :mod:`~rangeslam.beacons.windows` (EDM
 windows, submaps, stitching), :mod:`~rangeslam.beacons.graph` (keys, factors, graph building),
 :mod:`~rangeslam.beacons.lm` (Levenberg-Marquardt), :mod:`~rangeslam.beacons.batch`

@@ -26,6 +26,7 @@ from rangeslam.beacons.graph import (
     pose_array,
     range_inliers,
 )
+from rangeslam.beacons.known import check_known_beacons, known_initialisation
 from rangeslam.beacons.lm import MAX_LM_ITERATIONS, LMReport, levenberg_marquardt
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation
 from rangeslam.beacons.result import BeaconSlamResult, calibration_check
@@ -54,6 +55,8 @@ def beacon_slam(
     max_iterations: int = 100,
     initialisation: str = "edm",
     rng: np.random.Generator | None = None,
+    beacons: ArrayLike | None = None,
+    beacon_sigma: float | None = None,
     **settings,
 ) -> BeaconSlamResult:
     """Batch range-only SLAM with odometry: windowed EDM initialisation, then GTSAM.
@@ -79,6 +82,10 @@ def beacon_slam(
             from N(0, I) m as GTSAM's RangeISAMExample_plaza2 starts them (needs ``rng``): the
             same graph without the EDM, for comparison.
         rng: random generator for ``initialisation="random"``.
+        beacons: (B, 2) known beacon positions, NaN rows for those not known (at least two
+            known): they fix the frame instead of ``start_pose``, which then only starts the dead
+            reckoning (:mod:`rangeslam.beacons.known`); the range calibration is still fitted.
+        beacon_sigma: None (known beacons fixed) or their prior sigma [m].
         **settings: the fields of :class:`~rangeslam.beacons.options.BeaconSlamOptions`
             (range_calibration, per_beacon, range_sigma, odometry_sigma, robust,
             calibration_sigma, window_length, keyframes, min_ranges, min_spread, pose_weight).
@@ -89,12 +96,18 @@ def beacon_slam(
     check_initialisation(initialisation, rng)
     cfg = resolve_options(BeaconSlamOptions.from_settings(settings), data)
     start = as_point(start_pose, "start_pose", dim=3)
+    known = check_known_beacons(beacons, beacon_sigma, data)
     dr = dead_reckoning(data.odometry, start)
-    if initialisation == "edm":
-        init = edm_initialisation(data, dr, cfg)
+    start_unknown = (
+        edm_initialisation
+        if initialisation == "edm"
+        else lambda data, dr, _cfg: random_initialisation(data, dr, rng)
+    )
+    if known is None:
+        init = start_unknown(data, dr, cfg)
     else:
-        init = random_initialisation(data, dr, rng)
-    refined = refine(data, init, cfg, max_iterations)
+        init = known_initialisation(data, dr, cfg, known, start_unknown)
+    refined = refine(data, init, cfg, max_iterations, known=known)
     return _verdict(data, init, refined, cfg, initialisation, time.perf_counter() - t0)
 
 
@@ -115,6 +128,7 @@ def joint_problem(
     init: Initialisation,
     cfg: BeaconSlamOptions,
     calibration0: np.ndarray | None = None,
+    known=None,
 ):
     """The joint model at ``init``: the factor graph over the ranges to placed beacons (range
     scale and offset unknowns of the graph), its values (calibration ``calibration0`` (G, nc),
@@ -133,6 +147,7 @@ def joint_problem(
         group[used],
         n_groups,
         cfg,
+        known,
     )
     return graph, values, dims
 
@@ -143,11 +158,12 @@ def refine(
     cfg: BeaconSlamOptions,
     max_iterations: int,
     calibration0: np.ndarray | None = None,
+    known=None,
 ) -> Refinement:
     """Step 4: the factor graph over the ranges to placed beacons (the joint model: the range
     calibration an unknown of the graph), Levenberg-Marquardt from ``init`` and the calibration
     ``calibration0`` (G, nc) (zero when None)."""
-    graph, values, dims = joint_problem(data, init, cfg, calibration0)
+    graph, values, dims = joint_problem(data, init, cfg, calibration0, known)
     values, report = levenberg_marquardt(graph, values, dims, max_iterations=max_iterations)
     scale, offset = calibration_arrays(values, cfg, data.n_beacons, init.placed)
     return Refinement(

@@ -125,13 +125,22 @@ def build_graph(
     group_of_range: np.ndarray,
     n_groups: int,
     cfg: BeaconSlamOptions,
+    known=None,
 ):
-    """The factor graph: gauge prior, Pose2 odometry (between factors), calibrated robust range
-    factors, weak priors on the calibration."""
+    """The factor graph: gauge prior (or, with ``known`` beacons
+    (:class:`~rangeslam.beacons.known.KnownBeacons`), their priors instead: they fix the frame),
+    Pose2 odometry (between factors), calibrated robust range factors, weak priors on the
+    calibration."""
     import gtsam
 
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gauge_prior(gtsam, start_pose))
+    if known is None:
+        graph.add(gauge_prior(gtsam, start_pose))
+    else:
+        from rangeslam.beacons.known import known_priors
+
+        for factor in known_priors(gtsam, known, cfg.range_sigma, key_l):
+            graph.add(factor)
     odo = gtsam.noiseModel.Diagonal.Sigmas(cfg.odometry_sigma)
     for i, step in enumerate(odometry):
         graph.add(odometry_factor(gtsam, i, step, odo))
