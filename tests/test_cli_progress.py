@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from rangeslam.app import run_command
+from rangeslam.app import progress, run_command
 from rangeslam.app.cli import main
 from rangeslam.app.parser import build_parser
 from rangeslam.app.progress import Heartbeat
@@ -109,7 +109,7 @@ def test_run_replaces_an_earlier_runs_files(room_npz, tmp_path, capsys, monkeypa
     out.mkdir()
     for name in ("run_trajectory.csv", "run_landmarks.csv", "run_trajectory.png", "notes.txt"):
         (out / name).write_text("earlier")
-    monkeypatch.setattr(run_command, "HEARTBEAT_SECONDS", 0.5)
+    monkeypatch.setattr(progress, "HEARTBEAT_SECONDS", 0.5)
     assert main(["run", str(room_npz), "--out", str(out), "-v"]) == 0
     err = capsys.readouterr().err
     names = {p.name for p in out.iterdir()}
@@ -127,3 +127,11 @@ def test_run_replaces_an_earlier_runs_files(room_npz, tmp_path, capsys, monkeypa
     err = capsys.readouterr().err
     assert "done in" not in err and "removed" not in err
     assert {p.name for p in out.iterdir()} == names
+
+
+def test_simulate_walk_shows_progress(tmp_path, capsys, monkeypatch):
+    """`simulate walk` (20 s at 600 steps) writes progress lines naming what it simulates."""
+    monkeypatch.setattr(progress, "HEARTBEAT_SECONDS", 0.2)
+    assert main(["simulate", "walk", "--out", str(tmp_path / "w.npz")]) == 0
+    err = capsys.readouterr().err
+    assert "rangeslam: simulate walk: " in err and "elapsed; 113 RIRs (pyroomacoustics)" in err

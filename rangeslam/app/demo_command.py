@@ -25,13 +25,15 @@ def demo(args: argparse.Namespace) -> int:
     """``rangeslam demo``: Problem 1 on the demo rooms, then Fig. 3 and Fig. 5 in small; 0 when
     every room converged."""
     from rangeslam.app.bench_command import run_bench
+    from rangeslam.app.progress import Heartbeat
 
     print(
         f"Problem 1 (paper, section 2): rooms from echoes with a known array of {args.mics} microphones, "
         f"{args.sources} loudspeaker(s), range noise {args.sigma * 1e3:g} mm, "
         f"{args.outliers * 100:g}% wrong echo picks, seed {args.seed}\n"
     )
-    summaries = _demo_rooms(args)
+    with Heartbeat("demo", step="rooms from echoes"):
+        summaries = _demo_rooms(args)
     _print_room_summaries(summaries)
     print(
         "\nwall centre to estimate: distance from the centre of the true wall to the estimated "
@@ -50,7 +52,8 @@ def demo(args: argparse.Namespace) -> int:
         steps=(5, 10, 20),
         bounds=(True,),
     )
-    demo_slam_example(args)
+    with Heartbeat("demo", step="a SLAM estimate and the RIR matrix"):
+        demo_slam_example(args)
     print(f"\nplots written to {args.out}/")
     for room in summaries:
         res = room.experiment.result

@@ -19,7 +19,10 @@ import threading
 import time
 from typing import TextIO
 
-__all__ = ["Heartbeat", "Progress", "format_seconds"]
+__all__ = ["HEARTBEAT_SECONDS", "Heartbeat", "Progress", "format_seconds"]
+
+#: Seconds between two lines of a :class:`Heartbeat` (a run, a demo's rooms, a long simulation).
+HEARTBEAT_SECONDS = 10.0
 
 
 def format_seconds(seconds: float) -> str:
@@ -132,29 +135,31 @@ class Progress:
 class Heartbeat(logging.Handler):
     """Progress of one long call whose length is not known in advance (a context manager).
 
-    Every ``interval`` seconds it writes a line on standard error with the time elapsed and the
+    Every ``interval`` seconds (default :data:`HEARTBEAT_SECONDS`) it writes a line on standard error with the time elapsed and the
     step under way: the latest INFO message of the ``rangeslam`` loggers (the library logs its
     steps with :func:`rangeslam.logsteps.logged_step`)::
 
         rangeslam: run: 20 s elapsed; walk: SLAM on the tracks at the steps (EDM start, ...) ...
 
-    Without ``-v`` the records it reads are not printed; with it they are, as before.
+    ``step`` is what runs until the library logs a step. Without ``-v`` the records it reads are
+    not printed; with it they are, as before.
     """
 
     def __init__(
         self,
         label: str,
         *,
-        interval: float = 10.0,
+        interval: float | None = None,
         stream: TextIO | None = None,
         enabled: bool = True,
+        step: str = "",
     ) -> None:
         super().__init__(level=logging.INFO)
         self.label = label
-        self.interval = float(interval)
+        self.interval = float(HEARTBEAT_SECONDS if interval is None else interval)
         self.stream = sys.stderr if stream is None else stream
         self.enabled = enabled
-        self.step = ""
+        self.step = step
         self.lines = 0
         self.started = time.perf_counter()
         self._stop = threading.Event()

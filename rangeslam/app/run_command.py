@@ -33,8 +33,6 @@ __all__ = [
 
 
 log = logging.getLogger(__name__)
-#: Seconds between two progress lines of a run.
-HEARTBEAT_SECONDS = 10.0
 
 #: Every file ``rangeslam run`` writes in its --out folder. A run that gets as far as writing
 #: first deletes these (and nothing else) from the folder, so the folder holds one run's files.
@@ -392,9 +390,13 @@ def errors_against_truth(res, loaded) -> TruthErrors:
 def run(args: argparse.Namespace) -> int:
     """`rangeslam run`: the map or the trajectory from RIRs, printed, written and plotted; a
     progress line on standard error every 10 s with the step under way."""
+    from rangeslam.app.beacon_run import beacon_log_given, beacon_run
     from rangeslam.app.progress import Heartbeat
 
-    with Heartbeat("run", interval=HEARTBEAT_SECONDS):
+    if beacon_log_given(args.rirs):  # a beacon log (rangeslam.datasets.beacon_log)
+        with Heartbeat("run"):
+            return beacon_run(args)
+    with Heartbeat("run"):
         return _run(args)
 
 

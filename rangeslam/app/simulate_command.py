@@ -299,6 +299,7 @@ def simulate_walk(args: argparse.Namespace) -> int:
     """``rangeslam simulate walk``: RIRs along a walk, its step bounds, and the truth."""
     import numpy as np
 
+    from rangeslam.app.progress import Heartbeat
     from rangeslam.errors import InvalidInputError
     from rangeslam.geometry.room import Room
     from rangeslam.sim.recordings import walk_recording
@@ -315,18 +316,19 @@ def simulate_walk(args: argparse.Namespace) -> int:
             f"{n_rirs} RIRs; at most {MAX_WALK_RIRS}",
         )
     try:
-        rec = walk_recording(
-            args.size,
-            n_steps=args.steps,
-            rirs_per_step=args.rirs_per_step,
-            bound=args.bounds,
-            source=args.source,
-            fs=args.fs,
-            absorption=args.absorption,
-            max_order=args.order,
-            noise=args.noise,
-            rng=args.seed,
-        )
+        with Heartbeat("simulate walk", step=f"{n_rirs} RIRs (pyroomacoustics)"):
+            rec = walk_recording(
+                args.size,
+                n_steps=args.steps,
+                rirs_per_step=args.rirs_per_step,
+                bound=args.bounds,
+                source=args.source,
+                fs=args.fs,
+                absorption=args.absorption,
+                max_order=args.order,
+                noise=args.noise,
+                rng=args.seed,
+            )
     except InvalidInputError as exc:
         return _refuse("--size", str(exc))
     np.savez(
