@@ -20,6 +20,12 @@ from rangeslam.app.simulate_command import add_simulate_parser
 
 __all__ = ["RUN_FS_LIMITS", "SPEED_LIMITS", "CliParser", "DefaultsHelpFormatter", "build_parser"]
 
+#: ``bench --trials`` and ``bench xtdoa --subsets``: per cell (10**20 ran without end).
+MAX_TRIALS = 100_000
+#: ``bench --jobs``: processes (100000 ran without end).
+MAX_JOBS = 64
+#: ``bench plaza --trials`` (random starts of a method) and ``bench xtdoa --robust`` (minutes a run).
+MAX_RUNS = 1000
 #: ``run --fs``: sampling rates of recorded RIRs, Hz.
 RUN_FS_LIMITS = (1000.0, 1_000_000.0)
 #: ``run --c``: speed of sound, m/s (air at -100 to +500 degC is 220-440; water about 1500).
@@ -213,7 +219,10 @@ def _add_xtdoa_bench(experiments) -> None:
         "../shared/data)",
     )
     xtdoa.add_argument(
-        "--subsets", type=arg_types.positive_int, default=200, help="random subsets per K"
+        "--subsets",
+        type=arg_types.positive_int_to(MAX_TRIALS),
+        default=200,
+        help=f"random subsets per K, 1 to {MAX_TRIALS}",
     )
     xtdoa.add_argument(
         "--sizes",
@@ -226,11 +235,11 @@ def _add_xtdoa_bench(experiments) -> None:
     xtdoa.add_argument("--seed", type=arg_types.seed, default=0, help="random seed (0 to 2^63 - 1)")
     xtdoa.add_argument(
         "--robust",
-        type=arg_types.positive_int,
+        type=arg_types.positive_int_to(MAX_RUNS),
         default=None,
         metavar="RUNS",
-        help="instead of the protocol: the robust run on all 65 events without the authors' "
-        "mask, RUNS times (seeds --seed, --seed + 1, ...); minutes a run",
+        help=f"instead of the protocol: the robust run on all 65 events without the authors' "
+        f"mask, RUNS (1 to {MAX_RUNS}) times (seeds --seed, --seed + 1, ...); minutes a run",
     )
     xtdoa.add_argument(
         "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
@@ -241,9 +250,17 @@ def _add_xtdoa_bench(experiments) -> None:
 def _bench_common() -> argparse.ArgumentParser:
     """Options every simulated benchmark takes: trials, parallelism, and the run options."""
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--trials", type=arg_types.positive_int, default=50, help="trials per cell")
     common.add_argument(
-        "--jobs", type=arg_types.positive_int, default=1, help="trials in parallel processes"
+        "--trials",
+        type=arg_types.positive_int_to(MAX_TRIALS),
+        default=50,
+        help=f"trials per cell, 1 to {MAX_TRIALS}",
+    )
+    common.add_argument(
+        "--jobs",
+        type=arg_types.positive_int_to(MAX_JOBS),
+        default=1,
+        help=f"trials in parallel processes, 1 to {MAX_JOBS}",
     )
     common.add_argument(
         "--scheduler",
@@ -314,9 +331,9 @@ def _add_plaza_options(plaza: argparse.ArgumentParser) -> None:
     )
     plaza.add_argument(
         "--trials",
-        type=arg_types.positive_int,
+        type=arg_types.positive_int_to(MAX_RUNS),
         default=3,
-        help="random starts of each method that has them (the others run once)",
+        help=f"random starts of each method that has them, 1 to {MAX_RUNS} (the others run once)",
     )
     plaza.add_argument(
         "--lengths",
@@ -338,10 +355,17 @@ def _add_run(sub) -> None:
         "step_bounds, c, and ground truth source / room_size / trajectory), one multichannel WAV, "
         "a directory of mono WAVs (natural order of names) or several mono WAVs (in the order "
         "given). With microphone positions: the room (walls, loudspeaker); with step bounds of a "
-        "moving microphone: its trajectory and the landmarks. Exit 0 converged, 1 not converged, "
-        "2 bad input.",
+        "moving microphone: its trajectory and the landmarks. Or one beacon log (.csv: odometry "
+        "and ranges to radio beacons, rangeslam.datasets.beacon_log): the path and the beacons. "
+        "Exit 0 converged, 1 not converged, 2 bad input.",
     )
-    run.add_argument("rirs", nargs="+", type=Path, metavar="RIRS", help=".npz, .wav or directory")
+    run.add_argument(
+        "rirs",
+        nargs="+",
+        type=Path,
+        metavar="RIRS",
+        help=".npz, .wav or directory; or a beacon log",
+    )
     run.add_argument(
         "--fs",
         type=arg_types.float_in(*RUN_FS_LIMITS, " Hz"),

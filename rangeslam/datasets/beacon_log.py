@@ -1,0 +1,252 @@
+"""Beacon logs as plain CSV: odometry and ranges to beacons, with optional truth and known beacons.
+
+The format (one file, one record a line, the first field says which; blank lines and lines
+starting with ``#`` are comments; fields separated by commas, spaces around them ignored)::
+
+    # rangeslam beacon log 1
+    # range_sigma = 0.05                       (optional: the ranges' stated noise, metres)
+    # odometry_sigma = 0.0005 0.0005 0.002     (optional: along, across [m], heading [rad])
+    start, 0.0                                 time [s] of pose 0
+    odometry, 0.2, 0.01, 0.001                 time [s] of the pose it reaches, distance [m]
+                                               (negative: backwards), heading change [rad]
+    range, 0.2, 7, 1.234                       time [s], beacon id (integer), range [m]
+    truth, 0.2, 0.01, 0.0, 0.001               optional: time of a pose, x, y [m], heading [rad]
+    beacon, 7, 1.5, -0.3, known                optional: beacon id, x, y [m], "known" (given to
+                                               the estimator) or "truth" (evaluation only)
+
+Odometry rows are in time order; each step moves, then turns (as GTSAM's Plaza examples). A
+range joins the first pose at or after its time (as :func:`rangeslam.datasets.plaza` does);
+ranges after the last pose are refused. Truth rows, when given, give every pose (in pose order).
+Beacon ids are any integers >= 0 (rows of the result in increasing id order, as
+:meth:`~rangeslam.beacons.RangeOdometry.from_beacon_ids`).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rangeslam._validation import frozen
+from rangeslam.beacons.data import RangeOdometry
+from rangeslam.errors import InvalidInputError
+
+__all__ = ["BEACON_LOG_KINDS", "BeaconLog", "is_beacon_log", "load_beacon_log", "write_beacon_log"]
+
+#: The first field of a record, and how many numbers follow it (truth: 2 or 3).
+BEACON_LOG_KINDS = {"start": (1,), "odometry": (3,), "range": (3,), "truth": (3, 4), "beacon": (3,)}
+
+
+@dataclass(frozen=True, eq=False)  # arrays
+class BeaconLog:
+    """A loaded beacon log.
+
+    Attributes:
+        data: the odometry and ranges (:class:`~rangeslam.beacons.RangeOdometry`).
+        truth: (N + 1, 3) true poses (heading NaN when not given), or None.
+        beacons: (B, 2) true beacon positions (NaN rows where not given), or None.
+        known: (B, 2) beacon positions given as known (NaN rows for the others), or None.
+        range_sigma: the stated range noise [m], or None.
+        odometry_sigma: (3,) the stated odometry noise, or None.
+        path: the file.
+    """
+
+    data: RangeOdometry
+    truth: np.ndarray | None
+    beacons: np.ndarray | None
+    known: np.ndarray | None
+    range_sigma: float | None
+    odometry_sigma: np.ndarray | None
+    path: Path
+
+
+def is_beacon_log(path: Path) -> bool:
+    """True when ``path`` is a file whose first record is a beacon log's (a ``start`` row, or
+    the ``# rangeslam beacon log`` comment)."""
+    path = Path(path)
+    if not path.is_file() or path.suffix.lower() not in (".csv", ".txt"):
+        return False
+    with open(path, newline="", errors="replace") as fh:
+        for line in fh:
+            text = line.strip()
+            if text.lower().startswith("# rangeslam beacon log"):
+                return True
+            if text and not text.startswith("#"):
+                return text.split(",")[0].strip().lower() in BEACON_LOG_KINDS
+    return False
+
+
+def _records(path: Path):
+    """(line number, kind, fields) of each record, and the ``# name = value`` settings."""
+    records, settings = [], {}
+    with open(path, newline="") as fh:
+        for number, row in enumerate(csv.reader(fh), start=1):
+            fields = [f.strip() for f in row]
+            if not fields or not any(fields):
+                continue
+            if fields[0].startswith("#"):
+                text = ",".join(row).lstrip("#").strip()
+                if "=" in text:
+                    name, value = (s.strip() for s in text.split("=", 1))
+                    settings[name] = (number, value)
+                continue
+            kind = fields[0].lower()
+            if kind not in BEACON_LOG_KINDS:
+                raise InvalidInputError(
+                    f"{path}, line {number}: the first field must be one of "
+                    f"{sorted(BEACON_LOG_KINDS)}; got {fields[0]!r:.40}"
+                )
+            records.append((number, kind, fields[1:]))
+    return records, settings
+
+
+def _numbers(path, number, kind, fields, *, keep_last_word=False) -> list[float]:
+    """The record's numbers, checked against BEACON_LOG_KINDS; InvalidInputError naming the line."""
+    if keep_last_word:
+        fields = fields[:-1]
+    if len(fields) not in BEACON_LOG_KINDS[kind]:
+        want = " or ".join(str(n) for n in BEACON_LOG_KINDS[kind])
+        raise InvalidInputError(
+            f"{path}, line {number}: a {kind} record has {want} numbers; got {len(fields)}"
+        )
+    try:
+        values = [float(f) for f in fields]
+    except ValueError as exc:
+        raise InvalidInputError(f"{path}, line {number}: {kind}: {exc}") from exc
+    if not np.all(np.isfinite(values)):
+        raise InvalidInputError(f"{path}, line {number}: {kind}: numbers must be finite")
+    return values
+
+
+def _setting(path, settings, name, size):
+    if name not in settings:
+        return None
+    number, text = settings[name]
+    try:
+        values = np.array([float(v) for v in text.replace(",", " ").split()])
+    except ValueError as exc:
+        raise InvalidInputError(f"{path}, line {number}: {name}: {exc}") from exc
+    if values.shape != (size,) or not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise InvalidInputError(
+            f"{path}, line {number}: {name} must be {size} positive number(s); got {text!r:.60}"
+        )
+    return float(values[0]) if size == 1 else values
+
+
+def load_beacon_log(path: str | Path) -> BeaconLog:
+    """Read a beacon log (module notes). InvalidInputError names the file and the line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"beacon log {path} is not a file")
+    records, settings = _records(path)
+    rows: dict[str, list] = {kind: [] for kind in BEACON_LOG_KINDS}
+    for number, kind, fields in records:
+        is_beacon = kind == "beacon"
+        if is_beacon and (not fields or fields[-1].lower() not in ("known", "truth")):
+            raise InvalidInputError(
+                f"{path}, line {number}: a beacon record ends in 'known' or 'truth'"
+            )
+        values = _numbers(path, number, kind, fields, keep_last_word=is_beacon)
+        rows[kind].append((number, values, fields[-1].lower() if is_beacon else None))
+    if len(rows["start"]) != 1:
+        raise InvalidInputError(
+            f"{path}: a beacon log has one start record; got {len(rows['start'])}"
+        )
+    if not rows["odometry"] or not rows["range"]:
+        raise InvalidInputError(f"{path}: a beacon log needs odometry and range records")
+    odo = np.array([v for _, v, _ in rows["odometry"]])
+    pose_time = np.concatenate([[rows["start"][0][1][0]], odo[:, 0]])
+    rng_rows = np.array([v for _, v, _ in rows["range"]])
+    order = np.argsort(rng_rows[:, 0], kind="stable")
+    rng_rows = rng_rows[order]
+    pose = np.searchsorted(pose_time, rng_rows[:, 0], side="left")
+    if np.any(pose >= len(pose_time)):
+        late = rows["range"][int(order[np.argmax(pose >= len(pose_time))])][0]
+        raise InvalidInputError(f"{path}, line {late}: a range after the last pose's time")
+    ids = rng_rows[:, 1]
+    if np.any(ids != np.round(ids)) or np.any(ids < 0):
+        raise InvalidInputError(f"{path}: beacon ids must be integers >= 0")
+    data = RangeOdometry.from_beacon_ids(
+        pose_time, odo[:, 1:], pose, ids.astype(np.int64), rng_rows[:, 2]
+    )
+    truth = _truth(path, rows["truth"], len(pose_time))
+    beacons, known = _beacons(path, rows["beacon"], data.beacon_ids)
+    return BeaconLog(
+        data=data,
+        truth=truth,
+        beacons=beacons,
+        known=known,
+        range_sigma=_setting(path, settings, "range_sigma", 1),
+        odometry_sigma=_setting(path, settings, "odometry_sigma", 3),
+        path=path,
+    )
+
+
+def _truth(path, rows, n_poses) -> np.ndarray | None:
+    if not rows:
+        return None
+    if len(rows) != n_poses:
+        raise InvalidInputError(
+            f"{path}: truth records must give every pose ({n_poses}); got {len(rows)}"
+        )
+    out = np.full((n_poses, 3), np.nan)
+    for i, (_, values, _) in enumerate(rows):
+        out[i, : len(values) - 1] = values[1:]
+    return frozen(out)
+
+
+def _beacons(path, rows, ids) -> tuple[np.ndarray | None, np.ndarray | None]:
+    if not rows:
+        return None, None
+    truth = np.full((len(ids), 2), np.nan)
+    known = np.full((len(ids), 2), np.nan)
+    row_of = {int(b): k for k, b in enumerate(ids)}
+    for number, values, what in rows:
+        if values[0] != round(values[0]) or int(values[0]) not in row_of:
+            raise InvalidInputError(
+                f"{path}, line {number}: beacon {values[0]:g} has no range in the log"
+            )
+        target = known if what == "known" else truth
+        target[row_of[int(values[0])]] = values[1:]
+    has = lambda a: frozen(a) if np.any(np.isfinite(a)) else None  # noqa: E731
+    return has(truth), has(known)
+
+
+def write_beacon_log(
+    path: str | Path,
+    data: RangeOdometry,
+    *,
+    truth: np.ndarray | None = None,
+    beacons: np.ndarray | None = None,
+    known: np.ndarray | None = None,
+    range_sigma: float | None = None,
+    odometry_sigma=None,
+) -> Path:
+    """Write ``data`` (and the optional truth poses (N + 1, 3), true beacons and known beacons
+    (B, 2), stated noise) as a beacon log; each range at its pose's time. Returns the path."""
+    path = Path(path)
+    lines = ["# rangeslam beacon log 1"]
+    if range_sigma is not None:
+        lines.append(f"# range_sigma = {_f(range_sigma)}")
+    if odometry_sigma is not None:
+        lines.append("# odometry_sigma = " + " ".join(_f(v) for v in odometry_sigma))
+    lines.append(f"start,{_f(data.pose_time[0])}")
+    for t, (d, dtheta) in zip(data.pose_time[1:], data.odometry, strict=True):
+        lines.append(f"odometry,{_f(t)},{_f(d)},{_f(dtheta)}")
+    for p, b, r in zip(data.range_pose, data.range_beacon, data.ranges, strict=True):
+        lines.append(f"range,{_f(data.pose_time[p])},{int(data.beacon_ids[b])},{_f(r)}")
+    for t, pose in zip(data.pose_time, [] if truth is None else truth, strict=False):
+        lines.append(f"truth,{_f(t)}," + ",".join(_f(v) for v in pose))
+    for label, table in (("truth", beacons), ("known", known)):
+        for b, xy in zip(data.beacon_ids, [] if table is None else table, strict=False):
+            if np.all(np.isfinite(xy)):
+                lines.append(f"beacon,{int(b)},{_f(xy[0])},{_f(xy[1])},{label}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _f(value) -> str:
+    """A number as the shortest text that reads back to the same float."""
+    return repr(float(value))
