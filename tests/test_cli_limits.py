@@ -38,6 +38,11 @@ def npz(tmp_path):
         (["run", "NPZ", "--fs", "1e300"], "--fs"),
         (["run", "NPZ", "--fs", "8000"], "--fs"),
         (["run", "NPZ", "NPZ"], "RIRS"),
+        (["bench", "fig5", "--trials", "100000000000000000000"], "--trials"),
+        (["bench", "compare", "--jobs", "100000"], "--jobs"),
+        (["bench", "plaza", "--trials", "5000"], "--trials"),
+        (["bench", "xtdoa", "--robust", "1001"], "--robust"),
+        (["bench", "xtdoa", "--subsets", "1000000"], "--subsets"),
     ],
 )
 def test_bad_value_is_one_line_naming_the_flag(argv, flag, npz, tmp_path, capsys):
@@ -81,6 +86,9 @@ def test_steps_refused_before_simulating(capsys, tmp_path):
         (["simulate", "walk"], ["1000 to 1000000", "1 to 12", "0.5 to 100", "(0 to 100)"]),
         (["simulate", "room"], ["4 (a room in 3-D) to 256", "1 to 12", "1000 to 1000000"]),
         (["run"], ["1000 to 1e+06", "100 to 2000"]),
+        (["bench", "fig5"], ["trials per cell, 1 to 100000", "1 to 64"]),
+        (["bench", "plaza"], ["1 to 1000"]),
+        (["bench", "xtdoa"], ["1 to 100000", "RUNS (1 to 1000)"]),
     ],
 )
 def test_limits_are_in_help(argv, texts, capsys):

@@ -17,6 +17,7 @@ __all__ = [
     "npz_file",
     "positive_float",
     "positive_int",
+    "positive_int_to",
     "seed",
     "shown",
     "writable_dir",
@@ -94,6 +95,20 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer; got {shown(text)}")
     return value
+
+
+def positive_int_to(high: int):
+    """An argument type: an integer from 1 to ``high`` ('must be a positive integer' below 1,
+    'must be at most high' above)."""
+
+    def parse(text: str) -> int:
+        value = positive_int(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high}; got {shown(text)}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
 
 
 def positive_float(text: str) -> float:
