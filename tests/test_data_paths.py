@@ -77,7 +77,7 @@ def test_missing_data_names_the_paths_and_the_variable(tmp_path, monkeypatch, en
     text = str(info.value)
     assert isinstance(info.value, InvalidInputError) and isinstance(info.value, FileNotFoundError)
     assert str(tmp_path / "dechorate") in text and "$RANGESLAM_DATA" in text
-    root = tmp_path / (env or "../shared/data")
+    root = (tmp_path / (env or "../shared/data")).resolve()
     assert str(root / "dechorate") in text
     assert ("is not set" in text) == (env is None)
     with pytest.raises(DataNotFoundError, match=r"RIR file missing\.npz does not exist"):

@@ -49,12 +49,12 @@ def data_path(path_or_name: str | os.PathLike[str], *, what: str = "data") -> Pa
         raise DataNotFoundError(f"{what}: a path or name must not be empty")
     if given.exists():
         return given
-    tried = [given.absolute()]
+    tried = [Path(os.path.abspath(given))]
     if not given.is_absolute():
         under = data_root() / given
         if under.exists():
             return under
-        tried.append(under.absolute())
+        tried.append(Path(os.path.abspath(under)))
     env = os.environ.get(DATA_ENV)
     where = (
         f"${DATA_ENV} is {env!r}"
