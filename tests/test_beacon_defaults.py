@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from rangeslam import InvalidInputError
-from rangeslam.beacons import RangeOdometry, beacon_slam, dead_reckoning, simulate_beacon_run
+from rangeslam.beacons import (
+    RangeOdometry,
+    beacon_slam,
+    beacon_slam_incremental,
+    dead_reckoning,
+    simulate_beacon_run,
+)
 from rangeslam.beacons.defaults import (
     WINDOW_RANGES,
     odometry_noise,
@@ -68,14 +74,16 @@ def _best_of_3_peer(run, stated: dict, seed: int):
     return min(runs, key=lambda r: r.cost)
 
 
+@pytest.mark.parametrize("estimator", [beacon_slam, beacon_slam_incremental])
 @pytest.mark.parametrize("seed", HELD_OUT_SEEDS)
 @pytest.mark.parametrize("scene", SCENES, ids=list(SCENES))
-def test_defaults_serve_a_room_and_a_field(scene, seed):
-    """Defaults plus the stated noise: converged, APE at or below a plain GTSAM best-of-3 peer's
-    (up to SAME_MINIMUM), and within the scene's range sigma (measured 0.2-0.5 sigma)."""
+def test_defaults_serve_a_room_and_a_field(scene, seed, estimator):
+    """Defaults plus the stated noise, batch and incremental: converged, APE at or below a plain
+    GTSAM best-of-3 peer's (up to SAME_MINIMUM), and within the scene's range sigma (measured
+    0.2-0.5 sigma)."""
     kw = SCENES[scene]
     run = simulate_beacon_run(np.random.default_rng(seed), **kw)
-    ours = beacon_slam(run.data, start_pose=run.poses[0], **_stated(kw))
+    ours = estimator(run.data, start_pose=run.poses[0], **_stated(kw))
     assert ours.converged, ours.message
     peer = _best_of_3_peer(run, _stated(kw), seed)
     assert _ape(ours, run) <= (1.0 + SAME_MINIMUM) * _ape(peer, run)
