@@ -1,6 +1,8 @@
 """Bad values on the command line: one line naming the flag (never a library argument), exit 2,
 and the limits stated in --help (issue 36, "Smaller, each seen")."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,34 @@ def test_cli_limits_match_the_library():
     assert simulate_command.FS_LIMITS == (rir.MIN_SIM_FS, rir.MAX_SIM_FS)
     assert 1 <= simulate_command.MAX_ORDER <= rir.MAX_SIM_ORDER
     assert parser.RUN_FS_LIMITS[0] <= 16000 <= parser.RUN_FS_LIMITS[1]
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (["--keyframes", "{tmp}/kf.txt"], r"--keyframes .*kf\.txt: must be at least 3 increasing"),
+        (
+            ["--step-bounds", "{tmp}/swapped.txt"],
+            r"--step-bounds .*swapped\.txt: step 0 has bounds",
+        ),
+        (["--mics", "{tmp}/nan.csv"], r"--mics .*nan\.csv: microphone positions must be finite"),
+        (["--mics", "{tmp}/mics.csv", "--dim", "2"], "--dim 2: a room is 3-D"),
+    ],
+)
+def test_run_geometry_errors_name_the_flag(extra, match, tmp_path, capsys):
+    """Keyframes out of range, swapped or non-finite bounds and microphones, --dim 2 for a room:
+    refused in the flag's terms (they reached run_rirs and came back as keyframes=, step_bounds=,
+    dim=), exit 2, one line."""
+    path = tmp_path / "walk.npz"
+    np.savez(path, rirs=np.eye(10, 64), fs=16000.0, step_bounds=np.ones((2, 9)))
+    np.savetxt(tmp_path / "kf.txt", [0, 5, 500])
+    np.savetxt(tmp_path / "swapped.txt", np.vstack([np.full(9, 0.4), np.full(9, 0.2)]))
+    np.savetxt(tmp_path / "nan.csv", np.full((10, 3), np.nan), delimiter=",")
+    np.savetxt(tmp_path / "mics.csv", np.random.default_rng(0).random((10, 3)), delimiter=",")
+    argv = ["run", str(path), "--out", str(tmp_path / "out")]
+    argv += [a.format(tmp=tmp_path) for a in extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("rangeslam: error: "), err
+    assert re.search(match, err), err
+    assert not any(name in err for name in ("step_bounds must", "dim must", "keyframes must"))

@@ -23,6 +23,7 @@ __all__ = [
     "RUN_FILES",
     "RunInputs",
     "TruthErrors",
+    "check_known",
     "clear_run_files",
     "errors_against_truth",
     "load_for_run",
@@ -213,8 +214,13 @@ def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
     keys = _keyframes(args, loaded)
     n = loaded.n_rirs if keys is None else len(keys)  # steps
     mics, bounds, origin = _known_geometry(args, loaded, n)
-    if keys is not None and bounds is None:
-        raise InvalidInputError("keyframes are steps of a walk: give step bounds with them")
+    if bounds is None:
+        if args.keyframes is not None:
+            raise InvalidInputError(
+                "--keyframes: keyframes are steps of a walk: give step bounds with them"
+            )
+        keys = None  # an npz's keyframes are a walk's; a fixed array ignores them
+    check_known(args, loaded.n_rirs, keys, mics, bounds, origin)
     if args.measured and bounds is not None:
         raise InvalidInputError(
             "--measured is a preset of the array mode (room_from_rirs); not for --step-bounds"
@@ -235,6 +241,43 @@ def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
         options=options,
         origin=f"{origin}; c = {c:g} m/s ({c_origin})",
     )
+
+
+def check_known(args: argparse.Namespace, m: int, keys, mics, bounds, origin: str) -> None:
+    """Refuse, naming the flag or the npz key, what run_rirs would refuse in its own terms:
+    keyframes that are not increasing indices of the ``m`` RIRs, microphones or bounds that are
+    not finite, bounds of the wrong count or with lower > upper, --dim 2 for a room."""
+    import numpy as np
+
+    from rangeslam.errors import InvalidInputError
+
+    if keys is not None:
+        where = f"--keyframes {args.keyframes}" if args.keyframes else "the npz's keyframes"
+        if len(keys) < 3 or np.any(np.diff(keys) <= 0) or keys[0] < 0 or keys[-1] >= m:
+            raise InvalidInputError(
+                f"{where}: must be at least 3 increasing RIR indices from 0 to {m - 1}; got "
+                f"{len(keys)} from {keys.min()} to {keys.max()}"
+            )
+    if mics is not None:
+        if args.dim == 2:
+            raise InvalidInputError("--dim 2: a room is 3-D; --dim 2 is for walks (step bounds)")
+        if not np.all(np.isfinite(mics)):
+            raise InvalidInputError(f"{origin}: microphone positions must be finite numbers")
+        return
+    b = np.asarray(bounds, dtype=float)
+    steps = (len(keys) if keys is not None else m) - 1
+    if b.shape != (2, steps):
+        raise InvalidInputError(
+            f"{origin}: must hold lower and upper bounds of the {steps} steps, (2, {steps}); "
+            f"got {b.shape}"
+        )
+    bad = np.flatnonzero(~np.isfinite(b).all(axis=0) | (b[0] < 0) | (b[0] > b[1]))
+    if len(bad):
+        k = int(bad[0])
+        raise InvalidInputError(
+            f"{origin}: step {k} has bounds [{b[0, k]:g}, {b[1, k]:g}]; each step needs "
+            "0 <= lower <= upper, finite"
+        )
 
 
 def _announce(loaded, inputs: RunInputs) -> float:
