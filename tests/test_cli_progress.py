@@ -135,3 +135,32 @@ def test_simulate_walk_shows_progress(tmp_path, capsys, monkeypatch):
     assert main(["simulate", "walk", "--out", str(tmp_path / "w.npz")]) == 0
     err = capsys.readouterr().err
     assert "rangeslam: simulate walk: " in err and "elapsed; 113 RIRs (pyroomacoustics)" in err
+
+
+def test_slam_logs_its_steps():
+    """slam (the longest step of a walk run) logs its EDM search with its time, which -v prints
+    and the progress line names."""
+    import numpy as np
+
+    import rangeslam
+    from rangeslam.geometry.edm import range_matrix
+    from rangeslam.sim.trajectories import lemniscate, step_lengths
+
+    walk = lemniscate(6, step=0.3, phase=0.0)
+    src = np.array([1.2, 2.9, 1.4])
+    room = rangeslam.Room.shoebox([5, 4, 2.6])
+    landmarks = np.vstack([src, room.image_sources(src, 1).positions])
+    steps = step_lengths(walk)
+    log, seen = logging.getLogger("rangeslam.mdu.slam"), _Records()
+    log.addHandler(seen)
+    log.setLevel(logging.INFO)
+    try:
+        rangeslam.slam(range_matrix(walk, landmarks), step_bounds=(0.8 * steps, 1.2 * steps), rng=0)
+    finally:
+        log.removeHandler(seen)
+        log.setLevel(logging.NOTSET)
+    assert "slam: EDM starts (convex iteration), each refined with GTSAM ..." in seen.messages
+    assert any(
+        m.startswith("slam: EDM starts (convex iteration), each refined with GTSAM: done in")
+        for m in seen.messages
+    )

@@ -11,6 +11,7 @@ covariances.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -24,6 +25,7 @@ from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverE
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
+from rangeslam.logsteps import logged_step
 from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
@@ -55,6 +57,8 @@ if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
 
 __all__ = ["SlamResult", "slam"]
+
+log = logging.getLogger(__name__)
 
 # Unknown noise: at most this many re-estimates of sigma from the refined fit.
 _NOISE_ROUNDS = 5
@@ -400,6 +404,7 @@ def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acce
     return Acceptance(confirmed and edm_agrees, rivals, best)
 
 
+@logged_step(log, "slam: EDM starts (convex iteration), each refined with GTSAM")
 def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
     """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one is :func:`accepted`;
     the best by its key otherwise."""
@@ -631,6 +636,7 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng) -> tuple[SlamRun,
     return best, status, message
 
 
+@logged_step(log, "slam: looking for rival minima (verdict)")
 def rival_search(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> RivalSearch:
     """GTSAM from AGREEMENT_STARTS GTSAM-style random starts (:func:`random_start`), on the graph
     of ``sigma_ref``, beside the answer ``best``; the graph's cost ranks them all alike.
