@@ -2,8 +2,9 @@
 
     python benchmarks/bench_beacon_defaults.py [--seeds 524759 163842] [--no-plaza]
 
-Each scene (simulate_beacon_run; the room: 5 cm UWB ranges, 1 cm steps round a 1 m loop; the
-field: 1 m ranges, 1.2 m steps round a 100 m loop; ranges 3 % long plus one sigma, four beacons)
+Each scene (simulate_beacon_run; the room: beacons in the corners of 3 x 3 m, 5 cm UWB ranges,
+0.5 cm steps round a 0.45 m loop; the field: the same 100 times larger, 1 m ranges; ranges 3 %
+long plus one sigma)
 is run with only its stated noise (range_sigma, odometry_sigma): beacon_slam, the incremental
 run, a plain GTSAM best-of-3 peer (the same graph from three random beacon starts, lowest cost
 kept), beacon_slam with every beacon known (fixed) and with two known, the EKF and GTSAM's
@@ -23,13 +24,18 @@ from rangeslam.baselines import ekf_range_odometry, gtsam_range_example
 from rangeslam.beacons import beacon_slam, beacon_slam_incremental, simulate_beacon_run
 from rangeslam.evaluation.metrics import ape, ape_statistics
 
+# Beacons in the corners of a 3 x 3 m room round a path 2.0 x 2.5 m across (0.5 cm steps round a
+# 0.45 m loop that drifts), and the same scene 100 times larger.
+CORNERS = np.array([[-0.9, -0.2], [1.9, -0.2], [1.9, 2.6], [-0.9, 2.6]])
 SCENES = {
     "room 3 x 3 m": dict(
-        n_steps=2000, step_length=0.01, radius=1.0, range_std=0.05, odometry_std=(5e-4, 0.002),
+        n_steps=2000, step_length=0.005, radius=0.45, beacons=CORNERS, range_std=0.05,
+        odometry_std=(2.5e-4, 0.002),
         range_scale=1.03, range_offset=0.05,
     ),
     "field 300 x 300 m": dict(
-        n_steps=2000, step_length=1.2, radius=100.0, range_std=1.0, odometry_std=(0.06, 0.002),
+        n_steps=2000, step_length=0.5, radius=45.0, beacons=100.0 * CORNERS, range_std=1.0,
+        odometry_std=(0.025, 0.002),
         range_scale=1.03, range_offset=1.0,
     ),
 }  # fmt: skip

@@ -18,7 +18,7 @@ from rangeslam.status import Status
 pytest.importorskip("gtsam")
 
 HELD_OUT_SEEDS = (524759, 163842)
-# A room about 2.3 m across, UWB ranges (5 cm), about 240 of them, as the log of issue 36.
+# Four beacons 2.3 m apart, UWB ranges (5 cm), about 240 of them, as the log of issue 36.
 ROOM = dict(n_steps=600, step_length=0.01, radius=0.9, range_std=0.05, odometry_std=(5e-4, 0.002))
 
 

@@ -90,7 +90,7 @@ def test_bad_records_are_refused_naming_the_line(tmp_path, change, match):
 
 
 def test_rangeslam_run_takes_a_beacon_log(room, tmp_path, capsys):
-    """A room 3 x 3 m with its stated noise and two known beacons, through the command line:
+    """A simulated room with UWB ranges, its stated noise and two known beacons, through the CLI:
     exit 0, the trajectory and the beacons written, the error against the file's truth within
     the range noise (measured 1.6 cm here, 1.9 cm on seed 7, with 5 cm ranges)."""
     known = np.array(room.beacons)

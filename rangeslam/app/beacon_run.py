@@ -2,7 +2,8 @@
 
 The file's format: :mod:`rangeslam.datasets.beacon_log`. One library call does the work
 (:func:`rangeslam.beacons.beacon_slam`, with the noise the file states and its known beacons);
-this module reads the file, then prints and writes the report. Exit 0 converged, 1 not converged,
+this module reads the file, then prints and writes the report and a plot of the path and the
+beacons (against the file's truth when it has one). Exit 0 converged, 1 not converged,
 2 bad input.
 """
 
@@ -52,6 +53,27 @@ def _against_truth(log, res) -> list[str]:
     return lines
 
 
+def _plot(out: Path, log, res) -> Path:
+    """run_trajectory.png: the path and the beacons placed, rigidly aligned onto the file's
+    truth when it has one (with the true beacons)."""
+    from rangeslam.app.plotting import plot_walk_estimate
+    from rangeslam.geometry.alignment import align
+
+    path, marks = res.poses[:, :2], res.beacons[np.all(np.isfinite(res.beacons), axis=1)]
+    truth = rot = shift = true_marks = None
+    if log.truth is not None and np.all(np.isfinite(path)):
+        fit = align(path, log.truth[:, :2])
+        truth, rot, shift = log.truth[:, :2], fit.rotation, fit.translation
+        if log.beacons is not None:
+            true_marks = log.beacons[np.all(np.isfinite(log.beacons), axis=1)]
+    verdict = "converged" if res.converged else "not converged"
+    return plot_walk_estimate(
+        out / "run_trajectory.png", receivers=path, sources=marks, true_trajectory=truth,
+        rotation=rot, translation=shift, true_landmarks=true_marks,
+        title=f"{log.path.name}: {res.method}, {verdict}", converged=bool(res.converged),
+    )  # fmt: skip
+
+
 def _write(out: Path, log, res, lines: list[str]) -> list[Path]:
     """run_summary.md / .json, run_trajectory.csv and run_landmarks.csv in ``out``."""
     from rangeslam.app.reports import versions, write_csv, write_summary
@@ -69,6 +91,7 @@ def _write(out: Path, log, res, lines: list[str]) -> list[Path]:
     written = [
         write_csv(out / "run_trajectory.csv", traj),
         write_csv(out / "run_landmarks.csv", marks),
+        _plot(out, log, res),
     ]
     (out / "run_summary.md").write_text("\n".join(lines) + "\n")
     record = {
