@@ -304,7 +304,7 @@ def _write_plaza_outputs(args, dataset, rows, length_rows, kept: dict, wall: flo
         ),
     ]
     evaluations = {name: pb.evaluate(res, dataset) for name, res in kept.items()}
-    written.append(plot_plaza(out / f"{stem}.png", dataset, kept, evaluations))
+    written.append(plot_plaza(out / f"{stem}.png", dataset, kept, evaluations, rows=rows))
     if args.tum:
         written.append(_write_plaza_tum(out, stem, dataset, kept))
     return written

@@ -16,6 +16,7 @@ import numpy as np
 
 __all__ = [
     "DPI",
+    "LINESTYLES",
     "MARKERS",
     "NOT_ATTAINED",
     "clip_to_box",
@@ -33,6 +34,8 @@ __all__ = [
 DPI = 130
 #: One marker per curve, in the order curves are drawn.
 MARKERS = ("o", "s", "^", "v", "D", "P", "X", "<", ">", "h")
+#: One line style per curve, in the order curves are drawn (with MARKERS and the colours).
+LINESTYLES = ("-", "--", "-.", ":", (0, (5, 1, 1, 1, 1, 1)), (0, (1, 1)))
 #: What a plot says where a Cramer-Rao bound is not attained by the oracle (so not drawn).
 NOT_ATTAINED = "bound not attained: oracle only"
 

@@ -281,6 +281,9 @@ def plot_rir_matrix(
     *,
     xlabel: str = "step",
     detections=None,
+    used: np.ndarray | None = None,
+    used_label: str = "echoes used",
+    true_times: np.ndarray | None = None,
     keyframes: np.ndarray | None = None,
     dynamic_range_db: float = 50.0,
 ) -> Path:
@@ -289,7 +292,11 @@ def plot_rir_matrix(
     clipped at -``dynamic_range_db`` as colour, one cell per sample (no interpolation).
 
     ``detections``: M echo detections (with ``found`` and ``times`` in seconds, e.g.
-    :class:`rangeslam.acoustics.echoes.EchoDetection`) drawn over their columns. ``keyframes``:
+    :class:`rangeslam.acoustics.echoes.EchoDetection`) drawn over their columns: those ``used``
+    ((M, K) index into each ``detections[m].times``, -1 for none: the labelling's ``peaks`` or
+    the tracks' ``detection``) as large hollow circles named ``used_label``, the others as small
+    white dots. ``true_times``: (M, J) the true arrival times [s] (direct path and image sources,
+    NaN where none) as dashes, when the file has the truth. ``keyframes``:
     indices of the RIRs that are steps, marked at the top when there are more RIRs than steps
     (then the x axis is 'RIR (frame)'). Returns the path written.
     """
@@ -313,7 +320,9 @@ def plot_rir_matrix(
     )
     fig.colorbar(im, ax=ax, label="|RIR| relative to its peak [dB]")
     if detections is not None:
-        _overlay_detections(ax, detections, t_end)
+        _overlay_detections(ax, detections, t_end, used=used, used_label=used_label)
+    if true_times is not None:
+        _overlay_truth(ax, true_times, t_end)
     frames = keyframes is not None and len(keyframes) < m
     if frames:
         ax.plot(
@@ -335,27 +344,54 @@ def plot_rir_matrix(
     return save_figure(fig, path, legend_space=True)
 
 
-def _overlay_detections(ax, detections, t_end: float) -> None:
-    """Detected echo times (ms) as hollow circles over their RIR's column, those within the
-    plotted time span (0..``t_end`` ms)."""
-    xs, ts = [], []
+def _overlay_detections(ax, detections, t_end: float, *, used=None, used_label: str) -> None:
+    """Detected echo times (ms) over their RIR's column, those within the plotted time span
+    (0..``t_end`` ms): the ``used`` ones (see :func:`plot_rir_matrix`) as large hollow lime
+    circles, the other detections as small white dots."""
+    picked = {}
+    if used is not None:
+        for i, row in enumerate(np.asarray(used, dtype=int)):
+            picked[i] = {int(k) for k in row if k >= 0}
+    pts = {True: ([], []), False: ([], [])}
     for i, det in enumerate(detections):
-        if det is not None and det.found:
-            t = np.asarray(det.times, dtype=float) * 1e3
-            t = t[(t >= 0) & (t <= t_end)]
-            xs.append(np.full(len(t), i))
-            ts.append(t)
-    if xs:
+        if det is None or not det.found:
+            continue
+        t = np.asarray(det.times, dtype=float) * 1e3
+        for k, tk in enumerate(t):
+            if 0 <= tk <= t_end:
+                xs, ts = pts[k in picked.get(i, ())]
+                xs.append(i)
+                ts.append(tk)
+    styles = {
+        True: {"marker": "o", "ms": 8, "mfc": "none", "mec": "lime", "mew": 1.4, "zorder": 4},
+        False: {"marker": ".", "ms": 7, "mfc": "white", "mec": "black", "mew": 0.5, "zorder": 5},
+    }
+    for is_used in (True, False):
+        xs, ts = pts[is_used]
+        if xs:
+            label = used_label if is_used else "other detections"
+            if used is None:
+                label = "detected echoes"
+            ax.plot(xs, ts, ls="none", label=label, **styles[is_used])
+
+
+def _overlay_truth(ax, true_times, t_end: float) -> None:
+    """True arrival times (M, J) [s] as cyan dashes over their RIR's column, within 0..``t_end``
+    ms; NaN entries left out."""
+    t = np.asarray(true_times, dtype=float) * 1e3
+    cols = np.broadcast_to(np.arange(t.shape[0])[:, None], t.shape)
+    keep = np.isfinite(t) & (t >= 0) & (t <= t_end)
+    if keep.any():
         ax.plot(
-            np.concatenate(xs),
-            np.concatenate(ts),
+            cols[keep],
+            t[keep],
             ls="none",
-            marker="o",
-            ms=5,
-            mfc="none",
-            mec="tab:cyan",
-            mew=1.0,
-            label="detected echoes",
+            marker="_",
+            ms=14,
+            mew=1.6,
+            color="cyan",
+            zorder=3,
+            label="true arrivals (direct path, image sources)",
         )
 
 
@@ -395,8 +431,9 @@ def plot_room_estimate(
 
     The estimated room's outline when the walls bound one (``room``); otherwise each wall as the
     line where it cuts the view plane through the loudspeaker (walls nearly parallel to the view
-    are left out of it). Microphones, loudspeaker, image sources; the true room and loudspeaker
-    when given. The limits are set by the rooms, microphones and loudspeaker (plus the image
+    are left out of it), named as found in a run that did not converge (``converged`` False:
+    e.g. the walls a failed labelling found). Microphones, loudspeaker, image sources; the true
+    room and loudspeaker when given. The limits are set by the rooms, microphones and loudspeaker (plus the image
     sources within one room extent); farther estimates are drawn at the edge and counted in a
     note. ``converged`` False puts 'not converged' in the title. Returns the path written.
     """
@@ -413,9 +450,11 @@ def plot_room_estimate(
         if true_room is not None:
             _outline(ax, true_room, axes, color="0.3", lw=2.0, label="true room")
         if room is not None:
-            _outline(ax, room, axes, color="tab:red", lw=1.2, ls="--", label="reconstructed")
+            label = "reconstructed" + (" (run not converged)" if converged is False else "")
+            _outline(ax, room, axes, color="tab:red", lw=1.2, ls="--", label=label)
         elif wall_normals is not None and wall_offsets is not None:
-            _wall_traces(ax, wall_normals, wall_offsets, axes, centre, (lo, hi))
+            found = converged is False
+            _wall_traces(ax, wall_normals, wall_offsets, axes, centre, (lo, hi), found=found)
         _scatter_room_points(ax, axes, mics, image_sources, true_source, source, box=(lo, hi))
         _view_axes(ax, axes, labels, name, (lo, hi))
         if room is None:
@@ -426,14 +465,16 @@ def plot_room_estimate(
     return save_figure(fig, path, legend_space=True)
 
 
-def _wall_traces(ax, normals, offsets, axes, centre, box) -> None:
-    """Each estimated wall as its trace in the view through ``centre`` (see _wall_trace)."""
+def _wall_traces(ax, normals, offsets, axes, centre, box, *, found: bool = False) -> None:
+    """Each estimated wall as its trace in the view through ``centre`` (see _wall_trace),
+    labelled as found in a run that did not converge when ``found``."""
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     lo, hi = box
     extent = np.array([lo[list(axes)], hi[list(axes)]])
     for k, (n, o) in enumerate(zip(normals, offsets, strict=True)):
         style = {"color": colours[k % len(colours)], "lw": 1.2, "ls": "--"}
-        _wall_trace(ax, n, o, axes, centre, extent, label=f"wall {k}", **style)
+        label = f"wall {k}" + (" (found; run not converged)" if found else "")
+        _wall_trace(ax, n, o, axes, centre, extent, label=label, **style)
 
 
 def plot_walk_estimate(

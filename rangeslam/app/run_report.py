@@ -252,6 +252,9 @@ def run_plots(args: argparse.Namespace, loaded, res) -> list[Path]:
             f"detected echoes overlaid: {verdict}",
             xlabel="microphone" if res.mode == "array" else "step",
             detections=res.detections,
+            used=_used_peaks(res),
+            used_label="echoes labelled" if res.mode == "array" else "echoes in tracks",
+            true_times=true_arrival_times(loaded, res),
             keyframes=loaded.keyframes,
         )
     ]
@@ -260,6 +263,53 @@ def run_plots(args: argparse.Namespace, loaded, res) -> list[Path]:
     elif res.trajectory is not None:
         written.append(_walk_plot(out, loaded, res, verdict))
     return written
+
+
+def _used_peaks(res) -> np.ndarray | None:
+    """(M, K) index of each used echo in its RIR's detection (-1: none): the labelled peaks
+    (array mode) or the tracks' detections (walk mode); None when the pipeline has neither."""
+    lab = getattr(res.result, "labelling", None)
+    if lab is not None:
+        return np.asarray(lab.peaks)
+    tracks = getattr(res.result, "tracks", None)
+    return None if tracks is None else np.asarray(tracks.detection)
+
+
+def true_arrival_times(loaded, res) -> np.ndarray | None:
+    """(M, J) true arrival times [s] at each RIR, at the file's speed of sound (else the run's):
+    the direct path and the first-order image sources of the true room (array mode), or the
+    true landmarks from the true trajectory (walk mode; rows without a true position NaN).
+    None when the file lacks the truth."""
+    from rangeslam.errors import RangeSlamError
+
+    c = float(loaded.c) if loaded.c is not None else float(res.c)
+    m = loaded.n_rirs
+    if res.mode == "array":
+        room = true_room_of(loaded)
+        if room is None or loaded.source is None or res.mics is None:
+            return None
+        src = np.asarray(loaded.source, dtype=float)
+        try:
+            points = np.vstack([src, room.image_sources(src, order=1).positions])
+        except RangeSlamError:  # a true source outside the true room: no truth to draw
+            return None
+        mics = np.asarray(res.mics, dtype=float)
+        return np.linalg.norm(mics[:, None, :] - points[None], axis=2) / c
+    if loaded.trajectory is None or loaded.landmarks is None:
+        return None
+    traj = np.asarray(loaded.trajectory, dtype=float)
+    marks = np.asarray(loaded.landmarks, dtype=float)
+    if len(traj) == m:
+        rows = np.arange(m)
+    elif loaded.keyframes is not None:
+        rows = np.asarray(loaded.keyframes, dtype=int)
+    else:
+        return None
+    if len(rows) != len(traj) or traj.shape[1] != marks.shape[1]:
+        return None
+    times = np.full((m, len(marks)), np.nan)
+    times[rows] = np.linalg.norm(traj[:, None, :] - marks[None], axis=2) / c
+    return times
 
 
 def true_room_of(loaded):
@@ -284,19 +334,36 @@ def _room_plot(out: Path, loaded, res, verdict: str) -> Path:
     from rangeslam.app.plotting import plot_room_estimate
 
     rec = res.result.reconstruction
+    normals, offsets, images = res.wall_normals, res.wall_offsets, res.image_sources
+    lab = getattr(res.result, "labelling", None)
+    if normals is None and res.source is not None and lab is not None:  # the walls it found
+        normals, offsets, images = labelled_walls(res.source, lab.images)
     return plot_room_estimate(
         out / "run_room.png",
-        wall_normals=res.wall_normals,
-        wall_offsets=res.wall_offsets,
+        wall_normals=normals,
+        wall_offsets=offsets,
         mics=res.mics,
         source=res.source,
-        image_sources=res.image_sources,
+        image_sources=images,
         room=None if rec is None else rec.room,
         true_room=true_room_of(loaded),
         true_source=loaded.source,
         title=f"room from {loaded.n_rirs} RIRs: {verdict}",
         converged=bool(res.converged),
     )
+
+
+def labelled_walls(source, images) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """The walls of the first-order image sources (K, 3) found (finite rows): each the bisector
+    plane of ``source`` and its image, as (K, 3) outward unit normals and (K,) offsets (None,
+    None when there is none), and the images used."""
+    src = np.asarray(source, dtype=float)
+    imgs = np.asarray(images, dtype=float).reshape(-1, src.shape[0])
+    imgs = imgs[np.all(np.isfinite(imgs), axis=1) & (np.linalg.norm(imgs - src, axis=1) > 0)]
+    if not len(imgs):
+        return None, None, imgs
+    normals = (imgs - src) / np.linalg.norm(imgs - src, axis=1, keepdims=True)
+    return normals, np.einsum("kd,kd->k", normals, (imgs + src) / 2), imgs
 
 
 def _walk_plot(out: Path, loaded, res, verdict: str) -> Path:
