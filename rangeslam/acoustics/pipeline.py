@@ -33,7 +33,7 @@ import logging
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -73,6 +73,7 @@ __all__ = [
     "SilentRirWarning",
     "evaluate_run",
     "load_rirs",
+    "run_loudspeakers",
     "run_rirs",
     "shoebox_wall_errors",
 ]
@@ -131,6 +132,7 @@ class RunResult(HasStatus):
         masked: (M,) True for the RIRs left out (silent, or clipped and masked): the pipeline saw
             zeros there and took no range from them.
         no_echoes: (M,) True for RIRs in which the detector found nothing (masked ones included).
+        sources: (J, 3) every loudspeaker (:func:`run_loudspeakers`; ``source`` is row 0), or None.
     """
 
     mode: str
@@ -152,6 +154,7 @@ class RunResult(HasStatus):
     clipped: np.ndarray
     masked: np.ndarray
     no_echoes: np.ndarray
+    sources: np.ndarray | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -298,6 +301,79 @@ def run_rirs(
     else:
         answer = _run_walk(screen.rirs, fs, bounds, c=c, dim=dim, rng=rng, options=options)
     return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts)
+
+
+def run_loudspeakers(
+    rir_sets: Sequence[ArrayLike],
+    fs: float,
+    *,
+    mics: ArrayLike,
+    c: float = SPEED_OF_SOUND,
+    rng: np.random.Generator | int | None = None,
+    clipped: str = "mask",
+    detect_options: dict[str, Any] | None = None,
+    label_options: dict[str, Any] | None = None,
+    reconstruct_options: dict[str, Any] | None = None,
+) -> RunResult:
+    """The room from J loudspeakers' RIRs at the same M known microphones, walls fitted jointly
+    (:func:`rangeslam.acoustics.joint_room.room_from_loudspeakers`); array mode of
+    :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
+    loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located.
+
+    Raises:
+        InvalidInputError as :func:`run_rirs`, naming ``rir_sets[j]``; fewer than one set.
+    """
+    from rangeslam.acoustics.joint_room import room_from_loudspeakers
+
+    rng = as_rng(rng)
+    if isinstance(rir_sets, np.ndarray) or not isinstance(rir_sets, Sequence) or not rir_sets:
+        raise InvalidInputError("rir_sets must be a non-empty list of (M, L) RIR arrays")
+    sets = [_as_rirs(x) for x in rir_sets]
+    fs, c = check_fs(fs), _check_c(c)
+    pts = _check_mics(mics, 3, len(sets[0]))
+    for j, x in enumerate(sets):
+        if len(x) != len(pts):
+            raise InvalidInputError(
+                f"rir_sets[{j}] must hold one RIR per microphone, {len(pts)}; got {len(x)}"
+            )
+    screens = [_screen_rirs(x, clipped) for x in sets]
+    res = room_from_loudspeakers(
+        [s.rirs for s in screens],
+        fs,
+        pts,
+        c=c,
+        rng=rng,
+        detect_options=detect_options,
+        label_options=label_options,
+        reconstruct_options=reconstruct_options,
+    )
+    screen = RirScreen(
+        rirs=np.zeros((0, 0)),
+        silent=np.concatenate([s.silent for s in screens]),
+        clipped=np.concatenate([s.clipped for s in screens]),
+        masked=np.concatenate([s.masked for s in screens]),
+        clipped_mode=clipped,
+    )
+    rec = res.reconstruction
+    if rec is None:
+        answer = PipelineAnswer(result=res, finite=False)
+    else:
+        finite = bool(
+            np.all(np.isfinite(rec.sources))
+            and np.all(np.isfinite(rec.wall_normals))
+            and np.all(np.isfinite(rec.wall_offsets))
+        )
+        answer = PipelineAnswer(
+            result=res,
+            finite=finite,
+            source=frozen(np.array(rec.sources[0])),
+            image_sources=frozen(np.array(rec.image_sources[0])),
+            wall_normals=frozen(np.array(rec.wall_normals)),
+            wall_offsets=frozen(np.array(rec.wall_offsets)),
+            wall_support=frozen(rec.inliers[:, :, 1:].sum(axis=(0, 1)).astype(int)),
+        )
+    out = _verdict("array", answer, screen, fs=fs, c=c, mics=pts)
+    return replace(out, sources=None if rec is None else frozen(np.array(rec.sources)))
 
 
 @dataclass(frozen=True)

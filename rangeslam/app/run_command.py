@@ -112,16 +112,27 @@ def read_matrix(path: Path, flag: str):
 
 def load_for_run(args: argparse.Namespace):
     """The RIRs named on the command line (``load_rirs``), with the errors that concern a flag
-    naming it: several files with an .npz among them (RIRS), a --fs the files contradict."""
-    from rangeslam.datasets import load_rirs
-    from rangeslam.errors import DataFormatError, InvalidInputError
+    naming it: several files mixing .npz and WAV (RIRS), a --fs the files contradict. Several
+    .npz files are several loudspeakers at the same microphones: a list, one LoadedRirs each."""
+    from rangeslam.errors import InvalidInputError
 
     paths = args.rirs
     if len(paths) > 1 and any(p.suffix.lower() == ".npz" for p in paths):
-        raise InvalidInputError(
-            "RIRS: give one .npz, or WAV files; got " + ", ".join(str(p) for p in paths[:4])
-        )
-    source = paths[0] if len(paths) == 1 else paths
+        if not all(p.suffix.lower() == ".npz" for p in paths):
+            raise InvalidInputError(
+                "RIRS: give .npz files (one per loudspeaker), or WAV files; got "
+                + ", ".join(str(p) for p in paths[:4])
+            )
+        return [_load_one(args, p) for p in paths]
+    return _load_one(args, paths[0] if len(paths) == 1 else paths)
+
+
+def _load_one(args: argparse.Namespace, source):
+    """The RIRs of one loudspeaker (a path or a list of WAVs), --fs checked against them."""
+    from rangeslam.datasets import load_rirs
+    from rangeslam.errors import DataFormatError, InvalidInputError
+
+    paths = [source] if isinstance(source, Path) else source
     if args.fs is None:
         return load_rirs(source)
     try:
@@ -280,10 +291,15 @@ def check_known(args: argparse.Namespace, m: int, keys, mics, bounds, origin: st
         )
 
 
-def _announce(loaded, inputs: RunInputs) -> float:
+def _announce(loaded, inputs: RunInputs, *, loudspeakers: int = 1) -> float:
     """Say on standard error what the run is about to do (a walk takes about a minute); returns
     the start time (``time.perf_counter``)."""
-    if inputs.mics is not None:
+    if loudspeakers > 1:
+        what = (
+            f"{loudspeakers} loudspeakers: detecting and labelling each one's echoes, "
+            "matching their walls, reconstructing the room jointly"
+        )
+    elif inputs.mics is not None:
         what = "detecting echoes, labelling them, reconstructing the room"
     else:
         what = "detecting and tracking echoes, then SLAM (EDM start, GTSAM); about a minute"
@@ -307,6 +323,10 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
         warnings.simplefilter("always", UserWarning)
         try:
             loaded = load_for_run(args)
+            if isinstance(loaded, list):  # several loudspeakers
+                inputs = run_inputs(args, loaded[0])
+                loaded, res = _run_loudspeakers(args, loaded, inputs)
+                raise _Done
             inputs = run_inputs(args, loaded)
             started = _announce(loaded, inputs)
             res = run_rirs(
@@ -325,6 +345,8 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
                 file=sys.stderr,
                 flush=True,
             )
+        except _Done:
+            pass
         except (InvalidInputError, DegenerateGeometryError) as exc:
             error = exc
     caught = tuple(
@@ -334,6 +356,64 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
         for w in seen
     )
     return RunAttempt(loaded=loaded, inputs=inputs, result=res, warnings=caught, error=error)
+
+
+class _Done(Exception):
+    """The several-loudspeaker run is done (leaves the one-loudspeaker path of _attempt)."""
+
+
+def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
+    """Several .npz files, one per loudspeaker, the same microphones: the walls fitted jointly
+    (``run_loudspeakers``). Returns (the files as one LoadedRirs for the report: the RIRs stacked
+    loudspeaker by loudspeaker, zero-padded to the longest for the plot only, the first file's
+    truth; the RunResult)."""
+    import dataclasses
+
+    import numpy as np
+
+    from rangeslam.acoustics.pipeline import run_loudspeakers
+    from rangeslam.errors import InvalidInputError
+
+    if inputs.mics is None:
+        raise InvalidInputError(
+            "several RIRS files are several loudspeakers at one known array: give --mics (or "
+            "npz files holding mics); a walk takes one file"
+        )
+    if args.measured:
+        raise InvalidInputError("--measured takes one loudspeaker (one RIRS file) for now")
+    first = sets[0]
+    for path, other in zip(args.rirs[1:], sets[1:], strict=True):
+        if other.fs != first.fs:
+            raise InvalidInputError(
+                f"RIRS: {path} is sampled at {other.fs:g} Hz, {args.rirs[0]} at {first.fs:g} Hz"
+            )
+        if other.n_rirs != first.n_rirs:
+            raise InvalidInputError(
+                f"RIRS: {path} holds {other.n_rirs} RIRs, {args.rirs[0]} {first.n_rirs}: one "
+                "per microphone in each"
+            )
+        if other.mics is not None and not np.allclose(other.mics, inputs.mics, atol=1e-6):
+            raise InvalidInputError(
+                f"RIRS: {path} holds other microphone positions than {inputs.origin.split(';')[0]}"
+            )
+    started = _announce(first, inputs, loudspeakers=len(sets))
+    res = run_loudspeakers(
+        [s.rirs for s in sets],
+        first.fs,
+        mics=inputs.mics,
+        c=inputs.c,
+        rng=args.seed,
+        clipped="use" if args.use_clipped else "mask",
+    )
+    print(
+        f"rangeslam: run: finished in {format_seconds(time.perf_counter() - started)}",
+        file=sys.stderr,
+        flush=True,
+    )
+    length = max(s.rirs.shape[1] for s in sets)
+    rirs = np.vstack([np.pad(s.rirs, ((0, 0), (0, length - s.rirs.shape[1]))) for s in sets])
+    names = tuple(n for s in sets for n in s.names)
+    return dataclasses.replace(first, rirs=rirs, names=names, keyframes=None), res
 
 
 @dataclass(frozen=True, eq=False)
@@ -443,6 +523,18 @@ def run(args: argparse.Namespace) -> int:
         return _run(args)
 
 
+def _loudspeaker_lines(res, lines: list[str], record: dict) -> None:
+    """Several loudspeakers: each one's estimated position, appended to ``lines`` and ``record``."""
+    if res.sources is None or len(res.sources) < 2:
+        return
+    lines += ["", f"{len(res.sources)} loudspeakers (fitted jointly with the walls):", ""]
+    lines += ["| loudspeaker | x [m] | y [m] | z [m] |", "|---|---|---|---|"]
+    lines += [
+        f"| {j} | " + " | ".join(f"{v:.4f}" for v in s) + " |" for j, s in enumerate(res.sources)
+    ]
+    record["sources"] = res.sources.tolist()
+
+
 def _run(args: argparse.Namespace) -> int:
     """The body of :func:`run`."""
     from rangeslam.app.reports import versions, write_summary
@@ -467,6 +559,7 @@ def _run(args: argparse.Namespace) -> int:
     record = run_record(args, attempt)
     if res.mode == "array":
         written = array_report(args.out, res, errs, loaded, lines, record)
+        _loudspeaker_lines(res, lines, record)
     else:
         written = walk_report(args.out, res, errs, lines, record)
     written += logged_step(log, "run: drawing the plots")(run_plots)(args, loaded, res)

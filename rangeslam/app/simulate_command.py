@@ -36,6 +36,8 @@ MAX_MICS = 256
 MAX_STEPS = 1000
 MAX_RIRS_PER_STEP = 64
 MAX_WALK_RIRS = 10_000
+#: --sources of ``simulate room``: one file per loudspeaker.
+MAX_SOURCES = 8
 #: --noise: white noise std as a fraction of the largest sample.
 MAX_NOISE = 100.0
 
@@ -131,6 +133,14 @@ def add_simulate_parser(sub) -> None:
         default=8,
         metavar="M",
         help=f"microphones, 4 (a room in 3-D) to {MAX_MICS}",
+    )
+    room.add_argument(
+        "--sources",
+        type=arg_types.int_in(1, MAX_SOURCES),
+        default=1,
+        metavar="J",
+        help=f"loudspeakers, 1 to {MAX_SOURCES}: J > 1 writes one file per loudspeaker "
+        "(OUT-src0.npz, ...; the same microphones; then: run them together)",
     )
     _add_common(room, fs=48000)
     room.set_defaults(func=simulate_room)
@@ -242,25 +252,56 @@ def _next_command(path: Path, flag: str) -> str:
 
 
 def simulate_room(args: argparse.Namespace) -> int:
-    """``rangeslam simulate room``: the RIRs of a loudspeaker at M microphones, and the truth."""
-    import numpy as np
-
+    """``rangeslam simulate room``: the RIRs of a loudspeaker (or J, one file each) at M
+    microphones, and the truth."""
     from rangeslam.app.experiments import demo_rooms
-    from rangeslam.app.progress import Heartbeat
-    from rangeslam.errors import InvalidInputError
     from rangeslam.geometry.room import Room
-    from rangeslam.sim.recordings import room_recording
 
     room = Room.shoebox(args.size) if args.size else demo_rooms()[ROOMS[args.room]]
     outside = _source_outside(room, args)
     if outside is not None:
         return _refuse("--source", outside)
+    if args.sources > 1:
+        return _simulate_loudspeakers(args, room)
+    return _simulate_one(args, room, args.source, args.out)
+
+
+def _simulate_loudspeakers(args: argparse.Namespace, room) -> int:
+    """``simulate room --sources J``: one file per loudspeaker, the same microphones (the seed
+    draws them first); loudspeaker 0 is --source or drawn as for one, the others drawn from
+    (seed, j)."""
+    import numpy as np
+
+    from rangeslam.sim.scenes import random_points_in_room
+
+    stem = args.out.with_suffix("")
+    paths = [stem.with_name(f"{stem.name}-src{j}.npz") for j in range(args.sources)]
+    for j, path in enumerate(paths):
+        src = args.source
+        if j > 0:
+            gen = np.random.default_rng([args.seed, j])
+            src = random_points_in_room(room, 1, margin=0.5, rng=gen)[0].tolist()
+        code = _simulate_one(args, room, src, path, say_next=False)
+        if code:
+            return code
+    print(f"next: rangeslam run {' '.join(shlex.quote(str(p)) for p in paths)} --mics-from-npz")
+    return 0
+
+
+def _simulate_one(args: argparse.Namespace, room, source, out: Path, *, say_next=True) -> int:
+    """One loudspeaker's file (``simulate room``)."""
+    import numpy as np
+
+    from rangeslam.app.progress import Heartbeat
+    from rangeslam.errors import InvalidInputError
+    from rangeslam.sim.recordings import room_recording
+
     try:
         with Heartbeat("simulate room", step=f"{args.mics} RIRs (pyroomacoustics)"):
             rec = room_recording(
                 room,
                 n_mics=args.mics,
-                source=args.source,
+                source=source,
                 fs=args.fs,
                 absorption=args.absorption,
                 max_order=args.order,
@@ -271,7 +312,7 @@ def simulate_room(args: argparse.Namespace) -> int:
         return _refuse("--size" if args.size else "--room", str(exc))
     truth = {"room_size": rec.room_size} if rec.room_size is not None else {}
     np.savez(
-        args.out,
+        out,
         rirs=rec.rirs,
         fs=rec.fs,
         c=rec.c,
@@ -290,12 +331,13 @@ def simulate_room(args: argparse.Namespace) -> int:
     )
     m, length = rec.rirs.shape
     print(
-        f"wrote {args.out}: {m} RIRs ({rec.fs:g} Hz, {length / rec.fs:.3f} s) of a loudspeaker "
+        f"wrote {out}: {m} RIRs ({rec.fs:g} Hz, {length / rec.fs:.3f} s) of a loudspeaker "
         f"at ({', '.join(f'{v:.2f}' for v in rec.source)}) m, microphones at random in the "
         f"{what} ({room.n_walls} walls, reflection order {args.order}); ground truth: "
         "mics, source, " + ("room_size, " if truth else "") + "wall_normals, wall_offsets"
     )
-    print(f"next: {_next_command(args.out, '--mics-from-npz')}")
+    if say_next:
+        print(f"next: {_next_command(out, '--mics-from-npz')}")
     return 0
 
 
