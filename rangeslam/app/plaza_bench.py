@@ -147,9 +147,11 @@ def method_rows(
     on_row: Callable[[list[dict]], None] | None = None,
 ):
     """One row per method (and per trial for the methods with random starts). ``keep``, a dict,
-    receives the first trial's result of each method (for plots and TUM files); ``progress`` is
-    updated after each run; ``on_row`` receives the rows so far after each run (to write them)."""
-    rows = []
+    receives the result of each method's median trial (by mean APE, the lower of the middle two
+    for an even count; the trial the table's median stands for), for plots and TUM files, updated
+    as trials finish; ``progress`` is updated after each run; ``on_row`` receives the rows so far
+    after each run (to write them)."""
+    rows, seen = [], {}
     for method, trial in method_runs(methods, trials):
         rng = np.random.default_rng([seed, PLAZA_METHODS.index(method), trial])
         try:
@@ -158,8 +160,10 @@ def method_rows(
             rows.append(_row(method, trial, None, dataset, str(exc).splitlines()[0]))
         else:
             rows.append(_row(method, trial, res, dataset))
-            if keep is not None and trial == 0:
-                keep[method] = res
+            if keep is not None:
+                seen.setdefault(method, []).append((rows[-1]["mean"], trial, res))
+                ranked = sorted(seen[method], key=lambda x: (np.nan_to_num(x[0], nan=np.inf), x[1]))
+                keep[method] = ranked[(len(ranked) - 1) // 2][2]
         _finished(rows, f"{method} #{trial + 1}", progress, on_row)
     return rows
 

@@ -54,22 +54,22 @@ def method_labels(evaluations: dict, rows: list[dict] | None = None) -> dict[str
     """Legend text of each method: the statistic of the bench's table ("mean [m]": the mean APE,
     for methods run several times the median over the trials and the worst trial) from
     ``rows`` (the bench rows, see :func:`rangeslam.app.plaza_bench.method_rows`); the trial
-    drawn (the first) is named when it is not that median. Without rows, the drawn trial's
-    mean APE."""
+    drawn (the row whose mean is the drawn one's) is named when its mean is not that median.
+    Without rows, the drawn trial's mean APE."""
     labels = {}
     for name, ev in evaluations.items():
         e = np.asarray(ev.errors, dtype=float)
         drawn = float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any() else float("nan")
-        means = [
-            float(r["mean"]) for r in rows or () if r["method"] == name and r["status"] == "ok"
-        ]
+        mine = [r for r in rows or () if r["method"] == name and r["status"] == "ok"]
+        means = [float(r["mean"]) for r in mine]
         if len(means) <= 1:
             labels[name] = f"{name} (mean APE {drawn:.2f} m)"
             continue
         median, worst = float(np.median(means)), float(np.max(means))
         text = f"{name} (mean APE {median:.2f} m, median of {len(means)} trials, worst {worst:.2f}"
         if f"{drawn:.2f}" != f"{median:.2f}":
-            text += f"; drawn: trial 1, {drawn:.2f}"
+            trial = int(mine[int(np.nanargmin(np.abs(np.array(means) - drawn)))]["trial"])
+            text += f"; drawn: trial {trial + 1}, {drawn:.2f}"
         labels[name] = text + " m)"
     return labels
 

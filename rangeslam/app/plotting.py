@@ -353,6 +353,7 @@ def _overlay_detections(ax, detections, t_end: float, *, used=None, used_label: 
         for i, row in enumerate(np.asarray(used, dtype=int)):
             picked[i] = {int(k) for k in row if k >= 0}
     pts = {True: ([], []), False: ([], [])}
+    col = _column_points(ax, len(detections))
     for i, det in enumerate(detections):
         if det is None or not det.found:
             continue
@@ -363,8 +364,14 @@ def _overlay_detections(ax, detections, t_end: float, *, used=None, used_label: 
                 xs.append(i)
                 ts.append(tk)
     styles = {
-        True: {"marker": "o", "ms": 8, "mfc": "none", "mec": "lime", "mew": 1.4, "zorder": 4},
-        False: {"marker": ".", "ms": 7, "mfc": "white", "mec": "black", "mew": 0.5, "zorder": 5},
+        True: {"marker": "o", "ms": min(8.0, 0.8 * col), "mfc": "none", "mec": "lime", "mew": 1.4},
+        False: {
+            "marker": ".",
+            "ms": min(7.0, 0.7 * col),
+            "mfc": "white",
+            "mec": "black",
+            "mew": 0.5,
+        },
     }
     for is_used in (True, False):
         xs, ts = pts[is_used]
@@ -372,7 +379,12 @@ def _overlay_detections(ax, detections, t_end: float, *, used=None, used_label: 
             label = used_label if is_used else "other detections"
             if used is None:
                 label = "detected echoes"
-            ax.plot(xs, ts, ls="none", label=label, **styles[is_used])
+            ax.plot(xs, ts, ls="none", label=label, zorder=5 - is_used, **styles[is_used])
+
+
+def _column_points(ax, m: int) -> float:
+    """Width of one of ``m`` columns of ``ax`` in points (marker sizes are in points)."""
+    return ax.get_window_extent().width * 72.0 / ax.figure.dpi / max(m, 1)
 
 
 def _overlay_truth(ax, true_times, t_end: float) -> None:
@@ -387,10 +399,10 @@ def _overlay_truth(ax, true_times, t_end: float) -> None:
             t[keep],
             ls="none",
             marker="_",
-            ms=14,
-            mew=1.6,
+            ms=min(14.0, 1.2 * _column_points(ax, t.shape[0])),
+            mew=1.2,
             color="cyan",
-            zorder=3,
+            zorder=3,  # under the detections, which are drawn over the truth they match
             label="true arrivals (direct path, image sources)",
         )
 
