@@ -648,7 +648,8 @@ class RoomFromRirs(HasStatus):
         detections: the M echo detections.
         labelling: the :class:`EchoLabelling` of their peaks.
         reconstruction: the :class:`~rangeslam.localization.room_reconstruction.RoomReconstruction` from the
-            labelled ranges, or None when too few echoes were labelled to run it.
+            labelled ranges (also when the labelling did not converge: what it found), or None
+            when no source or no image source was labelled.
         status: :attr:`~rangeslam.status.Status.CONVERGED` when labelling and reconstruction
             both converged and the walls bound a room; else the labelling's status, the
             reconstruction's, or OUT_OF_RANGE when the walls found do not bound a room.
@@ -698,8 +699,9 @@ def room_from_rirs(
 
     Returns:
         A :class:`RoomFromRirs`. When the labelling did not converge (too few echoes labelled),
-        ``reconstruction`` is None and ``converged`` False, with the reason in ``message``; when
-        the walls found do not bound a room, ``converged`` is False as well.
+        ``converged`` is False with the reason in ``message``, and ``reconstruction`` holds the
+        walls it did find (None when it found no image source or no source); when the walls
+        found do not bound a room, ``converged`` is False as well.
     """
     rng = as_rng(rng)
     c = check_positive(c, "c")
@@ -721,12 +723,18 @@ def room_from_rirs(
     if shift:  # times of the template's peak, not of its start
         dets = tuple(replace(d, times=frozen(d.times + shift)) for d in dets)
     lab = label_echoes(dets, mics, c=c, rng=rng, **lopts)
-    if not lab.converged or lab.n_images == 0:
+    if lab.n_images == 0 or not np.all(np.isfinite(lab.source)):
         status = lab.status if not lab.converged else Status.NOT_IDENTIFIABLE
         msg = f"echo labelling did not converge: {lab.message}"
         return RoomFromRirs(dets, lab, None, status, msg)
     ropts = {"inlier_threshold": 2.0 * lab.tolerance, **ropts}
     rec = reconstruct_room(mics, lab.ranges, mask=lab.mask, rng=rng, **ropts)
+    if not lab.converged:  # the walls it found are kept and reported; the verdict is its own
+        msg = (
+            f"echo labelling did not converge: {lab.message}; the {lab.n_images} walls it "
+            f"found, reconstructed: {rec.message}"
+        )
+        return RoomFromRirs(dets, lab, rec, lab.status, msg)
     msg = f"labelling: {lab.message}; reconstruction: {rec.message}"
     if not rec.converged:
         # the reconstruction's own status once it has one (INCONSISTENT: its residual test)
