@@ -82,7 +82,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
 
 from rangeslam._validation import MAX_METRES, as_flag, as_rng, as_scalar, check_int, frozen
-from rangeslam.baselines.filter_verdict import off_the_batch_minimum
+from rangeslam.baselines.filter_verdict import filter_check
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
@@ -221,9 +221,10 @@ def filtered_answer(r, observed, dim, window: _Window, steps: StepModel, options
     return EkfAnswer(rec, src, rec_cov, src_cov, diverged, message)
 
 
-def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounded: bool):
-    """The :class:`SlamResult`: residual status (:func:`residual_status`), SOLVER_FAILED when
-    the filter diverged; the answer in the canonical frame with its covariances rotated."""
+def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounds, rng):
+    """The :class:`SlamResult`: residual status (:func:`residual_status`), then ``slam``'s
+    verdict on the trajectory (:func:`filter_check`), SOLVER_FAILED when the filter diverged;
+    the answer in the canonical frame with its covariances rotated."""
     rec, src, rec_cov, src_cov = (answer.receivers, answer.sources, answer.receiver_cov,
                                   answer.source_cov)  # fmt: skip
     finite = bool(np.all(np.isfinite(rec)) and np.all(np.isfinite(src)))
@@ -236,11 +237,12 @@ def ekf_result(answer: EkfAnswer, r, observed, dim, noise_std, scale, bounded: b
     ssr = float(np.nansum(res**2)) if finite else float("inf")
     rms = float(np.sqrt(ssr / int(observed.sum())))
     status, why = residual_status(
-        ssr, observed, dim, noise_std, scale, chi_square=noise_std is not None, bounded=bounded
-    )
-    if status is Status.CONVERGED and noise_std is None and finite:
-        off = off_the_batch_minimum(rec, src, r, observed)
-        status, why = (Status.INCONSISTENT, why + off) if off else (status, why)
+        ssr, observed, dim, noise_std, scale, chi_square=noise_std is not None,
+        bounded=bounds is not None,
+    )  # fmt: skip
+    if status is Status.CONVERGED and finite:
+        check = filter_check(rec, src, r, observed, noise_std, scale, bounds, rng)
+        status, why = check.status, why + (check.reason + "; " if check.reason else "")
     if diverged:
         status = Status.SOLVER_FAILED
     if finite:
@@ -344,7 +346,7 @@ def ekf_slam(
         )  # fmt: skip
     else:
         answer = filtered_answer(r, observed, dim, window, steps, options)
-    return ekf_result(answer, r, observed, dim, noise_std, scale, bounds is not None)
+    return ekf_result(answer, r, observed, dim, noise_std, scale, bounds, rng)
 
 
 # ----------------------------------------------------------------------------------------------
