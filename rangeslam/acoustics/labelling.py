@@ -730,10 +730,7 @@ def room_from_rirs(
     ropts = {"inlier_threshold": 2.0 * lab.tolerance, **ropts}
     rec = reconstruct_room(mics, lab.ranges, mask=lab.mask, rng=rng, **ropts)
     if not lab.converged:  # the walls it found are kept and reported; the verdict is its own
-        msg = (
-            f"echo labelling did not converge: {lab.message}; the {lab.n_images} walls it "
-            f"found, reconstructed: {rec.message}"
-        )
+        msg = f"echo labelling did not converge: {lab.message}; its walls: {rec.message}"
         return RoomFromRirs(dets, lab, rec, lab.status, msg)
     msg = f"labelling: {lab.message}; reconstruction: {rec.message}"
     if not rec.converged:

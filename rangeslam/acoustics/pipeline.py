@@ -133,6 +133,8 @@ class RunResult(HasStatus):
             zeros there and took no range from them.
         no_echoes: (M,) True for RIRs in which the detector found nothing (masked ones included).
         sources: (J, 3) every loudspeaker (:func:`run_loudspeakers`; ``source`` is row 0), or None.
+        c_std: m/s, the standard deviation of ``c`` when it was estimated (``estimate_c``), else
+            None.
     """
 
     mode: str
@@ -155,6 +157,7 @@ class RunResult(HasStatus):
     masked: np.ndarray
     no_echoes: np.ndarray
     sources: np.ndarray | None = None
+    c_std: float | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -240,6 +243,7 @@ def run_rirs(
     keyframes: ArrayLike | None = None,
     track_options: dict[str, Any] | None = None,
     slam_options: dict[str, Any] | None = None,
+    estimate_c: bool = False,
 ) -> RunResult:
     """The room (known microphones) or the trajectory (step bounds) from M RIRs of one loudspeaker.
 
@@ -267,6 +271,9 @@ def run_rirs(
             than steps (echoes are followed from RIR to RIR); ``step_bounds`` then has M - 1
             entries. Default: every RIR is a step.
         track_options, slam_options: walk mode: as ``walk_from_rirs``.
+        estimate_c: array mode: estimate the speed of sound with the loudspeaker from the direct
+            paths (:func:`rangeslam.acoustics.sound_speed.estimate_sound_speed`, ``c`` the start)
+            and use it; ``c_std`` reports its standard deviation. Not with ``direct_template``.
 
     Returns:
         A :class:`RunResult`; a ``status`` other than CONVERGED, with the reason in ``message``,
@@ -283,24 +290,37 @@ def run_rirs(
     fs = check_fs(fs)
     c = _check_c(c)
     dim = as_dim(dim)
-    options = RirRunOptions(
-        direct_template=direct_template,
-        detect_options=detect_options,
-        label_options=label_options,
-        reconstruct_options=reconstruct_options,
-        keyframes=keyframes,
-        track_options=track_options,
-        slam_options=slam_options,
-    )
+    options = RirRunOptions(  # in the order of its fields
+        direct_template, detect_options, label_options, reconstruct_options,
+        keyframes, track_options, slam_options,
+    )  # fmt: skip
     mode = _check_mode(mics, step_bounds, options)
     pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
     bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
     screen = _screen_rirs(x, clipped)
+    speed = _estimate_c(screen.rirs, fs, pts, c, options) if estimate_c else None
+    c = c if speed is None else speed.c
     if mode == "array":
         answer = _run_array(screen.rirs, fs, pts, c=c, rng=rng, options=options)
     else:
         answer = _run_walk(screen.rirs, fs, bounds, c=c, dim=dim, rng=rng, options=options)
-    return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts)
+    return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts, speed=speed)
+
+
+def _estimate_c(x: np.ndarray, fs: float, pts: Any, c: float, options: RirRunOptions):
+    """The speed of sound from the RIRs' direct paths (``estimate_sound_speed``, ``c`` the start;
+    ``c`` itself when it cannot be estimated, the reason in the estimate's message); array mode
+    without a direct template only."""
+    from rangeslam.acoustics.echoes import detect_echoes_many
+    from rangeslam.acoustics.sound_speed import estimate_sound_speed
+
+    if pts is None or options.direct_template is not None:
+        raise InvalidInputError(
+            "estimate_c is for array mode (mics) without direct_template; got "
+            + ("step_bounds" if pts is None else "a direct_template")
+        )
+    dets = detect_echoes_many(x, fs, **(options.detect_options or {}))
+    return estimate_sound_speed(dets, pts, c0=c)
 
 
 def run_loudspeakers(
@@ -604,10 +624,18 @@ def _pipeline_status(res: Any) -> Status:
 
 
 def _verdict(
-    mode: str, answer: PipelineAnswer, screen: RirScreen, *, fs: float, c: float, mics: Any
+    mode: str,
+    answer: PipelineAnswer,
+    screen: RirScreen,
+    *,
+    fs: float,
+    c: float,
+    mics: Any,
+    speed: Any = None,
 ) -> RunResult:
     """The :class:`RunResult`: the pipeline's status (SOLVER_FAILED for an answer that is not
-    finite), and a message naming the RIRs left out or without echoes."""
+    finite), and a message naming the RIRs left out or without echoes (and the estimate of c,
+    ``speed``, when there was one)."""
     res, m = answer.result, len(screen.silent)
     no_echoes = np.array([not d.found for d in res.detections], dtype=bool)
     status = _pipeline_status(res)
@@ -626,11 +654,12 @@ def _verdict(
         if flags.any():
             rows = ", ".join(f"rirs[{i}]" for i in np.flatnonzero(flags))
             notes.append(f"{int(flags.sum())} of {m} RIRs {what}: {rows}")
+    head = [] if speed is None else [speed.message]
     return RunResult(
         mode=mode,
         result=res,
         status=status,
-        message="; ".join([res.message, *notes]),
+        message="; ".join([*head, res.message, *notes]),
         fs=fs,
         c=c,
         mics=None if mics is None else frozen(mics),
@@ -646,6 +675,7 @@ def _verdict(
         clipped=frozen(screen.clipped),
         masked=frozen(screen.masked),
         no_echoes=frozen(no_echoes),
+        c_std=speed.c_std if speed is not None and speed.converged else None,
     )
 
 

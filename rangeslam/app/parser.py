@@ -399,7 +399,7 @@ def _add_run(sub) -> None:
         "--c",
         type=arg_types.float_in(*SPEED_LIMITS, " m/s"),
         help=f"speed of sound, m/s, {SPEED_LIMITS[0]:g} to {SPEED_LIMITS[1]:g} (default: the "
-        "npz's c, else 343)",
+        "npz's c, else 343); array mode starts from it and estimates c (see --fixed-c)",
     )
     run.add_argument("--dim", type=int, choices=(2, 3), default=3, help="2 or 3 (walks; default 3)")
     run.add_argument(
@@ -424,4 +424,15 @@ def _add_run(sub) -> None:
         "deletes an earlier run's files there (run_summary.*, run_*.csv, run_*.png), so the "
         "folder holds one run; other files are left alone",
     )
+    _add_run_speed(run)
     run.set_defaults(func=run_command)
+
+
+def _add_run_speed(run) -> None:
+    """``run --fixed-c``."""
+    run.add_argument(
+        "--fixed-c",
+        action="store_true",
+        help="keep c as given; by default array mode (not --measured, one loudspeaker) "
+        "estimates it with the loudspeaker from the direct paths and reports it +- its std",
+    )

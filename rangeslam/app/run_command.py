@@ -243,6 +243,8 @@ def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
     else:
         c, c_origin = SPEED_OF_SOUND, "default"
     options = dict(MEASURED_RIR_OPTIONS) if args.measured else {}
+    if mics is not None and not args.measured and not getattr(args, "fixed_c", False):
+        options["estimate_c"] = True
     if keys is not None:
         options["keyframes"] = keys
     return RunInputs(
@@ -560,6 +562,9 @@ def _run(args: argparse.Namespace) -> int:
     if res.mode == "array":
         written = array_report(args.out, res, errs, loaded, lines, record)
         _loudspeaker_lines(res, lines, record)
+        if res.c_std is not None:
+            lines += ["", f"speed of sound: {res.c:.3f} +- {res.c_std:.2g} m/s (estimated)"]
+            record["c_estimated"], record["c_std"] = res.c, res.c_std
     else:
         written = walk_report(args.out, res, errs, lines, record)
     written += logged_step(log, "run: drawing the plots")(run_plots)(args, loaded, res)
