@@ -334,11 +334,13 @@ def run_loudspeakers(
     detect_options: dict[str, Any] | None = None,
     label_options: dict[str, Any] | None = None,
     reconstruct_options: dict[str, Any] | None = None,
+    estimate_c: bool = False,
 ) -> RunResult:
     """The room from J loudspeakers' RIRs at the same M known microphones, walls fitted jointly
     (:func:`rangeslam.acoustics.joint_room.room_from_loudspeakers`); array mode of
     :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
-    loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located.
+    loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located. ``estimate_c``: c
+    from every loudspeaker's direct paths (their estimates' inverse-variance mean).
 
     Raises:
         InvalidInputError as :func:`run_rirs`, naming ``rir_sets[j]``; fewer than one set.
@@ -357,6 +359,8 @@ def run_loudspeakers(
                 f"rir_sets[{j}] must hold one RIR per microphone, {len(pts)}; got {len(x)}"
             )
     screens = [_screen_rirs(x, clipped) for x in sets]
+    speed = _joint_c(screens, fs, pts, c, detect_options) if estimate_c else None
+    c = c if speed is None else speed.c
     res = room_from_loudspeakers(
         [s.rirs for s in screens],
         fs,
@@ -392,8 +396,26 @@ def run_loudspeakers(
             wall_offsets=frozen(np.array(rec.wall_offsets)),
             wall_support=frozen(rec.inliers[:, :, 1:].sum(axis=(0, 1)).astype(int)),
         )
-    out = _verdict("array", answer, screen, fs=fs, c=c, mics=pts)
+    out = _verdict("array", answer, screen, fs=fs, c=c, mics=pts, speed=speed)
     return replace(out, sources=None if rec is None else frozen(np.array(rec.sources)))
+
+
+def _joint_c(screens, fs: float, pts: np.ndarray, c: float, detect_options):
+    """c from every loudspeaker's direct paths: the inverse-variance mean of the converged
+    estimates (each ``estimate_sound_speed``), as one estimate; the first failure when none."""
+    options = RirRunOptions(detect_options=detect_options)
+    each = [_estimate_c(s.rirs, fs, pts, c, options) for s in screens]
+    good = [e for e in each if e.converged]
+    if not good:
+        return each[0]
+    w = np.array([1.0 / max(e.c_std, 1e-9) ** 2 for e in good])
+    c_hat = float(np.sum(w * [e.c for e in good]) / w.sum())
+    std = float(1.0 / np.sqrt(w.sum()))
+    msg = (
+        f"c = {c_hat:.3f} +- {std:.2g} m/s from the direct paths of {len(good)} of "
+        f"{len(each)} loudspeakers (started at {c:g})"
+    )
+    return replace(good[0], c=c_hat, c_std=std, message=msg)
 
 
 @dataclass(frozen=True)

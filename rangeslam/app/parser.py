@@ -433,6 +433,6 @@ def _add_run_speed(run) -> None:
     run.add_argument(
         "--fixed-c",
         action="store_true",
-        help="keep c as given; by default array mode (not --measured, one loudspeaker) "
+        help="keep c as given; by default array mode (not --measured) "
         "estimates it with the loudspeaker from the direct paths and reports it +- its std",
     )

@@ -406,6 +406,7 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
         c=inputs.c,
         rng=args.seed,
         clipped="use" if args.use_clipped else "mask",
+        estimate_c=bool(inputs.options.get("estimate_c", False)),
     )
     print(
         f"rangeslam: run: finished in {format_seconds(time.perf_counter() - started)}",
