@@ -1,0 +1,93 @@
+"""`rangeslam run` on simulated sessions: two loudspeakers jointly, and the speed of sound.
+
+    python benchmarks/bench_run_sessions.py --seed 618299 --sessions 8
+    python benchmarks/bench_run_sessions.py --seed 532865 --sessions 6 --what c --noise 0.01
+
+``--what sessions`` (default): for each room (shoebox, cut-corner) and seed, ``rangeslam simulate
+room --sources 2`` then ``rangeslam run`` on both files; prints converged, each true wall's error
+(mm; inf: not found) and counts converged with every wall within 1 cm, and converged with a wall
+missed or off. ``--what c``: ``simulate room`` (one loudspeaker, c = 343 m/s) then ``run --c 345``;
+prints the estimated c, its reported standard deviation and the worst wall.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from rangeslam.app.cli import main as cli
+
+WALL_TOL = 0.01
+
+
+def _quiet(argv: list[str]) -> int:
+    """Run the CLI with its output swallowed; its exit code."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return cli(argv)
+
+
+def _record(out: Path) -> tuple[dict, np.ndarray]:
+    """The run's JSON record and its (W,) wall errors in metres (inf: not found)."""
+    rec = json.loads((out / "run_summary.json").read_text())
+    errs = np.array([np.inf if v is None else v for v in rec["wall_errors_m"].values()])
+    return rec, errs
+
+
+def sessions(tmp: Path, seeds: list[int], noise: str) -> None:
+    """Two-loudspeaker sessions in both rooms."""
+    for room in ("shoebox", "cut-corner"):
+        good = wrong = 0
+        for seed in seeds:
+            stem = tmp / f"{room}-{seed}.npz"
+            sim = ["simulate", "room", "--room", room, "--sources", "2", "--seed", str(seed)]
+            _quiet([*sim, "--noise", noise, "--out", str(stem)])
+            files = [str(stem.with_name(f"{stem.stem}-src{j}.npz")) for j in range(2)]
+            out = tmp / f"out-{room}-{seed}"
+            code = _quiet(["run", *files, "--out", str(out)])
+            rec, errs = _record(out)
+            ok = rec["converged"] and bool(np.all(errs <= WALL_TOL))
+            good += ok
+            wrong += rec["converged"] and not ok
+            print(f"{room} {seed}: exit {code}, walls [mm] {np.round(errs * 1e3, 2).tolist()}")
+        print(
+            f"{room}: converged with every wall within 1 cm {good}/{len(seeds)}; converged with a "
+            f"wall missed or off {wrong}/{len(seeds)}"
+        )
+
+
+def speed(tmp: Path, seeds: list[int], noise: str) -> None:
+    """One loudspeaker at 343 m/s run with --c 345."""
+    for seed in seeds:
+        path = tmp / f"c-{seed}.npz"
+        _quiet(["simulate", "room", "--seed", str(seed), "--noise", noise, "--out", str(path)])
+        out = tmp / f"out-c-{seed}"
+        code = _quiet(["run", str(path), "--c", "345", "--out", str(out)])
+        rec, errs = _record(out)
+        c_err = rec.get("c_estimated", np.nan) - 343.0
+        print(
+            f"seed {seed} noise {noise}: exit {code}, converged {rec['converged']}, c error "
+            f"{c_err:+.4f} m/s (reported std {rec.get('c_std', np.nan):.2g}), worst wall "
+            f"{errs.max() * 1e3:.2f} mm"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=618299, help="first seed")
+    ap.add_argument("--sessions", type=int, default=8, help="seeds: seed, seed + 1, ...")
+    ap.add_argument("--what", choices=("sessions", "c"), default="sessions")
+    ap.add_argument("--noise", default="0", help="simulate --noise (fraction of the peak)")
+    args = ap.parse_args()
+    seeds = list(range(args.seed, args.seed + args.sessions))
+    with tempfile.TemporaryDirectory() as tmp:
+        (sessions if args.what == "sessions" else speed)(Path(tmp), seeds, args.noise)
+
+
+if __name__ == "__main__":
+    main()
