@@ -126,6 +126,25 @@ def _joint_ranges(labs: Sequence[EchoLabelling], columns: np.ndarray):
     return ranges, masks
 
 
+def _drop_lone_wall(pts, labs, cols: np.ndarray, rec, ropts: dict, rng):
+    """Walls that do not bound a room: refit without each wall that only one loudspeaker
+    labelled (a higher-order image taken for a first-order one, or a chance alignment); the first refit that converged and bounds a room is kept. Returns
+    (columns, reconstruction, a note naming the wall left out or "")."""
+    lone = [k for k in range(cols.shape[1]) if (cols[:, k] > 0).sum() == 1]
+    for k in lone:
+        keep = np.delete(cols, k, axis=1)
+        ranges, masks = _joint_ranges(labs, keep)
+        trial = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
+        if trial.converged and trial.room is not None:
+            n = np.round(rec.wall_normals[k], 2).tolist()
+            note = (
+                f"left out wall {k} (normal {n}, labelled by one loudspeaker only): with it the "
+                "walls do not bound a room; "
+            )
+            return keep, trial, note
+    return cols, rec, ""
+
+
 def room_from_loudspeakers(
     rir_sets: Sequence[ArrayLike],
     fs: float,
@@ -189,9 +208,14 @@ def room_from_loudspeakers(
     tol = max(labs[j].tolerance for j in usable)
     ropts = {"inlier_threshold": 2.0 * tol, **(reconstruct_options or {})}
     rec = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
+    dropped = ""
+    if rec.room is None:
+        cols, rec, dropped = _drop_lone_wall(pts, [labs[j] for j in usable], cols, rec, ropts, rng)
+        columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
+        columns[usable] = cols
     msg = (
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
-        f"reconstruction: {rec.message}"
+        f"{dropped}reconstruction: {rec.message}"
     )
     if not rec.converged:
         status = Status(rec.status)
