@@ -278,7 +278,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     or without noise_std once every convex-iteration run is made and the best was reached twice.
     (Stopping once the best was reached twice and the verdict accepts it, before every run is
     made, was measured on Fig. 3 at 1 cm and rejected: two early runs often agree on a minimum
-    that a later run beats; see benchmarks/README.md, "Cheap EDM start".)"""
+    that a later run undercuts; see benchmarks/README.md, "Cheap EDM start".)"""
     failures: list[str] = []
     # the Cauchy scale must be positive: for exact data (0), as when unknown, the first fit's MAD
     cauchy_scale = problem.noise_std if problem.noise_std else None

@@ -12,7 +12,9 @@ RMS of the per-trial bounds (sqrt(mean(bound^2))) when the configuration changes
 
 :func:`mdu_crlb` also takes the priors of :func:`rangeslam.mdu.slam` (step bounds, odometry step
 lengths): their information is added to J^T J / sigma^2, so that a method that uses them is
-compared with the bound it can reach, not with the ranges-only bound it may beat.
+compared with the bound of the information it uses. A bound is a lower bound only where the
+estimator is in its asymptotic regime: the benchmarks quote it only where the oracle (the
+estimator's cost minimised from the truth) attains it (:func:`rangeslam.evaluation.rms_against_bound`).
 """
 
 from __future__ import annotations
