@@ -117,7 +117,7 @@ log = logging.getLogger(__name__)
 # (about 0.015 m along and across the track per 0.2 s step).
 
 
-# Defaults derived from the data (issue 36: a 3 m room and a 300 m field alike), each set so that
+# Defaults derived from the data (a 3 m room and a 300 m field alike), each set so that
 # Plaza1 keeps the figures above: range_sigma twice the ranges' own noise (a filter keeps no past
 # pose to relinearise, so its ranges carry the linearisation error too; Plaza1 1.1 m, formerly a
 # fixed 1 m), init_spread twice range_sigma (2.2 m, formerly 2 m: a beacon's mirror across the
