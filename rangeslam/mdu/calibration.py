@@ -25,10 +25,10 @@ from numpy.typing import ArrayLike
 from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
-from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
-from rangeslam.geometry.alignment import align
+from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.mdu.basin_probe import lower_minimum_nearby
+from rangeslam.mdu.calibration_rivals import displaced_rival, rival_configuration, spread
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -51,16 +51,12 @@ from rangeslam.solvers.least_squares import (
 )
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import (
-    AMBIGUITY_CHI2,
-    RIVAL_SPREADS,
     consistency_check,
     noise_upper_bound,
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.crlb import mdu_crlb
 from rangeslam.verdict.thresholds import (
-    AGREEMENT_STARTS,
     EXACT_RTOL,
     LOWER_RTOL,
     PROBE_OUTLIER_K,
@@ -677,10 +673,12 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
     status, message = calibration_verdict(outcome, problem)
     if status is Status.CONVERGED and problem.refine and not problem.robust:
         rival, lower = rival_configuration(problem, outcome.best, rng)
-        if lower is not None:  # a lower minimum elsewhere: the answer, judged again
+        if lower is not None:  # a lower minimum elsewhere: the answer, judged again, and the
+            before = outcome.best  # answer it displaced is its rival if it fits as well
             outcome = replaced(outcome, problem, lower, rng, "a random start")
             status, message = calibration_verdict(outcome, problem)
-        elif rival:
+            rival = displaced_rival(problem, before, outcome.best)
+        if rival and status is Status.CONVERGED:
             status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
     return calibration_result(outcome, problem, status, message)
 
@@ -721,46 +719,6 @@ def replaced(
     return dataclasses.replace(outcome, best=cand, confirmed=confirmed)
 
 
-def receiver_spread(best: Candidate, observed: np.ndarray, noise: float) -> float:
-    """The receivers' RMS standard deviation at the answer (:func:`mdu_crlb` in the receiver
-    gauge at ``noise``), metres; ``noise`` where the bound is undefined."""
-    try:
-        return mdu_crlb(best.fit.receivers, best.fit.sources, noise, mask=observed).receiver_rmse
-    except (DegenerateGeometryError, InvalidInputError):
-        return noise
-
-
-def rival_configuration(
-    problem: CalibrationProblem, best: Candidate, rng
-) -> tuple[str, np.ndarray | None]:
-    """ "Restarts agree": least squares from AGREEMENT_STARTS random points. Returns the reason
-    when one ends with a residual sum of squares within AMBIGUITY_CHI2 noise variances of the
-    answer's but receivers more than RIVAL_SPREADS times their RMS standard deviation (RMS,
-    after the best rigid motion with reflection) away, else "" (flat scenes fitted in 3-D fold
-    this way); and the points (M + K, d) of the lowest start that costs less than the answer
-    (a lower minimum the search missed), else None."""
-    m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
-    noise = verdict_noise(problem.noise_std, spread(best) or problem.exact_rms, problem.exact_rms)
-    far = max(RIVAL_SPREADS * receiver_spread(best, observed, noise), 1e-6 * problem.scale)
-    reason, lower, lower_ssr = "", None, best.ssr * (1.0 - LOWER_RTOL)
-    for _ in range(AGREEMENT_STARTS):
-        points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
-        fit = refine_unfolding(points[:m], points[m:], r, observed)
-        ssr = float(np.sum(fit.residuals[observed] ** 2))
-        if not np.isfinite(ssr) or ssr > best.ssr + AMBIGUITY_CHI2 * noise**2:
-            continue
-        if ssr < lower_ssr:
-            lower, lower_ssr = np.vstack([fit.receivers, fit.sources]), ssr
-        apart = align(fit.receivers, best.fit.receivers, reflection=True).rmse
-        if apart > far and not reason:
-            reason = (
-                f"another start fits the ranges as well (residual sum of squares {ssr:.3g} "
-                f"against {best.ssr:.3g} m^2) with receivers {apart:.3g} m RMS away: the data do "
-                "not decide between them"
-            )
-    return reason, lower
-
-
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
     """Cauchy cost sum log(1 + (res / scale)^2) over the observed ranges."""
     m = len(fit.receivers)
@@ -777,13 +735,6 @@ def _same(a: Candidate, b: Candidate, problem: CalibrationProblem, noise: float)
     scale = problem.scale
     tol = SAME_RTOL * scale**2 + (6.0 * scale * noise if problem.robust else 0.0)
     return bool(np.max(np.abs(a.edm() - b.edm())) <= tol)
-
-
-def spread(cand: Candidate) -> float:
-    """The noise level a candidate's inlier residuals imply, metres (0 without redundancy)."""
-    n_in = int(cand.inliers.sum())
-    dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
-    return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0
 
 
 def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:
