@@ -50,3 +50,17 @@ def dechorate_dir() -> Path:
         return data_path("dechorate").resolve()
     except DataNotFoundError as exc:
         pytest.skip(str(exc))
+
+
+@pytest.fixture
+def keep_figure(monkeypatch):
+    """Keep the figures ``save_figure`` closes (matplotlib's ``plt.close``), to read them back;
+    closed at the end of the test."""
+    import matplotlib.pyplot as plt
+
+    kept = []
+    close = plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    yield kept
+    for fig in kept:
+        close(fig)

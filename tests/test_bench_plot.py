@@ -24,17 +24,6 @@ COMPARE = {
 }
 
 
-@pytest.fixture
-def keep_figure(monkeypatch):
-    """Keep the figure save_figure closes, to read it back."""
-    kept = []
-    close = plt.close
-    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
-    yield kept
-    for fig in kept:
-        close(fig)
-
-
 def _slam_rows(rng, *, sigmas=(0.01,), bounds=(True,), steps=(5, 10, 20), trials=4, **kw):
     """Synthetic Fig. 5 rows: the bound 3 sigma / sqrt(M); the oracle attains it (within 3%)
     except at the M in ``missed`` (0.3x the bound: not attained); ``filtered`` the EKF's

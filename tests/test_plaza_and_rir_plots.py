@@ -11,7 +11,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.colors as mcolors
-import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
@@ -23,17 +22,6 @@ from rangeslam.geometry.room import Room
 @pytest.fixture
 def rng():
     return np.random.default_rng(36)
-
-
-@pytest.fixture
-def keep_figure(monkeypatch):
-    """Keep the figures save_figure closes, to read them back."""
-    kept = []
-    close = plt.close
-    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
-    yield kept
-    for fig in kept:
-        close(fig)
 
 
 def _plaza(rng, errors: dict):

@@ -26,17 +26,6 @@ def rng():
     return np.random.default_rng(15)
 
 
-@pytest.fixture
-def keep_figure(monkeypatch):
-    """Keep the figure save_figure closes, to read it back."""
-    kept = []
-    close = plt.close
-    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
-    yield kept
-    for fig in kept:
-        close(fig)
-
-
 def _written(path):
     assert path.exists() and path.stat().st_size > 1000
     return path
