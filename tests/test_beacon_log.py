@@ -116,3 +116,62 @@ def test_rangeslam_run_refuses_a_bad_log_in_one_line(tmp_path, capsys):
     assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "line 4" in err[0]
+
+
+@pytest.mark.parametrize(("form", "wheel_base"), [("speed", None), ("wheels", 0.35)])
+def test_a_log_of_wheel_speeds_gives_the_increments_it_came_from(room, tmp_path, form, wheel_base):
+    """Odometry written as speeds (v, omega, or left/right wheel speeds with the wheel base) and
+    integrated back over each step reads as the same RangeOdometry, to the rounding of the
+    division and product (rtol 1e-9); the ranges and times exactly."""
+    path = write_beacon_log(
+        tmp_path / "w.csv", room.data, odometry_as=form, wheel_base=wheel_base, range_sigma=0.05
+    )
+    text = path.read_text()
+    assert f"\n{form}," in text and "\nodometry," not in text
+    log = load_beacon_log(path)
+    np.testing.assert_allclose(log.data.odometry, room.data.odometry, rtol=1e-9, atol=1e-15)
+    for name in ("pose_time", "range_pose", "range_beacon", "ranges", "beacon_ids"):
+        np.testing.assert_array_equal(getattr(log.data, name), getattr(room.data, name))
+
+
+def test_speed_records_integrate_a_unicycle(tmp_path):
+    """A handwritten mix: an increment, then v = 0.5 m/s, omega = 0.2 rad/s for 2 s, then wheels
+    at 0.3 and 0.5 m/s on a 0.4 m base for 0.5 s: d = v dt, dtheta = omega dt, and
+    v = (l + r) / 2, omega = (r - l) / base."""
+    path = tmp_path / "mix.csv"
+    path.write_text(
+        "# wheel_base = 0.4\nstart, 0\nodometry, 1, 0.1, 0.0\nspeed, 3, 0.5, 0.2\n"
+        "wheels, 3.5, 0.3, 0.5\nrange, 0, 1, 2.0\n"
+    )
+    log = load_beacon_log(path)
+    np.testing.assert_allclose(log.data.pose_time, [0, 1, 3, 3.5])
+    np.testing.assert_allclose(log.data.odometry, [[0.1, 0.0], [1.0, 0.4], [0.2, 0.25]])
+
+
+WHEELS = "# wheel_base = 0.4\nstart, 0\nwheels, 1, 0.3, 0.5\nwheels, 2, 0.3, 0.5\nrange, 0, 1, 2\n"
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        (("# wheel_base = 0.4\n", ""), "line 2: a wheels record needs the wheel base.*wheel_base"),
+        (("# wheel_base = 0.4", "# wheel_base = -0.4"), "line 1: wheel_base must be 1 positive"),
+        (("wheels, 2, 0.3", "wheels, 0.5, 0.3"), r"line 4: wheels: time must be after.*dt = -0.5"),
+        (("wheels, 2, 0.3", "wheels, 1, 0.3"), r"line 4: wheels: time must be after.*dt = 0"),
+        (("wheels, 1, 0.3", "wheels, 1, nan"), "line 3: wheels: numbers must be finite; v_left"),
+        (("wheels, 2, 0.3, 0.5", "wheels, 2, 0.3, nan"), "line 4: .* finite; v_right is nan"),
+        (("wheels, 2, 0.3, 0.5", "speed, 2, 0.3, inf"), "line 4: speed: .* finite; omega is inf"),
+    ],
+)
+def test_bad_wheel_speeds_are_refused_naming_the_field(tmp_path, change, match):
+    path = tmp_path / "bad.csv"
+    path.write_text(WHEELS.replace(*change, 1))
+    with pytest.raises(InvalidInputError, match=match):
+        load_beacon_log(path)
+
+
+def test_writing_wheel_speeds_needs_a_wheel_base(room, tmp_path):
+    with pytest.raises(InvalidInputError, match="wheel_base is needed"):
+        write_beacon_log(tmp_path / "w.csv", room.data, odometry_as="wheels")
+    with pytest.raises(InvalidInputError, match="odometry_as must be one of"):
+        write_beacon_log(tmp_path / "w.csv", room.data, odometry_as="ticks")

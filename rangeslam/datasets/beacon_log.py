@@ -6,16 +6,30 @@ starting with ``#`` are comments; fields separated by commas, spaces around them
     # rangeslam beacon log 1
     # range_sigma = 0.05                       (optional: the ranges' stated noise, metres)
     # odometry_sigma = 0.0005 0.0005 0.002     (optional: along, across [m], heading [rad])
+    # wheel_base = 0.35                        (wheels records only: left to right wheel [m])
     start, 0.0                                 time [s] of pose 0
     odometry, 0.2, 0.01, 0.001                 time [s] of the pose it reaches, distance [m]
                                                (negative: backwards), heading change [rad]
+    speed, 0.4, 0.05, 0.005                    or: time [s] of the pose it reaches, linear
+                                               speed v [m/s], turn rate omega [rad/s]
+    wheels, 0.6, 0.049, 0.051                  or: time [s] of the pose it reaches, left and
+                                               right wheel linear speeds [m/s]
     range, 0.2, 7, 1.234                       time [s], beacon id (integer), range [m]
     truth, 0.2, 0.01, 0.0, 0.001               optional: time of a pose, x, y [m], heading [rad]
     beacon, 7, 1.5, -0.3, known                optional: beacon id, x, y [m], "known" (given to
                                                the estimator) or "truth" (evaluation only)
 
-Odometry rows are in time order; each step moves, then turns (as GTSAM's Plaza examples). A
-range joins the first pose at or after its time (as :func:`rangeslam.datasets.plaza` does);
+Each ``odometry``, ``speed`` or ``wheels`` record is one step to a new pose at its time; the three
+kinds may be mixed and are in time order (each time after the one before, else the record's line
+is named). Each step moves, then turns (as GTSAM's Plaza examples). Speeds are the mean over the
+step, from the previous pose's time to the record's (encoder counts over the interval): the step is
+the unicycle integrated at those speeds, distance v * dt and heading change omega * dt, with a
+differential drive's v = (v_left + v_right) / 2 and omega = (v_right - v_left) / wheel_base. The
+path length and heading change are exact; the arc's chord, at half the heading change, is taken
+along the step's starting heading, as a Pose2(d, 0, dtheta) increment does (a sideways error of
+about d * dtheta / 2 a step, the same as in ``odometry`` records written from such an arc).
+
+A range joins the first pose at or after its time (as :func:`rangeslam.datasets.plaza` does);
 ranges after the last pose are refused. Truth rows, when given, give every pose (in pose order).
 Beacon ids are any integers >= 0 (rows of the result in increasing id order, as
 :meth:`~rangeslam.beacons.RangeOdometry.from_beacon_ids`).
@@ -33,10 +47,41 @@ from rangeslam._validation import frozen
 from rangeslam.beacons.data import RangeOdometry
 from rangeslam.errors import InvalidInputError
 
-__all__ = ["BEACON_LOG_KINDS", "BeaconLog", "is_beacon_log", "load_beacon_log", "write_beacon_log"]
+__all__ = [
+    "BEACON_LOG_FIELDS",
+    "BEACON_LOG_KINDS",
+    "ODOMETRY_FORMS",
+    "STEP_KINDS",
+    "BeaconLog",
+    "is_beacon_log",
+    "load_beacon_log",
+    "write_beacon_log",
+]
 
 #: The first field of a record, and how many numbers follow it (truth: 2 or 3).
-BEACON_LOG_KINDS = {"start": (1,), "odometry": (3,), "range": (3,), "truth": (3, 4), "beacon": (3,)}
+BEACON_LOG_KINDS = {
+    "start": (1,),
+    "odometry": (3,),
+    "speed": (3,),
+    "wheels": (3,),
+    "range": (3,),
+    "truth": (3, 4),
+    "beacon": (3,),
+}
+#: The name of each number of a record, as errors name them.
+BEACON_LOG_FIELDS = {
+    "start": ("time",),
+    "odometry": ("time", "distance", "heading change"),
+    "speed": ("time", "v", "omega"),
+    "wheels": ("time", "v_left", "v_right"),
+    "range": ("time", "beacon id", "range"),
+    "truth": ("time", "x", "y", "heading"),
+    "beacon": ("beacon id", "x", "y"),
+}
+#: The records that are one odometry step each (module notes).
+STEP_KINDS = ("odometry", "speed", "wheels")
+#: How :func:`write_beacon_log` writes the odometry: increments, (v, omega) or wheel speeds.
+ODOMETRY_FORMS = ("increments", "speed", "wheels")
 
 
 @dataclass(frozen=True, eq=False)  # arrays
@@ -116,7 +161,11 @@ def _numbers(path, number, kind, fields, *, keep_last_word=False) -> list[float]
     except ValueError as exc:
         raise InvalidInputError(f"{path}, line {number}: {kind}: {exc}") from exc
     if not np.all(np.isfinite(values)):
-        raise InvalidInputError(f"{path}, line {number}: {kind}: numbers must be finite")
+        name = BEACON_LOG_FIELDS[kind][int(np.argmax(~np.isfinite(values)))]
+        raise InvalidInputError(
+            f"{path}, line {number}: {kind}: numbers must be finite; {name} is "
+            f"{values[int(np.argmax(~np.isfinite(values)))]}"
+        )
     return values
 
 
@@ -141,7 +190,7 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
     if not path.is_file():
         raise InvalidInputError(f"beacon log {path} is not a file")
     records, settings = _records(path)
-    rows: dict[str, list] = {kind: [] for kind in BEACON_LOG_KINDS}
+    rows: dict[str, list] = {kind: [] for kind in (*BEACON_LOG_KINDS, "steps")}
     for number, kind, fields in records:
         is_beacon = kind == "beacon"
         if is_beacon and (not fields or fields[-1].lower() not in ("known", "truth")):
@@ -150,14 +199,20 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
             )
         values = _numbers(path, number, kind, fields, keep_last_word=is_beacon)
         rows[kind].append((number, values, fields[-1].lower() if is_beacon else None))
+        if kind in STEP_KINDS:
+            rows["steps"].append((number, kind, values))
     if len(rows["start"]) != 1:
         raise InvalidInputError(
             f"{path}: a beacon log has one start record; got {len(rows['start'])}"
         )
-    if not rows["odometry"] or not rows["range"]:
-        raise InvalidInputError(f"{path}: a beacon log needs odometry and range records")
-    odo = np.array([v for _, v, _ in rows["odometry"]])
-    pose_time = np.concatenate([[rows["start"][0][1][0]], odo[:, 0]])
+    if not rows["steps"] or not rows["range"]:
+        raise InvalidInputError(
+            f"{path}: a beacon log needs odometry (odometry, speed or wheels) and range records"
+        )
+    wheel_base = _setting(path, settings, "wheel_base", 1)
+    pose_time, odometry = steps_from_records(
+        path, rows["steps"], rows["start"][0][1][0], wheel_base
+    )
     rng_rows = np.array([v for _, v, _ in rows["range"]])
     order = np.argsort(rng_rows[:, 0], kind="stable")
     rng_rows = rng_rows[order]
@@ -169,7 +224,7 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
     if np.any(ids != np.round(ids)) or np.any(ids < 0):
         raise InvalidInputError(f"{path}: beacon ids must be integers >= 0")
     data = RangeOdometry.from_beacon_ids(
-        pose_time, odo[:, 1:], pose, ids.astype(np.int64), rng_rows[:, 2]
+        pose_time, odometry, pose, ids.astype(np.int64), rng_rows[:, 2]
     )
     truth = _truth(path, rows["truth"], len(pose_time))
     beacons, known = _beacons(path, rows["beacon"], data.beacon_ids)
@@ -182,6 +237,37 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
         odometry_sigma=_setting(path, settings, "odometry_sigma", 3),
         path=path,
     )
+
+
+def steps_from_records(path, steps, start_time: float, wheel_base: float | None):
+    """Pose times (N + 1,) and odometry (N, 2) from the step records ``steps`` (line number, kind,
+    numbers) in file order: increments as given, speeds integrated over each step (module notes).
+    InvalidInputError names the line and field: a time not after the one before (dt <= 0), or
+    a wheels record without ``# wheel_base``."""
+    pose_time = np.empty(len(steps) + 1)
+    pose_time[0] = start_time
+    odometry = np.empty((len(steps), 2))
+    for k, (number, kind, values) in enumerate(steps):
+        t, a, b = values
+        dt = t - pose_time[k]
+        if dt <= 0:
+            raise InvalidInputError(
+                f"{path}, line {number}: {kind}: time must be after the previous pose's "
+                f"({pose_time[k]!r}); got {t!r} (dt = {dt:.6g} s)"
+            )
+        pose_time[k + 1] = t
+        if kind == "odometry":
+            odometry[k] = a, b
+        elif kind == "speed":
+            odometry[k] = a * dt, b * dt
+        else:
+            if wheel_base is None:
+                raise InvalidInputError(
+                    f"{path}, line {number}: a wheels record needs the wheel base: a "
+                    f"'# wheel_base = metres' line (wheel_base is missing)"
+                )
+            odometry[k] = 0.5 * (a + b) * dt, (b - a) / wheel_base * dt
+    return pose_time, odometry
 
 
 def _truth(path, rows, n_poses) -> np.ndarray | None:
@@ -223,18 +309,32 @@ def write_beacon_log(
     known: np.ndarray | None = None,
     range_sigma: float | None = None,
     odometry_sigma=None,
+    odometry_as: str = "increments",
+    wheel_base: float | None = None,
 ) -> Path:
     """Write ``data`` (and the optional truth poses (N + 1, 3), true beacons and known beacons
-    (B, 2), stated noise) as a beacon log; each range at its pose's time. Returns the path."""
+    (B, 2), stated noise) as a beacon log; each range at its pose's time. The odometry as
+    ``odometry_as`` (:data:`ODOMETRY_FORMS`): ``odometry`` records, ``speed`` records (each
+    step's mean v, omega) or ``wheels`` records (left and right speeds, ``wheel_base`` [m]
+    given). Returns the path."""
+    if odometry_as not in ODOMETRY_FORMS:
+        raise InvalidInputError(f"odometry_as must be one of {ODOMETRY_FORMS}; got {odometry_as!r}")
+    if odometry_as == "wheels":
+        from rangeslam.beacons.options import positive_number
+
+        if wheel_base is None:
+            raise InvalidInputError("wheel_base is needed to write wheel speeds; got None")
+        wheel_base = positive_number(wheel_base, "wheel_base")
     path = Path(path)
     lines = ["# rangeslam beacon log 1"]
+    if odometry_as == "wheels":
+        lines.append(f"# wheel_base = {_f(wheel_base)}")
     if range_sigma is not None:
         lines.append(f"# range_sigma = {_f(range_sigma)}")
     if odometry_sigma is not None:
         lines.append("# odometry_sigma = " + " ".join(_f(v) for v in odometry_sigma))
     lines.append(f"start,{_f(data.pose_time[0])}")
-    for t, (d, dtheta) in zip(data.pose_time[1:], data.odometry, strict=True):
-        lines.append(f"odometry,{_f(t)},{_f(d)},{_f(dtheta)}")
+    lines += _step_lines(data, odometry_as, wheel_base)
     for p, b, r in zip(data.range_pose, data.range_beacon, data.ranges, strict=True):
         lines.append(f"range,{_f(data.pose_time[p])},{int(data.beacon_ids[b])},{_f(r)}")
     for t, pose in zip(data.pose_time, [] if truth is None else truth, strict=False):
@@ -245,6 +345,22 @@ def write_beacon_log(
                 lines.append(f"beacon,{int(b)},{_f(xy[0])},{_f(xy[1])},{label}")
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def _step_lines(data: RangeOdometry, odometry_as: str, wheel_base: float | None) -> list[str]:
+    """The step records of ``data`` in the form ``odometry_as``."""
+    dt = np.diff(data.pose_time)
+    d, dtheta = data.odometry[:, 0], data.odometry[:, 1]
+    if odometry_as == "increments":
+        kind, a, b = "odometry", d, dtheta
+    elif odometry_as == "speed":
+        kind, a, b = "speed", d / dt, dtheta / dt
+    else:
+        v, omega = d / dt, dtheta / dt
+        kind, a, b = "wheels", v - 0.5 * omega * wheel_base, v + 0.5 * omega * wheel_base
+    return [
+        f"{kind},{_f(t)},{_f(x)},{_f(y)}" for t, x, y in zip(data.pose_time[1:], a, b, strict=True)
+    ]
 
 
 def _f(value) -> str:
