@@ -73,6 +73,8 @@ def test_console_script_runs():
         (["bench", "fig3", "--seed", "-1"], "--seed: must be from 0 to"),
         (["bench", "compare", "--seed", "x"], "--seed: must be an integer; got x$"),
         (["bench", "xtdoa", "--seed", "-1"], "--seed: must be from 0 to"),
+        (["bench", "plaza", "--seed", "-1"], "--seed: must be from 0 to"),
+        (["bench", "compare", "--seed", "-1"], "--seed: must be from 0 to"),
         (["simulate", "room", "--seed", "-1"], "--seed: must be from 0 to"),
         (["run", "x.npz", "--fs", "\x1dab"], r"--fs: must be a number; got '\\x1dab'$"),
         (["bench", "fig5", "--sigmas", "1e300"], "--sigmas: must be from 0 to 10 m; got 1e300$"),
