@@ -49,6 +49,11 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
+from rangeslam.acoustics.unknown_emission import (
+    check_unknown_emission,
+    loudspeakers_unknown_emission,
+    rirs_unknown_emission,
+)
 from rangeslam.datasets.rir_files import (
     LoadedRirs,
     SilentRirWarning,
@@ -135,6 +140,9 @@ class RunResult(HasStatus):
         sources: (J, 3) every loudspeaker (:func:`run_loudspeakers`; ``source`` is row 0), or None.
         c_std: m/s, the standard deviation of ``c`` when it was estimated (``estimate_c``), else
             None.
+        emission_offsets: (J,) seconds from sample 0 to each loudspeaker's emission, estimated
+            (``unknown_emission``; NaN where not found), else None. emission_offset_stds: (J,)
+            their standard deviations, seconds (NaN where not estimated), or None.
     """
 
     mode: str
@@ -158,6 +166,8 @@ class RunResult(HasStatus):
     no_echoes: np.ndarray
     sources: np.ndarray | None = None
     c_std: float | None = None
+    emission_offsets: np.ndarray | None = None
+    emission_offset_stds: np.ndarray | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -244,6 +254,7 @@ def run_rirs(
     track_options: dict[str, Any] | None = None,
     slam_options: dict[str, Any] | None = None,
     estimate_c: bool = False,
+    unknown_emission: bool = False,
 ) -> RunResult:
     """The room (known microphones) or the trajectory (step bounds) from M RIRs of one loudspeaker.
 
@@ -256,8 +267,7 @@ def run_rirs(
             the microphone moves between consecutive RIRs, metres: walk mode,
             ``rangeslam.acoustics.walk.walk_from_rirs``. Exactly one of ``mics`` and
             ``step_bounds``.
-        c: speed of sound, m/s.
-        dim: 3 for an array; 2 or 3 for a walk.
+        c: speed of sound, m/s. dim: 3 for an array; 2 or 3 for a walk.
         rng: Generator or seed, passed down.
         clipped: what to do with a clipped RIR: "mask" (default: leave it out, as a silent one:
             a clipped direct path can move the answer by centimetres while every residual test
@@ -274,6 +284,7 @@ def run_rirs(
         estimate_c: array mode: estimate the speed of sound with the loudspeaker from the direct
             paths (:func:`rangeslam.acoustics.sound_speed.estimate_sound_speed`, ``c`` the start)
             and use it; ``c_std`` reports its standard deviation. Not with ``direct_template``.
+        unknown_emission: array mode: sample 0 is not the emission (``emission_offsets``).
 
     Returns:
         A :class:`RunResult`; a ``status`` other than CONVERGED, with the reason in ``message``,
@@ -287,9 +298,7 @@ def run_rirs(
     """
     rng = as_rng(rng)
     x = _as_rirs(rirs)
-    fs = check_fs(fs)
-    c = _check_c(c)
-    dim = as_dim(dim)
+    fs, c, dim = check_fs(fs), _check_c(c), as_dim(dim)
     options = RirRunOptions(  # in the order of its fields
         direct_template, detect_options, label_options, reconstruct_options,
         keyframes, track_options, slam_options,
@@ -297,6 +306,8 @@ def run_rirs(
     mode = _check_mode(mics, step_bounds, options)
     pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
     bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
+    if check_unknown_emission(unknown_emission, mode, estimate_c):
+        return rirs_unknown_emission(x, fs, pts, options, c=c, rng=rng, clipped=clipped)
     screen = _screen_rirs(x, clipped)
     speed = _estimate_c(screen.rirs, fs, pts, c, options) if estimate_c else None
     c = c if speed is None else speed.c
@@ -335,12 +346,14 @@ def run_loudspeakers(
     label_options: dict[str, Any] | None = None,
     reconstruct_options: dict[str, Any] | None = None,
     estimate_c: bool = False,
+    unknown_emission: bool = False,
 ) -> RunResult:
     """The room from J loudspeakers' RIRs at the same M known microphones, walls fitted jointly
     (:func:`rangeslam.acoustics.joint_room.room_from_loudspeakers`); array mode of
     :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
     loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located. ``estimate_c``: c
     from every loudspeaker's direct paths (their estimates' inverse-variance mean).
+    ``unknown_emission``: as :func:`run_rirs`, one delay per loudspeaker.
 
     Raises:
         InvalidInputError as :func:`run_rirs`, naming ``rir_sets[j]``; fewer than one set.
@@ -358,6 +371,9 @@ def run_loudspeakers(
             raise InvalidInputError(
                 f"rir_sets[{j}] must hold one RIR per microphone, {len(pts)}; got {len(x)}"
             )
+    if check_unknown_emission(unknown_emission, "array", estimate_c):
+        opts = RirRunOptions(None, detect_options, label_options, reconstruct_options)
+        return loudspeakers_unknown_emission(sets, fs, pts, opts, c=c, rng=rng, clipped=clipped)
     screens = [_screen_rirs(x, clipped) for x in sets]
     speed = _joint_c(screens, fs, pts, c, detect_options) if estimate_c else None
     c = c if speed is None else speed.c

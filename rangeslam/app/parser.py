@@ -424,8 +424,33 @@ def _add_run(sub) -> None:
         "deletes an earlier run's files there (run_summary.*, run_*.csv, run_*.png), so the "
         "folder holds one run; other files are left alone",
     )
-    _add_run_speed(run)
+    _add_run_more(run)
     run.set_defaults(func=run_command)
+
+
+def _add_run_more(run) -> None:
+    """``run --fixed-c``, ``--excitation``, ``--unknown-emission``."""
+    _add_run_speed(run)
+    _add_run_recordings(run)
+
+
+def _add_run_recordings(run) -> None:
+    """``run --excitation`` and ``--unknown-emission``."""
+    run.add_argument(
+        "--excitation",
+        type=Path,
+        metavar="FILE",
+        help="the RIRS files are recordings of this signal (a mono .wav at their rate, or .npy, "
+        ".csv): deconvolved into RIRs first; an npz may hold 'recordings' and 'excitation' "
+        "instead. Sample 0 of a recording is the start of the excitation (see --unknown-emission)",
+    )
+    run.add_argument(
+        "--unknown-emission",
+        action="store_true",
+        help="array mode: sample 0 is not the emission; each loudspeaker's delay is estimated "
+        "(from the direct paths, checked against the echoes) and reported +- its std; c is "
+        "then kept as given",
+    )
 
 
 def _add_run_speed(run) -> None:

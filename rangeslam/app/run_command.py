@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rangeslam.app.progress import format_seconds
+from rangeslam.app.run_recordings import deconvolve_loaded
 from rangeslam.logsteps import logged_step
 
 __all__ = [
@@ -87,6 +88,7 @@ class RunAttempt:
     result: Any = None
     warnings: tuple[str, ...] = ()
     error: Exception | None = None
+    emission_truth: tuple = ()
 
 
 def read_matrix(path: Path, flag: str):
@@ -243,7 +245,16 @@ def run_inputs(args: argparse.Namespace, loaded) -> RunInputs:
     else:
         c, c_origin = SPEED_OF_SOUND, "default"
     options = dict(MEASURED_RIR_OPTIONS) if args.measured else {}
-    if mics is not None and not args.measured and not getattr(args, "fixed_c", False):
+    unknown = getattr(args, "unknown_emission", False)
+    if unknown and mics is None:
+        raise InvalidInputError(
+            "--unknown-emission: for a known array (--mics); a walk's RIRs must start at the "
+            "emission"
+        )
+    if unknown:
+        options["unknown_emission"] = True
+        c_origin += "; emission time unknown, so c as given"
+    elif mics is not None and not args.measured and not getattr(args, "fixed_c", False):
         options["estimate_c"] = True
     if keys is not None:
         options["keyframes"] = keys
@@ -315,16 +326,22 @@ def _announce(loaded, inputs: RunInputs, *, loudspeakers: int = 1) -> float:
 
 def _attempt(args: argparse.Namespace) -> RunAttempt:
     """Load the RIRs, read what is known, run the pipeline; bad input and warnings recorded."""
+    import dataclasses
     import warnings
 
     from rangeslam.acoustics.pipeline import run_rirs
+    from rangeslam.app.run_recordings import emission_plot_rirs
     from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
     loaded = inputs = res = error = None
+    truth: tuple = ()
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always", UserWarning)
         try:
-            loaded = load_for_run(args)
+            loaded = _as_rirs(args, load_for_run(args))
+            truth = tuple(
+                s.emission_delay for s in (loaded if isinstance(loaded, list) else [loaded])
+            )
             if isinstance(loaded, list):  # several loudspeakers
                 inputs = run_inputs(args, loaded[0])
                 loaded, res = _run_loudspeakers(args, loaded, inputs)
@@ -342,6 +359,9 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
                 clipped="use" if args.use_clipped else "mask",
                 **inputs.options,
             )
+            if res.emission_offsets is not None:  # the RIRs as the pipeline saw them, for the plot
+                moved = emission_plot_rirs(loaded.rirs, loaded.fs, res.emission_offsets[0])
+                loaded = dataclasses.replace(loaded, rirs=moved)
             print(
                 f"rangeslam: run: finished in {format_seconds(time.perf_counter() - started)}",
                 file=sys.stderr,
@@ -357,7 +377,22 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
         else f"{w.category.__name__}: {w.message}"
         for w in seen
     )
-    return RunAttempt(loaded=loaded, inputs=inputs, result=res, warnings=caught, error=error)
+    return RunAttempt(
+        loaded=loaded,
+        inputs=inputs,
+        result=res,
+        warnings=caught,
+        error=error,
+        emission_truth=truth,
+    )
+
+
+def _as_rirs(args: argparse.Namespace, loaded):
+    """The files read (one LoadedRirs, or one per loudspeaker) as RIRs: recordings deconvolved
+    with their excitation (``deconvolve_loaded``)."""
+    if isinstance(loaded, list):
+        return [deconvolve_loaded(args, x, p) for x, p in zip(loaded, args.rirs, strict=True)]
+    return deconvolve_loaded(args, loaded, args.rirs[0] if len(args.rirs) == 1 else args.rirs)
 
 
 class _Done(Exception):
@@ -374,6 +409,7 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
     import numpy as np
 
     from rangeslam.acoustics.pipeline import run_loudspeakers
+    from rangeslam.app.run_recordings import emission_plot_rirs
     from rangeslam.errors import InvalidInputError
 
     if inputs.mics is None:
@@ -407,6 +443,7 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
         rng=args.seed,
         clipped="use" if args.use_clipped else "mask",
         estimate_c=bool(inputs.options.get("estimate_c", False)),
+        unknown_emission=bool(inputs.options.get("unknown_emission", False)),
     )
     print(
         f"rangeslam: run: finished in {format_seconds(time.perf_counter() - started)}",
@@ -414,7 +451,13 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
         flush=True,
     )
     length = max(s.rirs.shape[1] for s in sets)
-    rirs = np.vstack([np.pad(s.rirs, ((0, 0), (0, length - s.rirs.shape[1]))) for s in sets])
+    seen = [s.rirs for s in sets]
+    if res.emission_offsets is not None:  # the RIRs as the pipeline saw them, for the plot
+        seen = [
+            emission_plot_rirs(x, first.fs, t)
+            for x, t in zip(seen, res.emission_offsets, strict=True)
+        ]
+    rirs = np.vstack([np.pad(x, ((0, 0), (0, length - x.shape[1]))) for x in seen])
     names = tuple(n for s in sets for n in s.names)
     return dataclasses.replace(first, rirs=rirs, names=names, keyframes=None), res
 
@@ -541,6 +584,7 @@ def _loudspeaker_lines(res, lines: list[str], record: dict) -> None:
 def _run(args: argparse.Namespace) -> int:
     """The body of :func:`run`."""
     from rangeslam.app.reports import versions, write_summary
+    from rangeslam.app.run_recordings import emission_lines
     from rangeslam.app.run_report import (
         array_report,
         report_header,
@@ -566,6 +610,7 @@ def _run(args: argparse.Namespace) -> int:
         if res.c_std is not None:
             lines += ["", f"speed of sound: {res.c:.3f} +- {res.c_std:.2g} m/s (estimated)"]
             record["c_estimated"], record["c_std"] = res.c, res.c_std
+        emission_lines(res, list(attempt.emission_truth), lines, record)
     else:
         written = walk_report(args.out, res, errs, lines, record)
     written += logged_step(log, "run: drawing the plots")(run_plots)(args, loaded, res)

@@ -40,6 +40,8 @@ MAX_WALK_RIRS = 10_000
 MAX_SOURCES = 8
 #: --noise: white noise std as a fraction of the largest sample.
 MAX_NOISE = 100.0
+#: --delay of ``simulate room``: seconds of recording before the emission, at most.
+MAX_DELAY = 1.0
 
 
 def _side(text: str) -> float:
@@ -143,8 +145,40 @@ def add_simulate_parser(sub) -> None:
         "(OUT-src0.npz, ...; the same microphones; then: run them together)",
     )
     _add_common(room, fs=48000)
+    _add_recordings(room)
     room.set_defaults(func=simulate_room)
     _add_walk_parser(kinds)
+
+
+def _add_recordings(room) -> None:
+    """``simulate room --recordings`` and ``--delay``."""
+    room.add_argument(
+        "--recordings",
+        choices=("sweep", "mls"),
+        help="write what the microphones record of this excitation instead of the RIRs (npz "
+        "'recordings' and 'excitation'; --noise is then added to the recordings): a 0.5 s "
+        "exponential sine sweep from 20 Hz to 0.45 fs, or a maximum-length sequence of about "
+        "0.34 s; `run` deconvolves them",
+    )
+    room.add_argument(
+        "--delay",
+        type=_delay,
+        default=0.0,
+        metavar="S",
+        help=f"the recording starts a delay drawn uniformly in [0, S] seconds (0 to "
+        f"{MAX_DELAY:g}) before the emission, one per loudspeaker, written as emission_delay "
+        "(then: run --unknown-emission)",
+    )
+
+
+def _delay(text: str) -> float:
+    """Seconds in [0, MAX_DELAY]."""
+    value = arg_types.non_negative(text)
+    if not value <= MAX_DELAY:
+        raise argparse.ArgumentTypeError(
+            f"must be from 0 to {MAX_DELAY:g} s; got {arg_types.shown(text)}"
+        )
+    return value
 
 
 def _add_walk_parser(kinds) -> None:
@@ -281,14 +315,19 @@ def _simulate_loudspeakers(args: argparse.Namespace, room) -> int:
         if j > 0:
             gen = np.random.default_rng([args.seed, j])
             src = random_points_in_room(room, 1, margin=0.5, rng=gen)[0].tolist()
-        code = _simulate_one(args, room, src, path, say_next=False)
+        code = _simulate_one(args, room, src, path, say_next=False, index=j)
         if code:
             return code
-    print(f"next: rangeslam run {' '.join(shlex.quote(str(p)) for p in paths)} --mics-from-npz")
+    more = " --unknown-emission" if args.delay else ""
+    print(
+        f"next: rangeslam run {' '.join(shlex.quote(str(p)) for p in paths)} --mics-from-npz{more}"
+    )
     return 0
 
 
-def _simulate_one(args: argparse.Namespace, room, source, out: Path, *, say_next=True) -> int:
+def _simulate_one(
+    args: argparse.Namespace, room, source, out: Path, *, say_next=True, index: int = 0
+) -> int:
     """One loudspeaker's file (``simulate room``)."""
     import numpy as np
 
@@ -305,15 +344,16 @@ def _simulate_one(args: argparse.Namespace, room, source, out: Path, *, say_next
                 fs=args.fs,
                 absorption=args.absorption,
                 max_order=args.order,
-                noise=args.noise,
+                noise=0.0 if args.recordings else args.noise,
                 rng=args.seed,
             )
     except InvalidInputError as exc:
         return _refuse("--size" if args.size else "--room", str(exc))
     truth = {"room_size": rec.room_size} if rec.room_size is not None else {}
+    signals = _signals(args, rec, index)
     np.savez(
         out,
-        rirs=rec.rirs,
+        **signals,
         fs=rec.fs,
         c=rec.c,
         mics=rec.mics,
@@ -329,16 +369,44 @@ def _simulate_one(args: argparse.Namespace, room, source, out: Path, *, say_next
     what = (
         " x ".join(f"{v:g}" for v in rec.room_size) + " m shoebox" if truth else f"{args.room} room"
     )
-    m, length = rec.rirs.shape
+    m, length = signals["recordings" if args.recordings else "rirs"].shape
+    played = {"sweep": "an exponential sine sweep", "mls": "a maximum-length sequence"}
+    kind = f"recordings of {played[args.recordings]}" if args.recordings else "RIRs"
+    if args.delay:
+        kind += f" starting {signals['emission_delay'] * 1e3:.3f} ms before the emission"
     print(
-        f"wrote {out}: {m} RIRs ({rec.fs:g} Hz, {length / rec.fs:.3f} s) of a loudspeaker "
+        f"wrote {out}: {m} {kind} ({rec.fs:g} Hz, {length / rec.fs:.3f} s) of a loudspeaker "
         f"at ({', '.join(f'{v:.2f}' for v in rec.source)}) m, microphones at random in the "
         f"{what} ({room.n_walls} walls, reflection order {args.order}); ground truth: "
         "mics, source, " + ("room_size, " if truth else "") + "wall_normals, wall_offsets"
     )
     if say_next:
-        print(f"next: {_next_command(out, '--mics-from-npz')}")
+        more = " --unknown-emission" if args.delay else ""
+        print(f"next: {_next_command(out, '--mics-from-npz' + more)}")
     return 0
+
+
+def _signals(args: argparse.Namespace, rec, index: int) -> dict:
+    """What the npz holds of the sound: ``rirs``, or ``recordings`` of ``args.recordings`` with
+    ``excitation`` (--noise added to the recordings); with ``--delay`` every row starts a delay
+    drawn from (seed, loudspeaker ``index``) before the emission (``emission_delay``, s)."""
+    import numpy as np
+
+    from rangeslam.acoustics.deconvolution import excitation_signal, record, shift_signals
+
+    gen = np.random.default_rng([args.seed, index, 36])
+    x, extra = rec.rirs, {}
+    if args.recordings:
+        e = excitation_signal(args.recordings, rec.fs)
+        x = record(rec.rirs, e)
+        x = x + args.noise * np.abs(x).max() * gen.standard_normal(x.shape)
+        extra["excitation"] = e
+    if args.delay:
+        delay = float(gen.uniform(0.0, args.delay))
+        lead = int(np.ceil(delay * rec.fs))
+        x = shift_signals(np.pad(x, ((0, 0), (0, lead))), delay * rec.fs)
+        extra["emission_delay"] = delay
+    return {"recordings" if args.recordings else "rirs": x, **extra}
 
 
 def simulate_walk(args: argparse.Namespace) -> int:

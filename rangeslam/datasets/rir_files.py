@@ -24,7 +24,7 @@ from rangeslam._validation import as_float_array, as_scalar, frozen, shape_str
 from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 
-__all__ = ["LoadedRirs", "SilentRirWarning", "load_rirs"]
+__all__ = ["LoadedRirs", "SilentRirWarning", "load_excitation", "load_rirs"]
 
 
 # scipy.io.wavfile's warnings when a file ends before its RIFF header says (scipy 1.x wording).
@@ -60,6 +60,11 @@ class LoadedRirs:
         wall_normals: (W, d) true outward unit wall normals (npz ``wall_normals``), for evaluation
             only; a room that is not a shoebox is given this way, with ``wall_offsets``.
         wall_offsets: (W,) true wall offsets, metres: wall k is {x : n_k . x = offset_k}.
+        recorded: True when ``rirs`` holds recordings of an excitation (npz ``recordings``
+            instead of ``rirs``), still to be deconvolved.
+        excitation: (E,) the excitation the recordings are of (npz ``excitation``), or None.
+        emission_delay: seconds from sample 0 to the true emission (npz ``emission_delay``), for
+            evaluation only; None when not stated.
     """
 
     rirs: np.ndarray
@@ -75,6 +80,9 @@ class LoadedRirs:
     landmarks: np.ndarray | None = None
     wall_normals: np.ndarray | None = None
     wall_offsets: np.ndarray | None = None
+    recorded: bool = False
+    excitation: np.ndarray | None = None
+    emission_delay: float | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -105,11 +113,12 @@ def load_rirs(
 
     Args:
         path_or_paths: one of
-            - an ``.npz`` with ``rirs`` (M, L) and ``fs`` (scalar, Hz), and optionally ``mics``
+            - an ``.npz`` with ``rirs`` (M, L) (or ``recordings`` (M, L) of an ``excitation``
+              (E,), then ``recorded`` is True) and ``fs`` (scalar, Hz), and optionally ``mics``
               (M, 3) (or dEchorate's ``mics_v3``), ``step_bounds`` (2, M - 1), ``keyframes``
               (the RIRs that are steps, when not all are), ``c`` (m/s), and
               ground truth for evaluation: ``source`` (or ``src_v3``), ``room_size``,
-              ``trajectory`` (M, 3); other arrays are ignored;
+              ``trajectory`` (M, 3), ``emission_delay`` (s); other arrays are ignored;
             - a WAV file: each channel is one RIR;
             - a directory: its WAV files, one mono RIR each, in natural order of their names
               (``mic2.wav`` before ``mic10.wav``);
@@ -199,6 +208,27 @@ def _npz_array(raw: dict, keys: tuple[str, ...], p: Path, shape: tuple[int | Non
     return None
 
 
+def _npz_signals(raw: dict, p: Path) -> tuple[str, np.ndarray]:
+    """(key, (M, L) float64) of the npz's ``rirs``, else its ``recordings``, checked."""
+    key = "recordings" if "recordings" in raw and "rirs" not in raw else "rirs"
+    if key not in raw:
+        raise DataFormatError(
+            f"{p}: no 'rirs' array (M, L) (nor 'recordings'); it holds {sorted(raw)}"
+        )
+    try:
+        rirs = as_float_array(raw[key], key)
+    except InvalidInputError as exc:
+        raise DataFormatError(f"{p}: {key} is not numeric ({exc})") from exc
+    if rirs.ndim != 2 or rirs.shape[1] < 3 or rirs.shape[0] < 1:
+        raise DataFormatError(
+            f"{p}: {key} must have shape (M, L), one per row; got {shape_str(rirs.shape)}"
+        )
+    bad = first_bad(rirs)
+    if bad is not None:
+        raise DataFormatError(f"{p}: {key}[{bad[0]}] sample {bad[1]} is {rirs[bad]}")
+    return key, rirs
+
+
 def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     """The RIRs and whatever else the npz ``p`` holds, each array checked."""
     if not zipfile.is_zipfile(p):
@@ -211,19 +241,7 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
             raw = {k: data[k] for k in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
-    if "rirs" not in raw:
-        raise DataFormatError(f"{p}: no 'rirs' array (M, L); it holds {sorted(raw)}")
-    try:
-        rirs = as_float_array(raw["rirs"], "rirs")
-    except InvalidInputError as exc:
-        raise DataFormatError(f"{p}: rirs is not numeric ({exc})") from exc
-    if rirs.ndim != 2 or rirs.shape[1] < 3 or rirs.shape[0] < 1:
-        raise DataFormatError(
-            f"{p}: rirs must have shape (M, L), one RIR per row; got {shape_str(rirs.shape)}"
-        )
-    bad = first_bad(rirs)
-    if bad is not None:
-        raise DataFormatError(f"{p}: rirs[{bad[0]}] sample {bad[1]} is {rirs[bad]}")
+    key, rirs = _npz_signals(raw, p)
     m = rirs.shape[0]
     file_fs = _npz_array(raw, ("fs",), p, ())
     if file_fs is None and fs is None:
@@ -239,6 +257,8 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     c = _npz_array(raw, ("c",), p, ())
     if c is not None and not c > 0:
         raise DataFormatError(f"{p}: c must be a positive speed of sound in m/s; got {c}")
+    excitation = _npz_array(raw, ("excitation",), p, (None,))
+    delay = _npz_array(raw, ("emission_delay",), p, ())
     source = _npz_array(raw, ("source", "src_v3"), p, (None,))
     size = _npz_array(raw, ("room_size",), p, (3,))
     trajectory = _npz_array(raw, ("trajectory",), p, (None, None))
@@ -265,7 +285,7 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     return LoadedRirs(
         rirs=frozen(rirs),
         fs=float(file_fs if file_fs is not None else fs),
-        names=tuple(f"{p.name}:rirs[{i}]" for i in range(m)),
+        names=tuple(f"{p.name}:{key}[{i}]" for i in range(m)),
         mics=None if mics is None else frozen(mics),
         step_bounds=None if bounds is None else frozen(bounds),
         c=None if c is None else float(c),
@@ -276,6 +296,9 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
         landmarks=None if landmarks is None else frozen(landmarks),
         wall_normals=None if normals is None else frozen(normals),
         wall_offsets=None if offsets is None else frozen(offsets),
+        recorded=key == "recordings",
+        excitation=None if excitation is None else frozen(excitation),
+        emission_delay=None if delay is None else float(delay),
     )
 
 
@@ -398,3 +421,44 @@ def _load_wavs(paths: list[Path], fs: float | None) -> LoadedRirs:
     return LoadedRirs(
         rirs=frozen(np.vstack([x for _, _, x in read])), fs=read[0][1], names=tuple(names)
     )
+
+
+def load_excitation(path: str | Path) -> tuple[float | None, np.ndarray]:
+    """(fs or None, (E,) samples) of an excitation signal: a mono WAV (its rate; int PCM scaled to
+    [-1, 1)), an ``.npy`` or a ``.csv`` / ``.txt`` column of numbers (no rate: the recordings').
+
+    Raises:
+        InvalidInputError: no such file. DataFormatError naming the file: unreadable, not mono
+        or one column, fewer than 1 sample, NaN or infinite samples, all zeros.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    rate = None
+    if p.suffix.lower() == ".wav":
+        rate, x = _read_wav(p)
+        if x.shape[0] != 1:
+            raise DataFormatError(f"{p}: has {x.shape[0]} channels; an excitation is mono")
+        x = x[0]
+    else:
+        try:
+            if p.suffix.lower() == ".npy":
+                x = np.load(p, allow_pickle=False)
+            else:
+                text = p.read_text()
+                x = np.loadtxt(p, delimiter="," if "," in text else None, ndmin=1)
+            x = np.asarray(x, dtype=float)
+        except (OSError, ValueError, UnicodeDecodeError) as exc:
+            raise DataFormatError(f"{p}: not a readable excitation ({exc})") from exc
+        if x.ndim == 2 and 1 in x.shape:
+            x = x.reshape(-1)
+        if x.ndim != 1 or len(x) < 1:
+            raise DataFormatError(
+                f"{p}: an excitation is one signal, (E,); got shape {shape_str(x.shape)}"
+            )
+    bad = first_bad(x)
+    if bad is not None:
+        raise DataFormatError(f"{p}: sample {bad[0]} is {x[bad]}, not a finite number")
+    if not np.any(x):
+        raise DataFormatError(f"{p}: every sample is 0; an excitation must play something")
+    return rate, frozen(x)

@@ -1,0 +1,245 @@
+"""The room from RIRs whose sample 0 is not the emission: one unknown delay per loudspeaker.
+
+A recording started ``tau`` seconds before the loudspeaker played (a free-running recorder, an
+unknown output latency) has every arrival ``tau`` late: each range is the distance plus
+b = c tau, the same for the direct path and every echo of that loudspeaker (the paper's "future
+work"; :mod:`rangeslam.localization.emission`). Here tau is estimated and taken out before the
+usual pipeline, in two passes per loudspeaker:
+
+1. Direct paths: the detector's direct peak at every microphone, located with its offset as a
+   pseudorange (:func:`rangeslam.localization.multilaterate_with_offset`, robust when there are
+   at least 6 microphones; needs 5). The RIRs are advanced by that tau (band-limited, any
+   fraction of a sample; :func:`rangeslam.acoustics.deconvolution.shift_signals`), so the
+   echoes are where the labelling expects them.
+2. The pipeline runs on the advanced RIRs (``run``: :func:`rangeslam.acoustics.pipeline.run_rirs`
+   or ``run_loudspeakers``); every loudspeaker's labelled ranges (direct path and first-order
+   echoes) then give the remaining offset jointly with the source and its images
+   (:func:`rangeslam.localization.reconstruct_room_unknown_emission`, the joint ML of the offset
+   and the room, with the offset's standard deviation). When it is more than a tenth of a
+   sample, the RIRs are advanced by the corrected tau and the pipeline runs again.
+
+The speed of sound is not estimated with tau: ||s - m_i|| = c (t_i - tau) barely tells c from
+tau with a compact array (both stretch every range), so c is taken as given.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from rangeslam._validation import as_flag, frozen
+from rangeslam.acoustics.deconvolution import shift_signals
+from rangeslam.acoustics.echoes import detect_echoes_many
+from rangeslam.errors import DegenerateGeometryError, InvalidInputError
+from rangeslam.localization.emission import (
+    multilaterate_with_offset,
+    reconstruct_room_unknown_emission,
+)
+from rangeslam.status import HasStatus, Status
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "EmissionOffset",
+    "check_unknown_emission",
+    "direct_path_offset",
+    "loudspeakers_unknown_emission",
+    "rirs_unknown_emission",
+    "with_unknown_emission",
+]
+
+#: Samples: a remaining offset above this after the first pass is taken out by a second pass.
+RERUN_SAMPLES = 0.1
+
+
+def check_unknown_emission(unknown_emission: object, mode: str, estimate_c: object) -> bool:
+    """``unknown_emission`` as a bool; refused for a walk and with ``estimate_c``."""
+    if as_flag(unknown_emission, "unknown_emission") and (mode != "array" or estimate_c):
+        raise InvalidInputError(
+            "unknown_emission is for a known array (mics) with c as given; got "
+            + ("step_bounds (a walk)" if mode != "array" else "estimate_c=True as well")
+        )
+    return bool(unknown_emission)
+
+
+@dataclass(frozen=True)
+class EmissionOffset(HasStatus):
+    """Seconds from sample 0 of one loudspeaker's RIRs to its emission.
+
+    Attributes:
+        time: seconds (NaN when not found). std: its standard deviation, seconds (the range
+            residuals' RMS through the fit's dilution of precision; NaN when not found).
+        status: the pseudorange fit's (NOT_IDENTIFIABLE when fewer than 5 microphones have a
+            direct path). message: what happened.
+    """
+
+    time: float
+    std: float
+    status: Status
+    message: str
+
+
+def rirs_unknown_emission(x, fs: float, mics, options, *, c: float, rng, clipped: str):
+    """``run_rirs`` (array mode) on RIRs (M, L) whose emission time is unknown
+    (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions`` of the array mode."""
+    from rangeslam.acoustics.pipeline import run_rirs  # pipeline imports this module
+
+    again = partial(
+        run_rirs, fs=fs, mics=mics, c=c, rng=rng, clipped=clipped,
+        direct_template=options.direct_template, detect_options=options.detect_options,
+        label_options=options.label_options, reconstruct_options=options.reconstruct_options,
+    )  # fmt: skip
+    return with_unknown_emission(
+        lambda sets: again(sets[0]), [x], fs, mics, c=c, detect_options=options.detect_options,
+        rng=rng,
+    )  # fmt: skip
+
+
+def loudspeakers_unknown_emission(sets, fs: float, mics, options, *, c: float, rng, clipped: str):
+    """``run_loudspeakers`` on J RIR sets whose emission times are unknown, one each
+    (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions``."""
+    from rangeslam.acoustics.pipeline import run_loudspeakers  # pipeline imports this module
+
+    again = partial(
+        run_loudspeakers, fs=fs, mics=mics, c=c, rng=rng, clipped=clipped,
+        detect_options=options.detect_options, label_options=options.label_options,
+        reconstruct_options=options.reconstruct_options,
+    )  # fmt: skip
+    return with_unknown_emission(
+        again, sets, fs, mics, c=c, detect_options=options.detect_options, rng=rng
+    )
+
+
+def direct_path_offset(
+    rirs: np.ndarray,
+    fs: float,
+    mics: np.ndarray,
+    *,
+    c: float,
+    detect_options: dict[str, Any] | None = None,
+    rng: np.random.Generator | None = None,
+) -> EmissionOffset:
+    """The emission time of ``rirs`` (M, L) from the direct paths at the M known ``mics``
+    (pseudorange multilateration, robust with 6 or more). ``detect_options`` as
+    ``detect_echoes_many`` (its ``max_time``, a time from the emission, is not applied here)."""
+    opts = {k: v for k, v in (detect_options or {}).items() if k != "max_time"}
+    with warnings.catch_warnings():  # the run that follows warns about the same RIRs
+        warnings.simplefilter("ignore", UserWarning)
+        dets = detect_echoes_many(rirs, fs, **opts)
+    seen = np.array([d.direct is not None for d in dets])
+    nan = float("nan")
+    if seen.sum() < 5:
+        why = (
+            f"{int(seen.sum())} of {len(dets)} RIRs have a direct path; an unknown emission needs 5"
+        )
+        return EmissionOffset(nan, nan, Status.NOT_IDENTIFIABLE, why)
+    times = np.array([d.times[d.direct] if d.direct is not None else 0.0 for d in dets])
+    try:
+        fit = multilaterate_with_offset(
+            mics, c * times, mask=seen, robust=bool(seen.sum() >= 6), rng=rng
+        )
+    except (InvalidInputError, DegenerateGeometryError) as exc:
+        return EmissionOffset(nan, nan, Status.NOT_IDENTIFIABLE, str(exc))
+    used = fit.inliers & np.isfinite(fit.residuals)
+    dof = max(int(used.sum()) - mics.shape[1] - 1, 1)
+    sigma = np.sqrt(np.sum(fit.residuals[used] ** 2) / dof)
+    return EmissionOffset(fit.offset / c, sigma * fit.dop[-1] / c, fit.status, fit.message)
+
+
+def _echo_offsets(res: Any, mics: np.ndarray, c: float, rng) -> list:
+    """Each loudspeaker's remaining offset from its labelled ranges, as seconds
+    (``reconstruct_room_unknown_emission``, the labelling's tolerance as in ``room_from_rirs``):
+    (offset, std) when that fit converged, else the reason it did not (a string)."""
+    labs = getattr(res.result, "labellings", None) or (res.result.labelling,)
+    out: list = []
+    for lab in labs:
+        if lab.n_images == 0 or not np.all(np.isfinite(lab.source)):
+            out.append("no echo labelled")
+            continue
+        ranges = np.where(lab.mask, np.nan_to_num(lab.ranges), 0.0)
+        try:
+            fit = reconstruct_room_unknown_emission(
+                mics, ranges, mask=lab.mask, c=c, inlier_threshold=2 * lab.tolerance, rng=rng
+            )
+        except (InvalidInputError, DegenerateGeometryError) as exc:
+            out.append(str(exc))
+            continue
+        out.append((fit.offset / c, fit.offset_std / c) if fit.converged else fit.message)
+    return out
+
+
+def with_unknown_emission(
+    run: Callable[[list[np.ndarray]], Any],
+    rir_sets: Sequence[np.ndarray],
+    fs: float,
+    mics: np.ndarray,
+    *,
+    c: float,
+    detect_options: dict[str, Any] | None = None,
+    rng: np.random.Generator | None = None,
+):
+    """``run`` (J advanced RIR sets -> RunResult) on ``rir_sets`` (J of (M, L_j)) whose emission
+    times are unknown: the module docstring's passes. Returns ``run``'s RunResult with
+    ``emission_offsets`` (J,) seconds from sample 0 to each emission and
+    ``emission_offset_stds`` (J,) seconds; not converged, with the reason in ``message``, when an
+    offset could not be estimated."""
+    offsets = [
+        direct_path_offset(x, fs, mics, c=c, detect_options=detect_options, rng=rng)
+        for x in rir_sets
+    ]
+    taus = np.array([o.time for o in offsets])
+    stds = np.array([o.std for o in offsets])
+    if not np.all(np.isfinite(taus)):
+        res = run([np.asarray(x) for x in rir_sets])
+        return _emission_verdict(res, taus, stds, offsets, [])
+    res = run([shift_signals(x, -t * fs) for x, t in zip(rir_sets, taus, strict=True)])
+    echoes = _echo_offsets(res, mics, c, rng)
+    # the echoes disagree with the direct paths beyond their own noise: their offset is taken
+    moved = [
+        isinstance(e, tuple) and abs(e[0]) * fs > RERUN_SAMPLES and abs(e[0]) > 3 * e[1]
+        for e in echoes
+    ]
+    if any(moved):
+        taus = taus + [e[0] if m else 0.0 for e, m in zip(echoes, moved, strict=True)]
+        stds = np.where(
+            moved, [e[1] if m else 0.0 for e, m in zip(echoes, moved, strict=True)], stds
+        )
+        log.info("unknown emission: the echoes moved the offsets to %s s; running again", taus)
+        res = run([shift_signals(x, -t * fs) for x, t in zip(rir_sets, taus, strict=True)])
+    return _emission_verdict(res, taus, stds, offsets, echoes)
+
+
+def _emission_verdict(res, taus: np.ndarray, stds: np.ndarray, offsets: list, echoes: list):
+    """``res`` with the offsets, its message led by them (and what the echoes said of them),
+    and not converged when a loudspeaker's direct-path offset did not converge."""
+    many = len(taus) > 1
+    parts = []
+    status = res.status
+    for j, (t, s, o) in enumerate(zip(taus, stds, offsets, strict=True)):
+        who = f" (loudspeaker {j})" if many else ""
+        if not o.converged:
+            parts.append(f"emission time{who} not found from the direct paths: {o.message}")
+            status = o.status if status is Status.CONVERGED else status
+            continue
+        text = f"emission {t * 1e3:.4f} +- {s * 1e3:.2g} ms after sample 0{who}"
+        if j < len(echoes):
+            e = echoes[j]
+            text += (
+                f", the echoes' offset {e[0] * 1e3:+.2g} +- {e[1] * 1e3:.2g} ms from it"
+                if isinstance(e, tuple)
+                else f" (the echoes' offset not estimated: {e})"
+            )
+        parts.append(text)
+    return replace(
+        res,
+        status=status,
+        message="; ".join([*parts, res.message]),
+        emission_offsets=frozen(taus),
+        emission_offset_stds=frozen(stds),
+    )
