@@ -7,7 +7,12 @@ paper read backwards), matches the walls of different loudspeakers (normals with
 ``WALL_MATCH_DEGREES``, offsets within ``WALL_MATCH_METRES``), and passes the J range matrices, one
 column per matched wall, to :func:`~rangeslam.localization.room_reconstruction.reconstruct_room`,
 which fits every loudspeaker and wall jointly (a wall one loudspeaker missed is fitted from the
-others' echoes; a wrong pick of one is outvoted).
+others' echoes; a wrong pick of one is outvoted). Then the echoes no labelling took are searched
+for walls that the loudspeakers hear jointly, each at too few microphones to label it alone
+(:func:`~rangeslam.acoustics.shared_walls.shared_walls`: a small wall, such as a cut corner,
+reflects a loudspeaker to the few microphones whose specular point falls on it); those found
+are added and the room refitted, and an echo set that fits a wall the others do not confirm is
+named in the message as left unexplained.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_points, as_rng, check_options_for, check_positive
 from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
 from rangeslam.acoustics.labelling import EchoLabelling, label_echoes
+from rangeslam.acoustics.shared_walls import SharedWall, shared_walls
 from rangeslam.errors import InvalidInputError
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
@@ -50,18 +56,24 @@ class RoomFromLoudspeakers(HasStatus):
         labellings: the J :class:`~rangeslam.acoustics.labelling.EchoLabelling`.
         columns: (J, K) int: the labelling column (1..) of matched wall k for loudspeaker j, 0
             where loudspeaker j did not label that wall.
+        shared: the walls found jointly from echoes no labelling took
+            (:func:`~rangeslam.acoustics.shared_walls.shared_walls`: a small wall that each
+            loudspeaker hears at too few microphones to label it alone); the reconstruction's
+            walls are the K matched ones, then these.
         reconstruction: the joint
             :class:`~rangeslam.localization.room_reconstruction.RoomReconstruction`, or None when
             no loudspeaker was located with an echo.
         status: CONVERGED when the joint reconstruction converged and its walls bound a room; else
             the reconstruction's status, OUT_OF_RANGE (walls not bounding a room), or
             NOT_IDENTIFIABLE (nothing to reconstruct).
-        message: what happened, each labelling's message included.
+        message: what happened, each labelling's message included, and the echoes left
+            unexplained (an echo set that fits a wall the others do not confirm).
     """
 
     detections: tuple[EchoDetection, ...]
     labellings: tuple[EchoLabelling, ...]
     columns: np.ndarray
+    shared: tuple[SharedWall, ...]
     reconstruction: RoomReconstruction | None
     status: Status
     message: str
@@ -111,16 +123,21 @@ def match_walls(
     return out
 
 
-def _joint_ranges(labs: Sequence[EchoLabelling], columns: np.ndarray):
-    """J (M, 1+K) range matrices and masks in the matched column order (masked: NaN, False)."""
+def _joint_ranges(labs: Sequence[EchoLabelling], columns: np.ndarray, shared=()):
+    """J (M, 1+K+S) range matrices and masks in the matched column order, then the S ``shared``
+    walls' echoes (masked: NaN, False)."""
     ranges, masks = [], []
-    for lab, cols in zip(labs, columns, strict=True):
+    for j, (lab, cols) in enumerate(zip(labs, columns, strict=True)):
         m = lab.ranges.shape[0]
         r = np.full((m, 1 + len(cols)), np.nan)
         mk = np.zeros((m, 1 + len(cols)), dtype=bool)
         for k, c in enumerate([0, *cols]):
             if k == 0 or c > 0:
                 r[:, k], mk[:, k] = lab.ranges[:, c], lab.mask[:, c]
+        extra = [(w.ranges[j], w.peaks[j] >= 0) for w in shared]
+        if extra:
+            r = np.column_stack([r, *(e[0] for e in extra)])
+            mk = np.column_stack([mk, *(e[1] for e in extra)])
         ranges.append(np.where(mk, r, np.nan))
         masks.append(mk)
     return ranges, masks
@@ -143,6 +160,57 @@ def _drop_lone_wall(pts, labs, cols: np.ndarray, rec, ropts: dict, rng):
             )
             return keep, trial, note
     return cols, rec, ""
+
+
+def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng):
+    """When the labelled walls converged to a room and several loudspeakers were located: the
+    walls their free echoes show jointly (:func:`shared_walls`), added and refitted with the
+    others. Returns (the walls added, the reconstruction, a note for the message: the walls
+    added, or the echoes left unexplained, or "")."""
+    if len(labs) < 2 or not rec.converged or rec.room is None:
+        return (), rec, ""
+    found = shared_walls(labs, dets, pts, rec.room, c=c, min_cut=WALL_MATCH_METRES, rng=rng)
+    note = "".join(f"{u}; " for u in found.unexplained)
+    if not found.walls:
+        return (), rec, note
+    ranges, masks = _joint_ranges(labs, cols, found.walls)
+    try:
+        trial = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
+    except InvalidInputError as exc:  # a wall it cannot start from: reported, not fitted
+        trial = None
+        why = str(exc)
+    said = ", ".join(
+        f"normal {np.round(w.normal, 2).tolist()} from {w.support.tolist()} echoes"
+        for w in found.walls
+    )
+    if trial is not None and trial.converged and trial.room is not None:
+        return (
+            found.walls,
+            trial,
+            f"{note}added {len(found.walls)} wall(s) found jointly ({said}); ",
+        )
+    why = why if trial is None else trial.message
+    return (
+        (),
+        rec,
+        (
+            f"{note}echoes left unexplained: a wall found jointly ({said}) did not fit with the "
+            f"others ({why}); "
+        ),
+    )
+
+
+def _rir_sets(rir_sets, m_n: int) -> list[np.ndarray]:
+    """The J >= 1 RIR sets as (M, L) float arrays, each checked (messages name ``rir_sets[j]``)."""
+    sets = [np.asarray(x, dtype=float) for x in rir_sets]
+    if not sets:
+        raise InvalidInputError("rir_sets must hold the RIRs of at least one loudspeaker; got none")
+    for j, x in enumerate(sets):
+        if x.ndim != 2 or x.shape[0] != m_n:
+            raise InvalidInputError(
+                f"rir_sets[{j}] must be ({m_n}, L), one RIR per microphone; got {x.shape}"
+            )
+    return sets
 
 
 def room_from_loudspeakers(
@@ -183,15 +251,7 @@ def room_from_loudspeakers(
             label_options, "label_options", label_echoes, passed=("detections", "mics", "c", "rng")
         )
     )
-    sets = [np.asarray(x, dtype=float) for x in rir_sets]
-    if not sets:
-        raise InvalidInputError("rir_sets must hold the RIRs of at least one loudspeaker; got none")
-    for j, x in enumerate(sets):
-        if x.ndim != 2 or x.shape[0] != len(pts):
-            raise InvalidInputError(
-                f"rir_sets[{j}] must be ({len(pts)}, L), one RIR per microphone; got {x.shape}"
-            )
-    dets_j = [tuple(detect_echoes_many(x, fs, **opts)) for x in sets]
+    dets_j = [tuple(detect_echoes_many(x, fs, **opts)) for x in _rir_sets(rir_sets, len(pts))]
     labs = tuple(label_echoes(d, pts, c=c, rng=rng, **lopts) for d in dets_j)
     dets = tuple(d for ds in dets_j for d in ds)
     notes = "; ".join(f"loudspeaker {j}: {lab.message}" for j, lab in enumerate(labs))
@@ -199,7 +259,7 @@ def room_from_loudspeakers(
     if not usable:
         msg = f"no loudspeaker was located with an echo labelled; {notes}"
         empty = np.zeros((len(labs), 0), dtype=int)
-        return RoomFromLoudspeakers(dets, labs, empty, None, Status.NOT_IDENTIFIABLE, msg)
+        return RoomFromLoudspeakers(dets, labs, empty, (), None, Status.NOT_IDENTIFIABLE, msg)
     walls = [_walls_of(labs[j]) for j in usable]
     cols = match_walls([w[0] for w in walls], [w[1] for w in walls])
     columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
@@ -213,9 +273,12 @@ def room_from_loudspeakers(
         cols, rec, dropped = _drop_lone_wall(pts, [labs[j] for j in usable], cols, rec, ropts, rng)
         columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
         columns[usable] = cols
+    shared, rec, added = _add_shared_walls(
+        pts, [labs[j] for j in usable], [dets_j[j] for j in usable], cols, rec, ropts, c, rng
+    )
     msg = (
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
-        f"{dropped}reconstruction: {rec.message}"
+        f"{dropped}{added}reconstruction: {rec.message}"
     )
     if not rec.converged:
         status = Status(rec.status)
@@ -224,4 +287,4 @@ def room_from_loudspeakers(
         msg += f"; the {cols.shape[1]} walls found do not bound a room"
     else:
         status = Status.CONVERGED
-    return RoomFromLoudspeakers(dets, labs, columns, rec, status, msg)
+    return RoomFromLoudspeakers(dets, labs, columns, shared, rec, status, msg)

@@ -33,6 +33,7 @@ sources to their images (outward); a wall whose images lie on the wrong side fai
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -221,6 +222,26 @@ def _bisector_walls(source: np.ndarray, images: np.ndarray) -> tuple[np.ndarray,
     return normal * offset[:, None], ok
 
 
+def _sphere_intersections(centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """The (0 or 2, d) points at distances ``radii`` (d,) from d affinely independent
+    ``centres`` (d, d): the differences of the sphere equations are d - 1 linear equations (a
+    line x = p + t v), and the first sphere a quadratic in t. Spheres that just miss give the
+    line's nearest point twice."""
+    a = 2.0 * (centres[1:] - centres[0])
+    b = (
+        (np.sum(centres[1:] ** 2, axis=1) - np.sum(centres[0] ** 2))
+        - radii[1:] ** 2
+        + radii[0] ** 2
+    )
+    p = np.linalg.lstsq(a, b, rcond=None)[0]
+    v = np.linalg.svd(a)[2][-1]
+    w = p - centres[0]
+    # |w + t v|^2 = r0^2, |v| = 1
+    half_b, cc = float(w @ v), float(w @ w - radii[0] ** 2)
+    disc = math.sqrt(max(half_b**2 - cc, 0.0))
+    return np.array([p + (-half_b + disc) * v, p + (-half_b - disc) * v])
+
+
 def _wall_hypotheses(
     mics: np.ndarray,
     ranges: np.ndarray,
@@ -233,7 +254,8 @@ def _wall_hypotheses(
 
     For loudspeaker j, each subset of d+1 microphones that heard the echo gives the image source by
     the exact linear solution of A y = b (y = [x, ||x||^2]) and the wall as the bisector of s_j and
-    that image. ``per_source`` random subsets are drawn per loudspeaker (all of them when there are
+    that image; a loudspeaker that heard it at exactly d microphones gives the walls of both
+    images they fix (a small wall each loudspeaker hears at few microphones). ``per_source`` random subsets are drawn per loudspeaker (all of them when there are
     fewer); the SR-LS solution from all of the loudspeaker's echoes is always a candidate too, and
     with ``per_source == 0`` the only one.
     """
@@ -241,6 +263,11 @@ def _wall_hypotheses(
     walls: list[np.ndarray] = []
     for j in range(ranges.shape[0]):
         idx = np.flatnonzero(observed[j])
+        if len(idx) == d and affine_rank(mics[idx]) == d - 1:
+            # d echoes fix two mirror images; the other loudspeakers' echoes choose (MSAC)
+            cand, ok = _bisector_walls(sources[j], _sphere_intersections(mics[idx], ranges[j, idx]))
+            walls.append(cand[ok])
+            continue
         if len(idx) < d + 1 or affine_rank(mics[idx]) < d:
             continue
         images = [multilaterate(mics, ranges[j], mask=observed[j]).position[None, :]]

@@ -18,6 +18,8 @@ __all__ = [
     "EXACT_RTOL",
     "FLAT_FACTOR",
     "INLIER_K",
+    "JOINT_WALL_CHECKS",
+    "JOINT_WALL_RANGES",
     "KEPT_SIGMAS",
     "LOWER_RTOL",
     "MSAC_INLIER_K",
@@ -149,3 +151,14 @@ AMBIGUITY_CHI2 = float(chi2.ppf(CHI2_LEVEL, 1))
 #: times AMBIGUITY_CHI2 noise variances: the gap is measured on noisy data at the estimate, and a
 #: mirror the noise-free data could not tell apart sometimes shows a larger one there.
 AMBIGUITY_MARGIN = 2.0
+
+#: A wall found jointly by several loudspeakers (:mod:`rangeslam.acoustics.shared_walls`) needs
+#: this many echoes in all: a wall has three unknowns, so six leave three to check it (as five
+#: microphones on one image source leave two, ``label_echoes``'s least ``min_mics``). Chosen on
+#: the cut-corner sessions of ``benchmarks/bench_run_sessions.py`` seeds 618299-618306 (the cut
+#: wall heard cleanly at 3 + 3 or 4 + 2 microphones); checked on seeds drawn after
+#: (benchmarks/README.md, "rangeslam run on simulated sessions"; tests/test_run_sessions.py).
+JOINT_WALL_RANGES = 6
+#: ... and this many of them from loudspeakers other than the one that hears it most: that one's
+#: echoes alone fix a point (any four ranges do), so only the others' check the wall.
+JOINT_WALL_CHECKS = 2
