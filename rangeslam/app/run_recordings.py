@@ -44,7 +44,7 @@ def deconvolve_loaded(args: argparse.Namespace, loaded, source) -> Any:
             ".csv) or an 'excitation' array in the npz"
         )
     n, length = len(excitation), loaded.rirs.shape[1]
-    if n > length - 3:
+    if n > length - 2:
         raise InvalidInputError(
             f"{name}: {n} samples ({n / loaded.fs:.3f} s), not shorter than the recordings of "
             f"{where} ({length} samples, {length / loaded.fs:.3f} s): a recording must go on "

@@ -157,7 +157,7 @@ def _add_recordings(room) -> None:
         choices=("sweep", "mls"),
         help="write what the microphones record of this excitation instead of the RIRs (npz "
         "'recordings' and 'excitation'; --noise is then added to the recordings): a 0.5 s "
-        "exponential sine sweep from 20 Hz to 0.45 fs, or a maximum-length sequence of about "
+        "exponential sine sweep from 20 Hz to fs / 2, or a maximum-length sequence of about "
         "0.34 s; `run` deconvolves them",
     )
     room.add_argument(

@@ -1,0 +1,253 @@
+"""``rangeslam run`` from raw recordings of an excitation, and with an unknown emission time
+(issue 36, "Your own data, end to end")."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.io import wavfile
+
+from rangeslam import InvalidInputError
+from rangeslam.acoustics.deconvolution import (
+    deconvolve,
+    excitation_signal,
+    record,
+    shift_signals,
+)
+from rangeslam.acoustics.echoes import detect_echoes
+from rangeslam.app.cli import main
+
+# Drawn after the code was written (secrets.randbelow(10**6)); none was looked at before.
+SEEDS = {"shoebox": 675719, "cut-corner": 783549, "delayed": 365990, "one file": 951276}
+WALL_TOL = 0.01  # metres: the issue's "every wall within 1 cm"
+FS = 48000.0
+#: Seconds: an emission time recovered within a tenth of a sample at 48 kHz (0.7 mm of range).
+#: Measured: 3e-8 to 7e-7 s on the sessions below (the reported std, from the direct paths'
+#: scatter, was 1.3e-7 to 5e-7 s: a bias common to every direct path is not in it).
+OFFSET_TOL = 0.1 / FS
+
+
+def _pulse(n: int, at: float) -> np.ndarray:
+    """A band-limited impulse (a Hann-tapered sinc over +-40 samples) at sample ``at``."""
+    t = np.arange(n) - at
+    return np.where(np.abs(t) < 40, np.sinc(t) * np.cos(np.pi * t / 80) ** 2, 0.0)
+
+
+@pytest.mark.parametrize("kind", ["sweep", "mls"])
+def test_deconvolve_keeps_every_arrival_time(kind):
+    """A RIR of three band-limited pulses, recorded with a sweep or an MLS and deconvolved: each
+    pulse is detected within 0.01 sample of its time (the inverse filter is zero phase), and the
+    result has L - E + 1 samples."""
+    times = np.array([100.3, 251.7, 400.45])
+    amps = np.array([1.0, 0.5, -0.3])
+    h = sum(a * _pulse(1200, t) for a, t in zip(amps, times, strict=True))[None]
+    e = excitation_signal(kind, FS)
+    y = record(h, e)
+    rir = deconvolve(y, e)
+    assert rir.shape == (1, y.shape[1] - len(e) + 1)
+    found = detect_echoes(rir[0], FS).samples
+    assert len(found) == 3
+    np.testing.assert_allclose(found, times, atol=0.01)
+
+
+def test_a_sweep_short_of_nyquist_leaves_side_lobes_taken_for_echoes():
+    """The limitation the default sweep (up to fs / 2) avoids: the same three pulses recorded
+    with a sweep to 0.45 fs come out of the deconvolution ringing, with more than three
+    detections (11 measured)."""
+    from rangeslam.acoustics.deconvolution import exponential_sweep
+
+    times = [100.3, 251.7, 400.45]
+    h = sum(_pulse(1200, t) for t in times)[None]
+    e = exponential_sweep(FS, f_high=0.45 * FS)
+    assert len(detect_echoes(deconvolve(record(h, e), e)[0], FS)) > 3
+
+
+def test_deconvolve_with_an_mls_gives_the_rir_back():
+    """An MLS plays every frequency alike: the deconvolved RIR is the RIR to 1e-3 of its peak."""
+    h = np.random.default_rng(3).standard_normal((2, 500)) * np.exp(-np.arange(500) / 80)
+    e = excitation_signal("mls", FS)
+    rir = deconvolve(record(h, e), e)
+    assert np.abs(rir - h).max() <= 1e-3 * np.abs(h).max()
+
+
+def test_shift_signals_moves_an_arrival_by_any_fraction():
+    """A pulse delayed by 37.3 samples and advanced by 12.9 is detected that much later, within
+    0.01 sample (the tapered sinc is not quite band-limited, so its shifted copy is not quite the
+    detector's pulse: 0.008 sample measured)."""
+    x = _pulse(600, 200.25)[None]
+    for d in (37.3, -12.9):
+        got = detect_echoes(shift_signals(x, d)[0], FS).samples
+        np.testing.assert_allclose(got, [200.25 + d], atol=0.01)
+
+
+def test_deconvolve_refuses_an_excitation_as_long_as_the_recordings():
+    """An excitation that leaves fewer than 3 samples of RIR is refused naming it."""
+    with pytest.raises(InvalidInputError, match=r"excitation .* shorter than the recordings"):
+        deconvolve(np.ones((2, 100)), np.ones(99))
+
+
+def _session(tmp_path, room: str, seed: int, sim: list[str], run: list[str]):
+    """``simulate room --sources 2`` with ``sim`` flags, then ``run`` with ``run`` flags; (exit
+    code, the run's JSON record, the two npz)."""
+    stem = tmp_path / "session.npz"
+    argv = ["simulate", "room", "--room", room, "--sources", "2", "--seed", str(seed), *sim]
+    assert main([*argv, "--out", str(stem)]) == 0
+    files = [str(tmp_path / f"session-src{j}.npz") for j in range(2)]
+    out = tmp_path / "out"
+    code = main(["run", *files, *run, "--out", str(out)])
+    record = json.loads((out / "run_summary.json").read_text())
+    return code, record, [np.load(f) for f in files]
+
+
+def _wall_errors(record) -> np.ndarray:
+    """The true walls' errors, metres (inf: not found)."""
+    return np.array([np.inf if e is None else e for e in record["wall_errors_m"].values()])
+
+
+def test_two_loudspeakers_from_sweep_recordings_give_every_wall(tmp_path):
+    """A shoebox session of two loudspeakers written as recordings of a sweep (npz
+    ``recordings`` and ``excitation``, no RIRs) and run as they are: converged, every wall and
+    both loudspeakers within 1 cm."""
+    code, record, files = _session(
+        tmp_path, "shoebox", SEEDS["shoebox"], ["--recordings", "sweep"], []
+    )
+    assert "rirs" not in files[0] and files[0]["recordings"].shape[0] == 8
+    assert code == 0 and record["converged"]
+    errors = _wall_errors(record)
+    assert len(errors) == 6 and np.all(errors <= WALL_TOL), errors
+    true = np.array([f["source"] for f in files])
+    assert np.allclose(record["sources"], true, atol=WALL_TOL)
+
+
+def test_non_box_room_from_recordings_finds_what_its_rirs_find(tmp_path):
+    """The cut-corner room's session from MLS recordings: converged, at least 6 walls, each
+    found within 1 cm, and the same walls found as from the session's RIRs themselves (the cut
+    wall, when missed, is missed by the RIR-file run too: tests/test_run_sessions.py)."""
+    code, record, files = _session(
+        tmp_path, "cut-corner", SEEDS["cut-corner"], ["--recordings", "mls"], []
+    )
+    assert code == 0 and record["converged"]
+    errors = _wall_errors(record)
+    assert np.isfinite(errors).sum() >= 6
+    assert np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors
+    for j, f in enumerate(files):
+        np.savez(tmp_path / f"rirs{j}.npz", rirs=deconvolve(f["recordings"], f["excitation"]),
+                 **{k: f[k] for k in ("fs", "c", "mics", "source", "wall_normals", "wall_offsets")})  # fmt: skip
+    out = tmp_path / "rir-run"
+    main(["run", str(tmp_path / "rirs0.npz"), str(tmp_path / "rirs1.npz"), "--out", str(out)])
+    direct = _wall_errors(json.loads((out / "run_summary.json").read_text()))
+    assert np.array_equal(np.isfinite(direct), np.isfinite(errors))
+
+
+def test_unknown_emission_recovers_the_delays_and_the_walls(tmp_path):
+    """Two loudspeakers' MLS recordings each started an unknown delay (up to 50 ms) before the
+    emission, run with --unknown-emission: converged, every wall and both loudspeakers within
+    1 cm, each delay within a tenth of a sample, with a positive std reported in the summary."""
+    sim = ["--recordings", "mls", "--delay", "0.05"]
+    code, record, files = _session(
+        tmp_path, "shoebox", SEEDS["delayed"], sim, ["--unknown-emission"]
+    )
+    assert code == 0 and record["converged"]
+    assert np.all(_wall_errors(record) <= WALL_TOL), _wall_errors(record)
+    assert np.allclose(record["sources"], [f["source"] for f in files], atol=WALL_TOL)
+    true = np.array([float(f["emission_delay"]) for f in files])
+    assert np.all(true > 1e-4)  # 3.4 cm of range or more: beyond the walls' 1 cm
+    np.testing.assert_allclose(record["emission_offsets_s"], true, rtol=0, atol=OFFSET_TOL)
+    np.testing.assert_allclose(
+        record["emission_offset_errors_s"], record["emission_offsets_s"] - true
+    )
+    assert all(0 < s < OFFSET_TOL for s in record["emission_offset_stds_s"])
+    summary = (tmp_path / "out" / "run_summary.md").read_text()
+    assert "emission time" in summary and "std [ms]" in summary
+
+
+def test_a_delayed_recording_without_the_flag_is_not_a_room(tmp_path):
+    """The same kind of delayed file run without --unknown-emission: not converged (exit 1), or
+    a wall more than 1 cm off; the flag is what recovers it (one file, RIRs delayed)."""
+    path = tmp_path / "one.npz"
+    sim = ["simulate", "room", "--seed", str(SEEDS["one file"]), "--delay", "0.02"]
+    assert main([*sim, "--out", str(path)]) == 0
+    assert float(np.load(path)["emission_delay"]) > 1e-3
+    out = tmp_path / "out"
+    code = main(["run", str(path), "--out", str(out)])
+    record = json.loads((out / "run_summary.json").read_text())
+    assert code == 1 or np.any(_wall_errors(record) > WALL_TOL)
+    code = main(["run", str(path), "--unknown-emission", "--out", str(out)])
+    record = json.loads((out / "run_summary.json").read_text())
+    assert code == 0 and np.all(_wall_errors(record) <= WALL_TOL), _wall_errors(record)
+    assert abs(record["emission_offset_errors_s"][0]) <= OFFSET_TOL
+
+
+def test_run_rirs_refuses_unknown_emission_with_estimated_c():
+    """c and the emission time are not told apart by the direct paths: refused together."""
+    from rangeslam.acoustics.pipeline import run_rirs
+
+    mics = np.random.default_rng(0).uniform(0, 1, (6, 3))
+    with pytest.raises(InvalidInputError, match=r"unknown_emission .*estimate_c"):
+        run_rirs(np.eye(6, 100), 16000, mics=mics, unknown_emission=True, estimate_c=True)
+    with pytest.raises(InvalidInputError, match=r"unknown_emission .*walk"):
+        run_rirs(np.eye(6, 100), 16000, step_bounds=np.ones((2, 5)), unknown_emission=True)
+
+
+@pytest.fixture
+def recording(tmp_path):
+    """An npz of 6 recordings (16 kHz, 400 samples) of a 100-sample excitation, with mics."""
+    path = tmp_path / "rec.npz"
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(100)
+    np.savez(path, recordings=record(np.eye(6, 301), e), fs=16000.0, mics=rng.random((6, 3)),
+             excitation=e)  # fmt: skip
+    return path
+
+
+@pytest.mark.parametrize(
+    ("make", "extra", "named"),
+    [
+        (None, ["--excitation", "{tmp}/missing.wav"], "--excitation"),
+        ("long", ["--excitation", "{tmp}/long.npy"], "--excitation"),
+        ("rate", ["--excitation", "{tmp}/e8k.wav"], "--excitation"),
+        ("nan", ["--excitation", "{tmp}/nan.csv"], "--excitation"),
+        ("nan-npz", [], "bad.npz"),
+        ("no-excitation", [], "noexc.npz"),
+        ("rirs", ["--excitation", "{tmp}/e.npy"], "--excitation"),
+        (None, ["--unknown-emission", "--step-bounds", "{tmp}/b.txt"], "--unknown-emission"),
+    ],
+)
+def test_bad_recording_inputs_are_one_line_naming_the_flag(
+    make, extra, named, recording, tmp_path, capsys
+):
+    """A missing excitation file, one longer than the recordings, at another rate, with NaN (in
+    a file or in the npz), recordings without an excitation, --excitation with an npz of RIRs,
+    --unknown-emission for a walk: exit 2, one line naming the flag or the file."""
+    rng = np.random.default_rng(1)
+    target = recording
+    np.save(tmp_path / "long.npy", rng.standard_normal(500))
+    np.save(tmp_path / "e.npy", rng.standard_normal(50))
+    wavfile.write(tmp_path / "e8k.wav", 8000, rng.standard_normal(50).astype(np.float32))
+    np.savetxt(tmp_path / "nan.csv", [0.1, np.nan, 0.3])
+    np.savetxt(tmp_path / "b.txt", np.ones((2, 5)))
+    data = dict(np.load(recording))
+    if make == "nan-npz":
+        target = tmp_path / "bad.npz"
+        np.savez(target, **{**data, "excitation": np.r_[data["excitation"][:-1], np.nan]})
+    elif make == "no-excitation":
+        target = tmp_path / "noexc.npz"
+        np.savez(target, **{k: v for k, v in data.items() if k != "excitation"})
+    elif make == "rirs" or "--step-bounds" in extra:
+        target = tmp_path / "rirs.npz"
+        np.savez(target, rirs=np.eye(6, 300), fs=16000.0, mics=data["mics"])
+    argv = ["run", str(target), *(a.format(tmp=tmp_path) for a in extra)]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("rangeslam: error: "), err
+    assert named in err and "Traceback" not in err
+    assert not any(k in err for k in ("recordings must", "excitation must", "unknown_emission"))
+
+
+def test_simulate_refuses_a_delay_beyond_its_limit(tmp_path, capsys):
+    """--delay beyond 1 s: exit 2, one line naming --delay."""
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "room", "--delay", "5", "--out", str(tmp_path / "x.npz")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--delay" in err and "from 0 to 1 s" in err
