@@ -39,14 +39,14 @@ def _record(out: Path) -> tuple[dict, np.ndarray]:
     return rec, errs
 
 
-def sessions(tmp: Path, seeds: list[int], noise: str) -> None:
-    """Two-loudspeaker sessions in both rooms."""
+def sessions(tmp: Path, seeds: list[int], noise: str, mics: list[str]) -> None:
+    """Two-loudspeaker sessions in both rooms (``mics``: ["--mics", M] or [], the default)."""
     for room in ("shoebox", "cut-corner"):
         good = wrong = 0
         for seed in seeds:
             stem = tmp / f"{room}-{seed}.npz"
             sim = ["simulate", "room", "--room", room, "--sources", "2", "--seed", str(seed)]
-            _quiet([*sim, "--noise", noise, "--out", str(stem)])
+            _quiet([*sim, *mics, "--noise", noise, "--out", str(stem)])
             files = [str(stem.with_name(f"{stem.stem}-src{j}.npz")) for j in range(2)]
             out = tmp / f"out-{room}-{seed}"
             code = _quiet(["run", *files, "--out", str(out)])
@@ -61,11 +61,12 @@ def sessions(tmp: Path, seeds: list[int], noise: str) -> None:
         )
 
 
-def speed(tmp: Path, seeds: list[int], noise: str) -> None:
+def speed(tmp: Path, seeds: list[int], noise: str, mics: list[str]) -> None:
     """One loudspeaker at 343 m/s run with --c 345."""
     for seed in seeds:
         path = tmp / f"c-{seed}.npz"
-        _quiet(["simulate", "room", "--seed", str(seed), "--noise", noise, "--out", str(path)])
+        sim = ["simulate", "room", "--seed", str(seed), *mics, "--noise", noise]
+        _quiet([*sim, "--out", str(path)])
         out = tmp / f"out-c-{seed}"
         code = _quiet(["run", str(path), "--c", "345", "--out", str(out)])
         rec, errs = _record(out)
@@ -83,10 +84,12 @@ def main() -> None:
     ap.add_argument("--sessions", type=int, default=8, help="seeds: seed, seed + 1, ...")
     ap.add_argument("--what", choices=("sessions", "c"), default="sessions")
     ap.add_argument("--noise", default="0", help="simulate --noise (fraction of the peak)")
+    ap.add_argument("--mics", default=None, help="simulate --mics (default: simulate's)")
     args = ap.parse_args()
     seeds = list(range(args.seed, args.seed + args.sessions))
     with tempfile.TemporaryDirectory() as tmp:
-        (sessions if args.what == "sessions" else speed)(Path(tmp), seeds, args.noise)
+        mics = [] if args.mics is None else ["--mics", args.mics]
+        (sessions if args.what == "sessions" else speed)(Path(tmp), seeds, args.noise, mics)
 
 
 if __name__ == "__main__":

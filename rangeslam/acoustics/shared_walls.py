@@ -52,8 +52,9 @@ from rangeslam.verdict.thresholds import JOINT_WALL_CHECKS, JOINT_WALL_RANGES
 
 __all__ = ["SharedWall", "SharedWalls", "shared_walls"]
 
-# Microphone triples tried per loudspeaker, and peak triples per microphone triple.
-_TRIPLES = 200
+# Microphone triples tried per loudspeaker: all of them up to 16 microphones (C(16, 3) = 560);
+# and peak triples per microphone triple.
+_TRIPLES = 560
 _MAX_HYPOTHESES = 20_000
 # Walls added at most (each search pass adds one).
 _MAX_WALLS = 3
