@@ -254,3 +254,19 @@ def test_simulate_refuses_a_delay_beyond_its_limit(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "--delay" in err and "from 0 to 1 s" in err
+
+
+def test_unknown_emission_with_four_microphones_is_not_converged(rng):
+    """Four microphones cannot fix a point and an emission time from the direct paths and check
+    them: NOT_IDENTIFIABLE, the reason in the message, the offset NaN (never a guess)."""
+    from rangeslam.acoustics.pipeline import run_rirs
+    from rangeslam.geometry.room import Room
+    from rangeslam.sim.recordings import room_recording
+    from rangeslam.status import Status
+
+    rec = room_recording(Room.shoebox([5.1, 3.7, 2.6]), n_mics=4, fs=16000, rng=rng)
+    late = shift_signals(rec.rirs, 40.5)
+    res = run_rirs(late, rec.fs, mics=rec.mics, c=rec.c, rng=rng, unknown_emission=True)
+    assert res.status is Status.NOT_IDENTIFIABLE
+    assert "needs 5" in res.message
+    assert np.isnan(res.emission_offsets).all()
