@@ -177,6 +177,18 @@ def test_gtsam_example_plaza1(p1, gtsam_p1):
     assert np.all(np.abs(np.diff(res.poses[:, 2])) < np.pi)  # headings unwrapped
 
 
+def test_gtsam_example_wrong_basin_is_inconsistent(p1, gtsam_p1):
+    """Seed 0's start falls in the wrong basin (19.7 m mean error): the studentised tail of its
+    range residuals (7.7 robust standard deviations against a limit of 5.3) says INCONSISTENT,
+    without the truth; GTSAM_SEED's basin (1.08 m) stays converged (largest about 3.5). On
+    default_rng(s), s = 0..29: 23 right (all CONVERGED), 7 wrong (all INCONSISTENT)."""
+    wrong = gtsam_range_example(p1, rng=np.random.default_rng(0))
+    assert wrong.status is Status.INCONSISTENT, wrong.message
+    assert "heavy tail" in wrong.message
+    assert _errors(wrong, p1)[0].mean() > 10.0  # the basin this test is about
+    assert gtsam_p1.status is Status.CONVERGED, gtsam_p1.message
+
+
 def test_gtsam_example_is_deterministic(p1, gtsam_p1):
     """The same rng seed gives the same answer, bit for bit."""
     again = gtsam_range_example(p1, rng=np.random.default_rng(GTSAM_SEED))

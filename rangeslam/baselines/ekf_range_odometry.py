@@ -85,6 +85,7 @@ from scipy.stats import chi2
 from rangeslam._validation import as_rng, frozen
 from rangeslam.baselines.odometry_only import BaselineData, baseline_data
 from rangeslam.beacons.data import RangeOdometry
+from rangeslam.beacons.known import check_known_positions
 from rangeslam.beacons.options import RANGE_CALIBRATIONS
 from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
@@ -238,6 +239,8 @@ def ekf_range_odometry(
     calibration_sigma: tuple[float, float] = (0.2, 10.0),
     n_starts: int = 8,
     rng: np.random.Generator | int | None = None,
+    beacons: ArrayLike | None = None,
+    beacon_sigma: float | None = None,
 ) -> BeaconSlamResult:
     """Poses (N + 1, 3), beacons (B, 2) and the range calibration by EKF SLAM (module notes).
 
@@ -267,6 +270,8 @@ def ekf_range_odometry(
         calibration_sigma: standard deviations of the zero-mean priors on s and on b [m].
         n_starts: starts of each beacon's initialisation fit.
         rng: Generator or seed for the offset of those starts.
+        beacons, beacon_sigma: known beacons as beacon_slam takes them, in the state from
+            the start (:func:`_add_known`); ``start_pose`` is then in their frame.
 
     Returns:
         :class:`BeaconSlamResult` with method "ekf": the filtered pose at each pose time
@@ -278,30 +283,43 @@ def ekf_range_odometry(
         The status is SOLVER_FAILED when the state or covariance becomes non-finite or the
         covariance loses positive semi-definiteness; the poses after that are NaN.
 
-    Raises InvalidInputError naming the argument that is out of the ranges above (``data``
-    neither kind, ``init_ranges`` under 3, sigmas, spread or counts not positive, ...).
+    Raises InvalidInputError naming the argument out of the ranges above.
     """
     t0 = time.perf_counter()
     data = baseline_data(data, start_pose)  # the fields read below, from either kind of data
-    start = data.start
     range_sigma, odometry_sigma, init_spread = _from_the_data(
         data, range_sigma, odometry_sigma, init_spread
     )
     opts = EkfRangeOptions(
-        range_sigma=range_sigma,
-        odometry_sigma=odometry_sigma,
-        gate_probability=gate_probability,
-        init_ranges=init_ranges,
-        init_spread=init_spread,
-        range_calibration=range_calibration,
-        per_beacon=per_beacon,
-        calibration_sigma=calibration_sigma,
-        n_starts=n_starts,
-    )
-    rng = as_rng(rng)
-    st = _EkfState(start, len(data.beacon_ids), len(data.ranges))
-    poses = _run_filter(st, data, opts, rng)
+        range_sigma=range_sigma, odometry_sigma=odometry_sigma, gate_probability=gate_probability,
+        init_ranges=init_ranges, init_spread=init_spread, range_calibration=range_calibration,
+        per_beacon=per_beacon, calibration_sigma=calibration_sigma, n_starts=n_starts,
+    )  # fmt: skip
+    st = _EkfState(data.start, len(data.beacon_ids), len(data.ranges))
+    _add_known(st, check_known_positions(beacons, beacon_sigma, len(data.beacon_ids)), opts)
+    poses = _run_filter(st, data, opts, as_rng(rng))
     return _verdict(st, data, opts, poses, time.perf_counter() - t0)
+
+
+def _add_known(st: _EkfState, known, opts: EkfRangeOptions) -> None:
+    """The known beacons (None: none) into the state at pose 0, each followed by a calibration
+    block under its priors when per beacon, the first only when shared; covariance zero when
+    fixed (as pose 0's: no update moves them), else their prior's ``beacon_sigma``^2."""
+    if known is None:
+        return
+    var = 0.0 if known.sigma is None else known.sigma**2
+    for j in np.flatnonzero(known.known):
+        st.offset[j] = len(st.ekf.x)
+        joint = opts.n_cal > 0 and (opts.per_beacon or st.shared_at < 0)
+        mean, cov = known.positions[j], np.full(2, var)
+        if joint:
+            st.cal_at[j] = st.offset[j] + 2
+            st.shared_at = st.cal_at[j] if not opts.per_beacon else st.shared_at
+            mean = np.concatenate([mean, np.zeros(opts.n_cal)])
+            cov = np.concatenate([cov, opts.prior_sd**2])
+        else:
+            st.cal_at[j] = st.shared_at
+        st.ekf = _augment(st.ekf, mean, np.diag(cov))
 
 
 def _from_the_data(data: BaselineData, range_sigma, odometry_sigma, init_spread):

@@ -30,6 +30,7 @@ from rangeslam.beacons.graph import (
     pose_array,
     range_inliers,
 )
+from rangeslam.beacons.known import KnownBeacons, check_known_beacons, known_priors, known_start
 from rangeslam.beacons.lm import LMReport
 from rangeslam.beacons.native import NativeRanges, ScaleSecant, scale_step
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation, positive_number
@@ -69,8 +70,17 @@ class IsamRun:
     """The state of one incremental run: iSAM2, the factors and values not yet given to it, and
     the beacons placed so far with the ranges waiting for them."""
 
-    def __init__(self, data: RangeOdometry, cfg: BeaconSlamOptions, isam_cfg: IsamSettings, start):
-        """An iSAM2 instance and a graph holding the gauge prior on pose 0 at ``start`` (3,)."""
+    def __init__(
+        self,
+        data: RangeOdometry,
+        cfg: BeaconSlamOptions,
+        isam_cfg: IsamSettings,
+        start,
+        known: KnownBeacons | None = None,
+    ):
+        """An iSAM2 instance and a graph holding the gauge prior on pose 0 at ``start`` (3,), or
+        with ``known`` beacons their priors and a loose prior on pose 0 (module notes of
+        :mod:`rangeslam.beacons.known`)."""
         import gtsam
 
         self.gtsam, self.data, self.cfg, self.isam_cfg = gtsam, data, cfg, isam_cfg
@@ -88,12 +98,19 @@ class IsamRun:
         self.prior_of_group: dict[int, int] = {}
         self.pending: list[tuple[str, int]] = []  # what each factor of ``graph`` is
         self.graph, self.values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        self.add(gauge_prior(gtsam, start))
         self.values.insert(key_x(0), gtsam.Pose2(*start))
         self.placed = np.zeros(data.n_beacons, dtype=bool)
         self.beacons0 = np.full((data.n_beacons, 2), np.nan)
         self.waiting: list[list[int]] = [[] for _ in range(data.n_beacons)]
         self.calibrated: set[int] = set()
+        if known is None:
+            self.add(gauge_prior(gtsam, start))
+        else:
+            loose = np.array([cfg.window_length, cfg.window_length, np.pi])
+            model = gtsam.noiseModel.Diagonal.Sigmas(loose)
+            self.add(gtsam.PriorFactorPose2(key_x(0), gtsam.Pose2(*start), model))
+            for factor in known_priors(gtsam, known, cfg.range_sigma, key_l):
+                self.add(factor)
         self.window_rows: list[int] = []
         self.log = WindowLog()
         self.fresh = self.updates = self.k = 0
@@ -273,6 +290,8 @@ def beacon_slam_incremental(
     factorization: str | None = None,
     initialisation: str = "edm",
     rng: np.random.Generator | None = None,
+    beacons: ArrayLike | None = None,
+    beacon_sigma: float | None = None,
     **settings,
 ) -> BeaconSlamResult:
     """Incremental range-only SLAM with odometry: iSAM2 over the data in time order.
@@ -303,6 +322,10 @@ def beacon_slam_incremental(
         initialisation: "edm", or "random": each beacon enters at its first range, drawn from
             N(0, I) m as in GTSAM's RangeISAMExample_plaza2 (needs ``rng``), for comparison.
         rng: random generator for ``initialisation="random"``.
+        beacons, beacon_sigma: known beacons, as :func:`~rangeslam.beacons.beacon_slam`'s: they
+            fix the frame (fitted on the first windows' ranges to them,
+            :func:`~rangeslam.beacons.known.known_start`) and are in the graph from the start,
+            fixed or under their prior, here and in the polish.
         **settings: the fields of :class:`~rangeslam.beacons.options.BeaconSlamOptions`.
     """
     t0 = time.perf_counter()
@@ -322,10 +345,17 @@ def beacon_slam_incremental(
     cfg = resolve_options(BeaconSlamOptions.from_settings(settings), data)
     isam_cfg = IsamSettings(int(update_every), relinearize_threshold, factorization, initialisation)
     start = as_point(start_pose, "start_pose", dim=3)
-    run = IsamRun(data, cfg, isam_cfg, start)
-    consume(run, dead_reckoning(data.odometry, start), rng)
+    known = check_known_beacons(beacons, beacon_sigma, data)
+    dr = dead_reckoning(data.odometry, start)
+    if known is not None:
+        dr = known_start(data, dr, cfg.window_length, known)
+    run = IsamRun(data, cfg, isam_cfg, dr[0], known)
+    if known is not None:
+        for j in np.flatnonzero(known.known):
+            run.place(int(j), known.positions[j])
+    consume(run, dr, rng)
     estimate, poses, settled = settle(run)
-    refined = polish(run, estimate, poses, POLISH_ITERATIONS)
+    refined = polish(run, estimate, poses, POLISH_ITERATIONS, known)
     return _verdict(run, refined, settled, time.perf_counter() - t0)
 
 
@@ -370,7 +400,9 @@ def settle(run: IsamRun):
     return estimate, poses, False
 
 
-def polish(run: IsamRun, estimate, poses: np.ndarray, max_iterations: int) -> Refinement:
+def polish(
+    run: IsamRun, estimate, poses: np.ndarray, max_iterations: int, known=None
+) -> Refinement:
     """The joint model's optimum (:func:`~rangeslam.beacons.batch.refine`, the range scale and
     offset unknowns of the graph) from iSAM2's answer at the end of the data. The native run
     holds the scale between secant steps, and a map built at a scale a little off sits in a
@@ -390,7 +422,7 @@ def polish(run: IsamRun, estimate, poses: np.ndarray, max_iterations: int) -> Re
         c = run.native.offsets(estimate, np.arange(len(run.native.scale_error)))
         columns.append((1.0 + run.native.scale_error) * c)
     calibration0 = np.column_stack(columns) if columns else None
-    return refine(run.data, init, run.cfg, max_iterations, calibration0)
+    return refine(run.data, init, run.cfg, max_iterations, calibration0, known=known)
 
 
 def native_calibration(run: IsamRun, estimate):

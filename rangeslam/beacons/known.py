@@ -6,6 +6,11 @@ gauge; each known beacon is held at its position, exactly (``beacon_sigma`` None
 calibration (scale and offset, :data:`~rangeslam.beacons.options.RANGE_CALIBRATIONS`) stays an
 unknown of the graph and is fitted with the poses.
 
+The incremental estimator (:func:`~rangeslam.beacons.beacon_slam_incremental`) takes them the same
+way, causally: :func:`known_start` fits the same rigid motion on the ranges of the first windows
+only (until ranges reach two known beacons), and pose 0 enters iSAM2 there under a loose prior (a
+window's length, pi rad) in place of the gauge; the known beacons are in the graph from the start.
+
 The start: the dead-reckoned path is moved rigidly (x, y, heading; no reflection, the odometry
 has a handedness) onto the known beacons by least squares on the ranges to them, from
 :data:`ALIGN_HEADINGS` headings (the lowest cost kept); beacons not known are placed by the EDM
@@ -28,8 +33,11 @@ __all__ = [
     "KnownBeacons",
     "align_path",
     "check_known_beacons",
+    "check_known_positions",
     "known_initialisation",
     "known_priors",
+    "known_start",
+    "move_to_known_frame",
 ]
 
 #: A fixed beacon's prior sigma, in range sigmas: far below any range's say, and still a prior
@@ -58,14 +66,19 @@ def check_known_beacons(beacons, beacon_sigma, data: RangeOdometry) -> KnownBeac
     (None: no beacon known). At least two rows at distinct points must be known (two fix the
     frame, given the odometry's handedness). ``beacon_sigma``: None (fixed) or a positive number
     [m]. InvalidInputError names the argument."""
+    return check_known_positions(beacons, beacon_sigma, data.n_beacons)
+
+
+def check_known_positions(beacons, beacon_sigma, n_beacons: int) -> KnownBeacons | None:
+    """:func:`check_known_beacons` for data of ``n_beacons`` beacons (B), e.g. a Plaza set."""
     if beacons is None:
         if beacon_sigma is not None:
             raise InvalidInputError("beacon_sigma needs beacons (the known positions); got None")
         return None
     arr = as_float_array(beacons, "beacons")
-    if arr.shape != (data.n_beacons, 2):
+    if arr.shape != (n_beacons, 2):
         raise InvalidInputError(
-            f"beacons must have shape ({data.n_beacons}, 2) (one row per beacon of the data, NaN "
+            f"beacons must have shape ({n_beacons}, 2) (one row per beacon of the data, NaN "
             f"for those not known); got {shape_str(arr.shape)}"
         )
     known = np.all(np.isfinite(arr), axis=1)
@@ -161,3 +174,22 @@ def known_priors(gtsam, known: KnownBeacons, range_sigma: float, key_of) -> list
         gtsam.PriorFactorPoint2(key_of(int(j)), known.positions[j], model)
         for j in np.flatnonzero(known.known)
     ]
+
+
+def known_start(data: RangeOdometry, dr: np.ndarray, window_length: float, known: KnownBeacons):
+    """The dead-reckoned poses ``dr`` (N + 1, 3) moved into the known beacons' frame by the rigid
+    motion :func:`align_path` fits on the data up to the end of the first window (of
+    ``window_length`` metres) after which ranges have reached two known beacons (all the data if
+    they never do): what an incremental run has seen when it starts. Returns the moved poses."""
+    from rangeslam.beacons.windows import windows
+
+    _, window_of_pose = windows(data, window_length)
+    reach = known.known[data.range_beacon]
+    n_poses = len(data.pose_time)
+    for window in range(int(window_of_pose[-1]) + 1):
+        n_poses = int(np.searchsorted(window_of_pose, window, side="right"))
+        seen = data.range_pose < n_poses
+        if len(np.unique(data.range_beacon[seen & reach])) >= 2:
+            break
+    prefix = data.first(max(n_poses, 2))
+    return compose_poses(align_path(prefix, dr[: max(n_poses, 2)], known), dr)

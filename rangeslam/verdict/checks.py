@@ -17,7 +17,8 @@ identifiable, consistent, outliers and reports the first that fails.
   bound at the answer far smaller than at the truth.
 - :func:`consistency_check`: with ``noise_std``, the chi-square test of the sum of squared residuals
   on the redundancy; without it, the residuals' RMS against the scene size and against their own
-  robust (MAD) scale, and the studentised tail, so that a fit dragged by wrong picks is caught.
+  robust (MAD) scale, and the studentised tail (:func:`tail_check`, also on its own), so that a
+  fit dragged by wrong picks is caught.
 - :func:`ambiguity_check`: a second minimum (a mirror image) that fits the data as well as the
   answer, judged by the cost difference in units of the noise.
 """
@@ -63,6 +64,7 @@ __all__ = [
     "range_gauss_newton",
     "reflected",
     "rms_precision",
+    "tail_check",
     "verdict_noise",
     "weak_moves",
 ]
@@ -256,23 +258,23 @@ def consistency_check(
             f"the residual test failed: RMS residual {rms:.3g} m for exact data (noise_std 0)",
         )
     if noise_std:
-        tail_check = _tail_check(residuals, jac, noise_std, scale) if tail else PASSED
+        tail_result = tail_check(residuals, jac, noise_std, scale) if tail else PASSED
         limit = float(chi2.ppf(CHI2_LEVEL, redundancy)) * noise_std**2
-        if tail_check.passed and ssr > limit:
+        if tail_result.passed and ssr > limit:
             return Check(
                 Status.INCONSISTENT,
                 f"the residual test failed: RMS residual {rms:.3g} m for noise_std {noise_std:.3g} m",
             )
-        return tail_check
+        return tail_result
     if rms > RELATIVE_RMS * scale:
         return Check(
             Status.INCONSISTENT,
             f"RMS residual {rms:.3g} m is more than {RELATIVE_RMS:.0%} of the scene size",
         )
-    return _tail_check(residuals, jac, None, scale) if tail else PASSED
+    return tail_check(residuals, jac, None, scale) if tail else PASSED
 
 
-def _tail_check(
+def tail_check(
     residuals: np.ndarray, jac: np.ndarray | None, noise_std: float | None, scale: float
 ) -> Check:
     """OUTLIERS when the largest studentised residual is beyond the Bonferroni quantile in units
