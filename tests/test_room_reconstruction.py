@@ -250,6 +250,24 @@ def test_missing_echoes(rng, dim):
     np.testing.assert_array_equal(res.observed, np.stack(masks))
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_wall_each_loudspeaker_hears_at_d_microphones_is_located_jointly(rng, dim):
+    """Wall 0 heard by each of two loudspeakers at d microphones only (d ranges fix two mirror
+    images of a loudspeaker and check neither): exact data give every wall exactly, the other
+    loudspeaker's echoes choosing (it raised InvalidInputError: no loudspeaker had d + 1)."""
+    room = Room.shoebox([5.1, 3.7, 2.6][:dim])
+    mics, _sources, ranges = _scene(rng, room, n_mics=8, n_sources=2)
+    masks = [np.ones(r.shape, dtype=bool) for r in ranges]
+    for r, mk in zip(ranges, masks, strict=True):
+        mk[:, 1] = False
+        mk[rng.choice(len(mics), dim, replace=False), 1] = True
+        r[~mk] = np.nan
+    res = reconstruct_room(mics, ranges, mask=masks, rng=rng)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.wall_normals, room.normals, atol=1e-8)
+    np.testing.assert_allclose(res.wall_offsets, room.offsets, atol=1e-8)
+
+
 def test_walls_that_do_not_close(rng):
     """Three walls in 3-D are estimated exactly but bound no room: ``room`` is None, and says so."""
     room = Room.shoebox([5.1, 3.7, 2.6])

@@ -315,8 +315,9 @@ def _search(scene: _Scene, rng) -> tuple[SharedWall | None, str]:
             )
             note = (
                 f"echoes left unexplained: {heard} fit one wall (normal "
-                f"{np.round(n, 2).tolist()}, offset {o:.3f} m) that cuts the room found, with "
-                f"{checks} echoes of other loudspeakers to check it ({JOINT_WALL_CHECKS} needed)"
+                f"{np.round(n, 2).tolist()}, offset {o:.3f} m) that cuts the room found: "
+                f"{total} echoes ({JOINT_WALL_RANGES} needed), {checks} of them from loudspeakers "
+                f"other than the one with most ({JOINT_WALL_CHECKS} needed)"
             )
     return None, note
 
