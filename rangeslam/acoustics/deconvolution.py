@@ -21,7 +21,10 @@ the side lobes for echoes (see :func:`exponential_sweep`); such RIRs want the me
 preset (``rangeslam run --measured``: a matched filter with the direct sound).
 :func:`rangeslam.acoustics.echoes.detect_echoes` can instead take the excitation itself (a matched
 filter); with a sweep its pulse is the sweep's autocorrelation, wider than a deconvolved arrival
-because a sweep's power falls with frequency.
+because a sweep's power falls with frequency. Measured on a simulated two-loudspeaker shoebox
+session (seed 763382, 12 microphones, 48 kHz): from sweep recordings the matched filter lost one
+loudspeaker's direct paths (not converged), deconvolved every wall came within 0.15 mm; from MLS
+recordings both gave every wall within 0.21 mm.
 
 :func:`exponential_sweep` and :func:`mls` make the two usual excitations; :func:`record` convolves
 RIRs with one (what :func:`deconvolve` undoes), for ``rangeslam simulate room --recordings``.
