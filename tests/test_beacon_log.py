@@ -89,15 +89,17 @@ def test_bad_records_are_refused_naming_the_line(tmp_path, change, match):
         load_beacon_log(path)
 
 
-def test_rangeslam_run_takes_a_beacon_log(room, tmp_path, capsys):
+@pytest.mark.parametrize("form", ["increments", "wheels"])
+def test_rangeslam_run_takes_a_beacon_log(room, tmp_path, capsys, form):
     """A simulated room with UWB ranges, its stated noise and two known beacons, through the CLI:
     exit 0, the trajectory and the beacons written, the error against the file's truth within
-    the range noise (measured 1.6 cm here, 1.9 cm on seed 7, with 5 cm ranges)."""
+    the range noise (measured 1.6 cm here, 1.9 cm on seed 7, with 5 cm ranges); the same with
+    the odometry written as wheel speeds."""
     known = np.array(room.beacons)
     known[2:] = np.nan
     path = write_beacon_log(
         tmp_path / "room.csv", room.data, truth=room.poses, beacons=room.beacons, known=known,
-        range_sigma=0.05,
+        range_sigma=0.05, odometry_as=form, wheel_base=0.3,
     )  # fmt: skip
     out = tmp_path / "out"
     assert main(["run", str(path), "--out", str(out)]) == 0
