@@ -16,7 +16,11 @@ usual pipeline, in two passes per loudspeaker:
    echoes) then give the remaining offset jointly with the source and its images
    (:func:`rangeslam.localization.reconstruct_room_unknown_emission`, the joint ML of the offset
    and the room, with the offset's standard deviation). When it is more than a tenth of a
-   sample, the RIRs are advanced by the corrected tau and the pipeline runs again.
+   sample and more than 3 of its standard deviations (the echoes disagree with the direct paths
+   beyond their own noise), the RIRs are advanced by the corrected tau and the pipeline runs
+   again. Otherwise the direct paths' tau stands: echoes are timed less well than direct paths
+   (merged arrivals): one loudspeaker's unweighted fit over all of them came 1 mm off where the
+   direct paths alone were 0.02 mm off (shoebox, 8 microphones, seed 494335).
 
 The speed of sound is not estimated with tau: ||s - m_i|| = c (t_i - tau) barely tells c from
 tau with a compact array (both stretch every range), so c is taken as given.
@@ -54,7 +58,8 @@ __all__ = [
     "with_unknown_emission",
 ]
 
-#: Samples: a remaining offset above this after the first pass is taken out by a second pass.
+#: Samples: a remaining offset above this (and above 3 standard deviations) after the first pass
+#: is taken out by a second pass.
 RERUN_SAMPLES = 0.1
 
 
@@ -195,15 +200,15 @@ def with_unknown_emission(
     ]
     taus = np.array([o.time for o in offsets])
     stds = np.array([o.std for o in offsets])
-    if not np.all(np.isfinite(taus)):
-        res = run([np.asarray(x) for x in rir_sets])
-        return _emission_verdict(res, taus, stds, offsets, [])
-    res = run([shift_signals(x, -t * fs) for x, t in zip(rir_sets, taus, strict=True)])
+    res = run(_advanced(rir_sets, taus, fs))
     echoes = _echo_offsets(res, mics, c, rng)
     # the echoes disagree with the direct paths beyond their own noise: their offset is taken
     moved = [
-        isinstance(e, tuple) and abs(e[0]) * fs > RERUN_SAMPLES and abs(e[0]) > 3 * e[1]
-        for e in echoes
+        isinstance(e, tuple)
+        and np.isfinite(t)
+        and abs(e[0]) * fs > RERUN_SAMPLES
+        and abs(e[0]) > 3 * e[1]
+        for e, t in zip(echoes, taus, strict=True)
     ]
     if any(moved):
         taus = taus + [e[0] if m else 0.0 for e, m in zip(echoes, moved, strict=True)]
@@ -211,8 +216,16 @@ def with_unknown_emission(
             moved, [e[1] if m else 0.0 for e, m in zip(echoes, moved, strict=True)], stds
         )
         log.info("unknown emission: the echoes moved the offsets to %s s; running again", taus)
-        res = run([shift_signals(x, -t * fs) for x, t in zip(rir_sets, taus, strict=True)])
+        res = run(_advanced(rir_sets, taus, fs))
     return _emission_verdict(res, taus, stds, offsets, echoes)
+
+
+def _advanced(rir_sets, taus: np.ndarray, fs: float) -> list[np.ndarray]:
+    """Each set advanced by its emission time (as it is where that was not found)."""
+    return [
+        shift_signals(x, -t * fs) if np.isfinite(t) else np.asarray(x, dtype=float)
+        for x, t in zip(rir_sets, taus, strict=True)
+    ]
 
 
 def _emission_verdict(res, taus: np.ndarray, stds: np.ndarray, offsets: list, echoes: list):
