@@ -4,10 +4,11 @@
     python benchmarks/bench_run_sessions.py --seed 532865 --sessions 6 --what c --noise 0.01
 
 ``--what sessions`` (default): for each room (shoebox, cut-corner) and seed, ``rangeslam simulate
-room --sources 2`` then ``rangeslam run`` on both files; prints converged, each true wall's error
-(mm; inf: not found) and counts converged with every wall within 1 cm, and converged with a wall
-missed or off. ``--what c``: ``simulate room`` (one loudspeaker, c = 343 m/s) then ``run --c 345``;
-prints the estimated c, its reported standard deviation and the worst wall.
+room --sources 2`` then ``rangeslam run`` on both files; prints each true wall's error (mm; inf:
+not found) and the walls found, and counts converged with every wall within 1 cm (and no other
+wall), and converged with a wall missed, off or extra. ``--what c``: ``simulate room`` (one
+loudspeaker, c = 343 m/s) then ``run --c 345``; prints the estimated c, its reported standard
+deviation and the worst wall. ``--mics M``: simulate's ``--mics`` (default: simulate's own).
 """
 
 from __future__ import annotations
@@ -51,13 +52,17 @@ def sessions(tmp: Path, seeds: list[int], noise: str, mics: list[str]) -> None:
             out = tmp / f"out-{room}-{seed}"
             code = _quiet(["run", *files, "--out", str(out)])
             rec, errs = _record(out)
-            ok = rec["converged"] and bool(np.all(errs <= WALL_TOL))
+            extra = len(rec["walls"]) - len(errs)  # walls found beyond the true ones
+            ok = rec["converged"] and bool(np.all(errs <= WALL_TOL)) and extra <= 0
             good += ok
             wrong += rec["converged"] and not ok
-            print(f"{room} {seed}: exit {code}, walls [mm] {np.round(errs * 1e3, 2).tolist()}")
+            print(
+                f"{room} {seed}: exit {code}, walls [mm] {np.round(errs * 1e3, 2).tolist()}, "
+                f"{len(rec['walls'])} found"
+            )
         print(
             f"{room}: converged with every wall within 1 cm {good}/{len(seeds)}; converged with a "
-            f"wall missed or off {wrong}/{len(seeds)}"
+            f"wall missed, off or extra {wrong}/{len(seeds)}"
         )
 
 

@@ -24,12 +24,13 @@ plane, section 2 of the paper), so the echoes of all loudspeakers check one wall
    room found so far. Hypotheses with a fourth echo are kept.
 3. Accepted, most checked first: a wall fitted jointly to its echoes by least squares (echoes
    collected again until stable) that keeps ``JOINT_WALL_RANGES`` echoes, ``JOINT_WALL_CHECKS``
-   of them from loudspeakers other than the one with most (whose echoes alone fix a point; only
-   the others check that the point is a wall's image). Its peaks are then taken and the room cut
-   by it; the search is repeated while it adds a wall.
+   of them from loudspeakers other than the one with most (whose echoes alone fix a point), and
+   whose image of that loudspeaker is not one of its images of order 2 or 3 in the walls found
+   (those echoes are explained without a new wall). Its peaks are then taken and the room cut by
+   it; the search is repeated while it adds a wall.
 
-What is left unexplained is reported: the best-checked echo set that fits one wall with two
-echoes more than its three unknowns, but too few from other loudspeakers (see
+What is left unexplained is reported: the best-checked echo set that fits one admissible wall
+with five echoes or more (two more than its unknowns) but is not accepted (see
 :class:`SharedWalls`).
 """
 
@@ -58,6 +59,8 @@ _TRIPLES = 560
 _MAX_HYPOTHESES = 20_000
 # Walls added at most (each search pass adds one).
 _MAX_WALLS = 3
+# Reflections of the walls found that may explain an echo set (as label_echoes, step 4).
+_ORDER = 3
 # Candidates refitted at most in a pass (the best first).
 _MAX_TRIALS = 50
 # Re-fits of a wall (fit, collect its echoes again).
@@ -98,8 +101,9 @@ class SharedWalls:
     Attributes:
         walls: the walls found jointly (none when the labelled ones explain the echoes).
         unexplained: notes on echo sets left unexplained: at least five echoes (two more than
-            a wall's unknowns) fit one admissible wall, but fewer than ``JOINT_WALL_CHECKS`` of
-            them come from loudspeakers other than the one with most.
+            a wall's unknowns) fit one admissible wall, but fewer than ``JOINT_WALL_RANGES`` in
+            all or fewer than ``JOINT_WALL_CHECKS`` from loudspeakers other than the one with
+            most.
     """
 
     walls: tuple[SharedWall, ...]
@@ -291,10 +295,22 @@ def _candidates(scene: _Scene, rng) -> list[tuple[int, np.ndarray, int, int]]:
     return out
 
 
+def _higher_order(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bool:
+    """True when the image, in the wall (n, o), of the loudspeaker with most echoes ``idx``
+    (J, M) is one of its images of order 2 or 3 in the walls found (within 3 tolerances): its
+    echoes are then explained without a new wall (as step 4 of label_echoes tells them)."""
+    k = int(np.argmax((idx >= 0).sum(axis=1)))
+    s = scene.sources[k]
+    y = s - 2.0 * (n @ s - o) * n
+    images = scene.room.image_sources(s, order=_ORDER)
+    far = images.positions[images.orders >= 2]
+    return bool(len(far) and np.linalg.norm(far - y, axis=1).min() <= 3.0 * scene.tol[k])
+
+
 def _search(scene: _Scene, rng) -> tuple[SharedWall | None, str]:
     """Step 3, one pass: the first candidate that keeps JOINT_WALL_RANGES echoes with
-    JOINT_WALL_CHECKS checks after its fit; else None and a note on the best one left
-    unexplained ("" when none)."""
+    JOINT_WALL_CHECKS checks after its fit and is no higher-order image; else None and a note on
+    the best one left unexplained ("" when none)."""
     note = ""
     for j, x, _, checks in _candidates(scene, rng)[:_MAX_TRIALS]:
         fit = _refine(scene, j, x)
@@ -302,6 +318,8 @@ def _search(scene: _Scene, rng) -> tuple[SharedWall | None, str]:
             continue
         n, o, idx, _ = fit
         total, checks = (int(v) for v in _checks(idx))
+        if _higher_order(scene, n, o, idx):
+            continue
         if total >= JOINT_WALL_RANGES and checks >= JOINT_WALL_CHECKS:
             r = np.full(idx.shape, np.nan)
             for k, m in np.argwhere(idx >= 0):
