@@ -3,6 +3,8 @@
 - :mod:`.echoes`: echo detection in one RIR (direct path and echoes, eq. 1).
 - :mod:`.labelling`: which peak is which image source for a known array; RIRs to a room.
 - :mod:`.label_search`, :mod:`.label_audit`: the point search and the column audit of the labelling.
+- :mod:`.joint_room`, :mod:`.shared_walls`: several loudspeakers at one array, walls fitted jointly;
+  walls each loudspeaker hears at too few microphones to label alone, found from all their echoes.
 - :mod:`.tracking`: echoes of a moving microphone followed from RIR to RIR.
 - :mod:`.walk`: RIRs of a moving microphone to its trajectory and landmarks.
 - :mod:`.pipeline`: RIR files plus what is known to a room map or a walk.

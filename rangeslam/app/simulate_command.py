@@ -40,8 +40,8 @@ MAX_WALK_RIRS = 10_000
 #: corner's wall (1.1 m wide) reflects a loudspeaker only to the microphones whose specular point
 #: falls on it: over 2000 random scenes of two loudspeakers (margin 0.5 m) its echoes reach 6
 #: microphone-loudspeaker pairs or more (a wall has 3 unknowns) in 82% of scenes with 8
-#: microphones, 95% with 12, 98% with 16 (benchmarks/README.md, "rangeslam run on simulated
-#: sessions").
+#: microphones, 95% with 12, 98% with 16 (``python benchmarks/bench_run_sessions.py --what
+#: visibility --seed 12345``; benchmarks/README.md, "rangeslam run on simulated sessions").
 ONE_MICS = 8
 SESSION_MICS = 12
 #: --sources of ``simulate room``: one file per loudspeaker.
