@@ -191,6 +191,7 @@ def _support(scene: _Scene, n: np.ndarray, o: np.ndarray):
         y = s - 2.0 * (n @ s - o)[:, None] * n  # (N, 3) the image of s in each wall
         diff = y[:, None, :] - pts[None]  # (N, M, 3)
         dist = np.linalg.norm(diff, axis=2)
+        # admissible walls have every microphone inside and the image outside: n . diff > 0
         t = (o[:, None] - np.einsum("nd,md->nm", n, pts)) / np.einsum("nd,nmd->nm", n, diff)
         q = pts[None] + t[..., None] * diff  # specular points
         face = np.all(q @ room.normals.T <= room.offsets + scene.tol[j], axis=2)
@@ -212,7 +213,8 @@ def _triples(pts: np.ndarray, usable: np.ndarray, rng) -> list[np.ndarray]:
 
 
 def _hypotheses(scene: _Scene, j: int, rng) -> np.ndarray:
-    """Step 1: points (N, 3) of loudspeaker j that four of its microphones agree on."""
+    """Step 1: points (N, 3) of loudspeaker j trilaterated from a free peak at each of three of
+    its microphones, beyond its source from every microphone, moved onto their peaks."""
     pts, peaks = scene.pts, scene.peaks[j]
     usable = np.array([len(r) > 0 for r, _ in peaks.lists])
     if usable.sum() < _TRIPLE:
