@@ -12,7 +12,9 @@ from rangeslam.status import Status
 
 # Held out: WALL_MATCH_* were set looking at seeds 5 and 11; these were drawn after the code was
 # written (secrets.randbelow(10**6)). SESSION_SEEDS for one session; SEEDS_AFTER_SHARED were drawn
-# after shared walls (acoustics.shared_walls) and the 12-microphone session default.
+# after shared walls (acoustics.shared_walls) and the 12-microphone session default (cut-corner
+# 552463 then missed the cut wall, whose microphone triple was not among the 200 tried: every
+# triple is tried since). The figures of benchmarks/README.md are on seeds drawn after that.
 SESSION_SEEDS = {"shoebox": 494335, "cut-corner": 223953}
 SEEDS_AFTER_SHARED = {"shoebox": (273337, 951864), "cut-corner": (552463, 942114)}
 WALL_TOL = 0.01  # metres: the "all walls within 1 cm"
