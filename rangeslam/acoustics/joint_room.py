@@ -27,7 +27,12 @@ from numpy.typing import ArrayLike
 from rangeslam._validation import as_points, as_rng, check_options_for, check_positive
 from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
 from rangeslam.acoustics.labelling import EchoLabelling, label_echoes
-from rangeslam.acoustics.shared_walls import SharedWall, shared_walls
+from rangeslam.acoustics.shared_walls import (
+    WALL_MATCH_DEGREES,
+    WALL_MATCH_METRES,
+    SharedWall,
+    shared_walls,
+)
 from rangeslam.errors import InvalidInputError
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
@@ -39,12 +44,6 @@ __all__ = [
     "match_walls",
     "room_from_loudspeakers",
 ]
-
-#: Two loudspeakers' walls are one wall when their outward normals are within this many degrees
-#: and their offsets within WALL_MATCH_METRES. A labelled wall is within a degree and a centimetre
-#: on simulated RIRs (tests/test_run_sessions.py); distinct walls of a room differ by far more.
-WALL_MATCH_DEGREES = 10.0
-WALL_MATCH_METRES = 0.15
 
 
 @dataclass(frozen=True, eq=False)

@@ -29,9 +29,9 @@ plane, section 2 of the paper), so the echoes of all loudspeakers check one wall
    (those echoes are explained without a new wall). Its peaks are then taken and the room cut by
    it; the search is repeated while it adds a wall.
 
-What is left unexplained is reported: the best-checked echo set that fits one admissible wall
-with five echoes or more (two more than its unknowns) but is not accepted (see
-:class:`SharedWalls`).
+What is left unexplained is reported: the echo sets (up to three walls, best checked first) that
+fit one admissible wall with five echoes or more (two more than its unknowns) but are not
+accepted (see :class:`SharedWalls`).
 """
 
 from __future__ import annotations
@@ -51,7 +51,14 @@ from rangeslam.acoustics.labelling import EchoLabelling
 from rangeslam.geometry.room import Room
 from rangeslam.verdict.thresholds import JOINT_WALL_CHECKS, JOINT_WALL_RANGES
 
-__all__ = ["SharedWall", "SharedWalls", "shared_walls"]
+__all__ = ["WALL_MATCH_DEGREES", "WALL_MATCH_METRES", "SharedWall", "SharedWalls", "shared_walls"]
+
+#: Two walls are one wall when their outward normals are within this many degrees and their
+#: offsets within WALL_MATCH_METRES (:func:`rangeslam.acoustics.joint_room.match_walls`, and the
+#: notes here). A labelled wall is within a degree and a centimetre on simulated RIRs
+#: (tests/test_run_sessions.py); distinct walls of a room differ by far more.
+WALL_MATCH_DEGREES = 10.0
+WALL_MATCH_METRES = 0.15
 
 # Microphone triples tried per loudspeaker: all of them up to 16 microphones (C(16, 3) = 560);
 # and peak triples per microphone triple.
@@ -59,6 +66,9 @@ _TRIPLES = 560
 _MAX_HYPOTHESES = 20_000
 # Walls added at most (each search pass adds one).
 _MAX_WALLS = 3
+# Notes on echo sets left unexplained, at most; two sets whose walls match are one.
+_NOTES = 3
+_SAME_COS = math.cos(math.radians(WALL_MATCH_DEGREES))
 # Reflections of the walls found that may explain an echo set (as label_echoes, step 4).
 _ORDER = 3
 # Candidates refitted at most in a pass (the best first).
@@ -309,12 +319,13 @@ def _higher_order(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bo
     return bool(len(far) and np.linalg.norm(far - y, axis=1).min() <= 3.0 * scene.tol[k])
 
 
-def _search(scene: _Scene, rng) -> tuple[SharedWall | None, str]:
+def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
     """Step 3, one pass: the first candidate that keeps JOINT_WALL_RANGES echoes with
-    JOINT_WALL_CHECKS checks after its fit and is no higher-order image; else None and a note on
-    the best one left unexplained ("" when none)."""
-    note = ""
-    for j, x, _, checks in _candidates(scene, rng)[:_MAX_TRIALS]:
+    JOINT_WALL_CHECKS checks after its fit and is no higher-order image; else None. Also notes on
+    up to _NOTES walls of five echoes or more left unexplained, best checked first."""
+    notes: list[str] = []
+    seen: list[tuple[np.ndarray, float]] = []
+    for j, x, _, _ in _candidates(scene, rng)[:_MAX_TRIALS]:
         fit = _refine(scene, j, x)
         if fit is None:
             continue
@@ -326,20 +337,27 @@ def _search(scene: _Scene, rng) -> tuple[SharedWall | None, str]:
             r = np.full(idx.shape, np.nan)
             for k, m in np.argwhere(idx >= 0):
                 r[k, m] = scene.peaks[k].ranges[m][idx[k, m]]
-            return SharedWall(normal=n, offset=o, ranges=r, peaks=idx), note
-        if not note and total >= _POINT_MICS + 1:
-            heard = "; ".join(
-                f"loudspeaker {k} at microphones {np.flatnonzero(row >= 0).tolist()}"
-                for k, row in enumerate(idx)
-                if (row >= 0).any()
-            )
-            note = (
-                f"echoes left unexplained: {heard} fit one wall (normal "
-                f"{np.round(n, 2).tolist()}, offset {o:.3f} m) that cuts the room found: "
-                f"{total} echoes ({JOINT_WALL_RANGES} needed), {checks} of them from loudspeakers "
-                f"other than the one with most ({JOINT_WALL_CHECKS} needed)"
-            )
-    return None, note
+            return SharedWall(normal=n, offset=o, ranges=r, peaks=idx), notes
+        new = all(n @ n2 < _SAME_COS or abs(o - o2) > WALL_MATCH_METRES for n2, o2 in seen)
+        if total >= _POINT_MICS + 1 and new and len(notes) < _NOTES:
+            seen.append((n, o))
+            notes.append(_note(n, o, idx, total, checks))
+    return None, notes
+
+
+def _note(n: np.ndarray, o: float, idx: np.ndarray, total: int, checks: int) -> str:
+    """The note on an echo set left unexplained: who heard it where, its wall, its counts."""
+    heard = "; ".join(
+        f"loudspeaker {k} at microphones {np.flatnonzero(row >= 0).tolist()}"
+        for k, row in enumerate(idx)
+        if (row >= 0).any()
+    )
+    return (
+        f"echoes left unexplained: {heard} fit one wall (normal {np.round(n, 2).tolist()}, offset "
+        f"{o:.3f} m) that cuts the room found: {total} echoes ({JOINT_WALL_RANGES} needed), "
+        f"{checks} of them from loudspeakers other than the one with most ({JOINT_WALL_CHECKS} "
+        "needed)"
+    )
 
 
 def shared_walls(
@@ -377,16 +395,16 @@ def shared_walls(
         min_cut=float(min_cut),
     )
     walls: list[SharedWall] = []
-    note = ""
+    notes: list[str] = []
     for _ in range(_MAX_WALLS):
-        wall, note = _search(scene, rng)
+        wall, notes = _search(scene, rng)
         if wall is None:
             break
         walls.append(wall)
         scene = _with_wall(scene, wall)
         if scene is None:
             break
-    return SharedWalls(walls=tuple(walls), unexplained=(note,) if note else ())
+    return SharedWalls(walls=tuple(walls), unexplained=tuple(notes))
 
 
 def _with_wall(scene: _Scene, wall: SharedWall) -> _Scene | None:
