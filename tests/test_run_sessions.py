@@ -208,3 +208,20 @@ def test_a_wrong_wall_one_loudspeaker_labelled_is_left_out(tmp_path, monkeypatch
     assert code == 0 and "left out wall" in record["message"]
     errors = _wall_errors(record)
     assert len(record["walls"]) == 6 and np.all(errors <= WALL_TOL), errors
+
+
+def test_a_session_whose_echoes_give_no_room_is_not_converged(tmp_path):
+    """Frozen: shoebox session 462163 recorded as sweeps with noise 0.3, where loudspeaker 0
+    labels no echo and loudspeaker 1 one wall: the one wall, labelled by one loudspeaker, was
+    left out to look for a room without it, and the empty range matrix raised InvalidInputError
+    (exit 2). Now a result that is not converged (exit 1) naming the wall found and why."""
+    stem = tmp_path / "s.npz"
+    sim = ["simulate", "room", "--sources", "2", "--seed", "462163", "--recordings", "sweep"]
+    assert main([*sim, "--noise", "0.3", "--out", str(stem)]) == 0
+    files = [str(tmp_path / f"s-src{j}.npz") for j in range(2)]
+    out = tmp_path / "out"
+    assert main(["run", *files, "--out", str(out)]) == 1
+    record = json.loads((out / "run_summary.json").read_text())
+    assert not record["converged"]
+    assert "1 walls found do not bound a room" in record["message"], record["message"]
+    assert len(record["walls"]) == 1

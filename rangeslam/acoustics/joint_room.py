@@ -144,8 +144,12 @@ def _joint_ranges(labs: Sequence[EchoLabelling], columns: np.ndarray, shared=())
 
 def _drop_lone_wall(pts, labs, cols: np.ndarray, rec, ropts: dict, rng):
     """Walls that do not bound a room: refit without each wall that only one loudspeaker
-    labelled (a higher-order image taken for a first-order one, or a chance alignment); the first refit that converged and bounds a room is kept. Returns
-    (columns, reconstruction, a note naming the wall left out or "")."""
+    labelled (a higher-order image taken for a first-order one, or a chance alignment); the
+    first refit that converged and bounds a room is kept. Returns (columns, reconstruction, a
+    note naming the wall left out or ""). With d + 1 walls or fewer nothing is left out: the
+    rest could not bound a room in d-D (and none would be no room problem at all)."""
+    if cols.shape[1] <= pts.shape[1] + 1:
+        return cols, rec, ""
     lone = [k for k in range(cols.shape[1]) if (cols[:, k] > 0).sum() == 1]
     for k in lone:
         keep = np.delete(cols, k, axis=1)
