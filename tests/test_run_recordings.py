@@ -248,13 +248,19 @@ def test_bad_recording_inputs_are_one_line_naming_the_flag(
     assert not any(k in err for k in ("recordings must", "excitation must", "unknown_emission"))
 
 
-def test_simulate_refuses_a_delay_beyond_its_limit(tmp_path, capsys):
-    """--delay beyond 1 s: exit 2, one line naming --delay."""
+@pytest.mark.parametrize(
+    ("value", "said"),
+    [("5", "from 0 to 1 s"), ("-0.1", "from 0 to 1 s"), ("nan", "from 0 to 1 s"),
+     ("abc", "must be a number; got abc")],
+)  # fmt: skip
+def test_simulate_refuses_a_delay_beyond_its_limit(tmp_path, capsys, value, said):
+    """--delay beyond 1 s, negative, NaN or not a number: exit 2, one line naming --delay (not
+    argparse's "invalid _delay value", which named a private function)."""
     with pytest.raises(SystemExit) as exc:
-        main(["simulate", "room", "--delay", "5", "--out", str(tmp_path / "x.npz")])
+        main(["simulate", "room", f"--delay={value}", "--out", str(tmp_path / "x.npz")])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "--delay" in err and "from 0 to 1 s" in err
+    assert "--delay" in err and said in err
 
 
 def test_unknown_emission_with_four_microphones_is_not_converged(rng):

@@ -47,7 +47,7 @@ def writable_dir(text: str) -> Path:
 
 def non_negative(text: str) -> float:
     """A float >= 0."""
-    value = float(text)
+    value = _number(text)
     if not value >= 0:
         raise argparse.ArgumentTypeError(f"must be >= 0; got {shown(text)}")
     return value
@@ -80,10 +80,18 @@ def seed(text: str) -> int:
 
 def fraction(text: str) -> float:
     """A float in [0, 1]."""
-    value = float(text)
+    value = _number(text)
     if not 0 <= value <= 1:
         raise argparse.ArgumentTypeError(f"must be in [0, 1]; got {shown(text)}")
     return value
+
+
+def _number(text: str) -> float:
+    """``text`` as a float; argparse's "invalid <function name> value" replaced by a message."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number; got {shown(text)}") from None
 
 
 def positive_int(text: str) -> int:

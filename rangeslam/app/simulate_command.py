@@ -76,16 +76,6 @@ def _coordinate(text: str) -> float:
     return value
 
 
-def _noise(text: str) -> float:
-    """A float in [0, MAX_NOISE]."""
-    value = arg_types.non_negative(text)
-    if not value <= MAX_NOISE:
-        raise argparse.ArgumentTypeError(
-            f"must be from 0 to {MAX_NOISE:g}; got {arg_types.shown(text)}"
-        )
-    return value
-
-
 def _absorption(text: str) -> float:
     """A float in (0, 1]."""
     value = arg_types.fraction(text)
@@ -172,23 +162,13 @@ def _add_recordings(room) -> None:
     )
     room.add_argument(
         "--delay",
-        type=_delay,
+        type=arg_types.float_in(0.0, MAX_DELAY, " s"),
         default=0.0,
         metavar="S",
         help=f"the recording starts a delay drawn uniformly in [0, S] seconds (0 to "
         f"{MAX_DELAY:g}) before the emission, one per loudspeaker, written as emission_delay "
         "(then: run --unknown-emission)",
     )
-
-
-def _delay(text: str) -> float:
-    """Seconds in [0, MAX_DELAY]."""
-    value = arg_types.non_negative(text)
-    if not value <= MAX_DELAY:
-        raise argparse.ArgumentTypeError(
-            f"must be from 0 to {MAX_DELAY:g} s; got {arg_types.shown(text)}"
-        )
-    return value
 
 
 def _add_walk_parser(kinds) -> None:
@@ -263,7 +243,7 @@ def _add_common(p: argparse.ArgumentParser, *, fs: int) -> None:
     )
     p.add_argument(
         "--noise",
-        type=_noise,
+        type=arg_types.float_in(0.0, MAX_NOISE),
         default=0.0,
         help=f"std of white noise added to every sample, as a fraction of the largest sample "
         f"(0 to {MAX_NOISE:g})",
