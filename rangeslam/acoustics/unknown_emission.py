@@ -217,7 +217,7 @@ def with_unknown_emission(
         )
         log.info("unknown emission: the echoes moved the offsets to %s s; running again", taus)
         res = run(_advanced(rir_sets, taus, fs))
-    return _emission_verdict(res, taus, stds, offsets, echoes)
+    return _emission_verdict(res, taus, stds, offsets, echoes, moved)
 
 
 def _advanced(rir_sets, taus: np.ndarray, fs: float) -> list[np.ndarray]:
@@ -228,9 +228,12 @@ def _advanced(rir_sets, taus: np.ndarray, fs: float) -> list[np.ndarray]:
     ]
 
 
-def _emission_verdict(res, taus: np.ndarray, stds: np.ndarray, offsets: list, echoes: list):
-    """``res`` with the offsets, its message led by them (and what the echoes said of them),
-    and not converged when a loudspeaker's direct-path offset did not converge."""
+def _emission_verdict(
+    res, taus: np.ndarray, stds: np.ndarray, offsets: list, echoes: list, moved: list
+):
+    """``res`` with the offsets, its message led by them (and what the echoes said of them: the
+    first pass's remaining offset, which ``moved`` loudspeakers took in a second pass), and not
+    converged when a loudspeaker's direct-path offset did not converge."""
     many = len(taus) > 1
     parts = []
     status = res.status
@@ -243,11 +246,15 @@ def _emission_verdict(res, taus: np.ndarray, stds: np.ndarray, offsets: list, ec
         text = f"emission {t * 1e3:.4f} +- {s * 1e3:.2g} ms after sample 0{who}"
         if j < len(echoes):
             e = echoes[j]
-            text += (
-                f", the echoes' offset {e[0] * 1e3:+.2g} +- {e[1] * 1e3:.2g} ms from it"
-                if isinstance(e, tuple)
-                else f" (the echoes' offset not estimated: {e})"
-            )
+            if not isinstance(e, tuple):
+                text += f" (the echoes' offset not estimated: {e})"
+            elif moved[j]:  # the echoes' offset is in ``t``: what is left of it is not measured
+                text += (
+                    f", moved by the echoes' offset {e[0] * 1e3:+.2g} +- {e[1] * 1e3:.2g} ms from "
+                    f"the direct paths' {(t - e[0]) * 1e3:.4f} ms (second pass)"
+                )
+            else:
+                text += f", the echoes' offset {e[0] * 1e3:+.2g} +- {e[1] * 1e3:.2g} ms from it"
         parts.append(text)
     return replace(
         res,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -75,8 +76,6 @@ def _flag_excitation(path: Path, fs: float):
 def emission_plot_rirs(rirs, fs: float, offset: float):
     """(M, L) ``rirs`` advanced by ``offset`` seconds (the estimated emission), as the pipeline
     saw them, for the RIR plot; as given when the offset is not finite."""
-    import math
-
     from rangeslam.acoustics.deconvolution import shift_signals
 
     return shift_signals(rirs, -offset * fs) if math.isfinite(offset) else rirs
@@ -96,11 +95,12 @@ def emission_lines(res, truth: list, lines: list[str], record: dict) -> None:
         true = truth[j] if j < len(truth) else None
         err = None if true is None else float(t - true)
         errors.append(err)
-        lines.append(
-            f"| {j} | {t * 1e3:.5f} | {s * 1e3:.2g} | "
-            + ("-" if err is None else f"{err * 1e3:+.2g}")
-            + " |"
+        cells = (
+            ("-", "-", "-")  # not found (the message says why)
+            if not math.isfinite(t)
+            else (f"{t * 1e3:.5f}", f"{s * 1e3:.2g}", "-" if err is None else f"{err * 1e3:+.2g}")
         )
+        lines.append(f"| {j} | " + " | ".join(cells) + " |")
     record["emission_offsets_s"] = [float(t) for t in taus]
     record["emission_offset_stds_s"] = [float(s) for s in stds]
     if any(e is not None for e in errors):
