@@ -11,6 +11,7 @@ from rangeslam import InvalidInputError
 from rangeslam.acoustics.deconvolution import (
     deconvolve,
     excitation_signal,
+    exponential_sweep,
     record,
     shift_signals,
 )
@@ -57,8 +58,6 @@ def test_a_sweep_short_of_nyquist_leaves_side_lobes_taken_for_echoes():
     """The limitation the default sweep (up to fs / 2) avoids: the same three pulses recorded
     with a sweep to 0.45 fs come out of the deconvolution ringing, with more than three
     detections (11 measured)."""
-    from rangeslam.acoustics.deconvolution import exponential_sweep
-
     times = [100.3, 251.7, 400.45]
     h = sum(_pulse(1200, t) for t in times)[None]
     e = exponential_sweep(FS, f_high=0.45 * FS)
@@ -87,6 +86,24 @@ def test_deconvolve_refuses_an_excitation_as_long_as_the_recordings():
     """An excitation that leaves fewer than 3 samples of RIR is refused naming it."""
     with pytest.raises(InvalidInputError, match=r"excitation .* shorter than the recordings"):
         deconvolve(np.ones((2, 100)), np.ones(99))
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: excitation_signal("chirp", FS), "excitation must be one of sweep, mls"),
+        (lambda: excitation_signal("mls", -1.0), "fs must be a positive number of Hz; got -1"),
+        (lambda: excitation_signal("sweep", np.nan), "fs must be a positive number of Hz"),
+        (lambda: exponential_sweep(FS, duration=1e-5), "duration must give at least 2 samples"),
+        (lambda: exponential_sweep(FS, f_low="20"), "f_low must be a finite number of Hz"),
+        (lambda: exponential_sweep(FS, f_high=FS), r"f_low < f_high <= fs / 2"),
+    ],
+)
+def test_bad_excitation_settings_are_refused_naming_the_argument(make, match):
+    """An unknown kind, a rate that is not a positive number (an MLS once came back for
+    fs = -1), a sweep of no samples (once an empty array) or with bad band edges."""
+    with pytest.raises(InvalidInputError, match=match):
+        make()
 
 
 def _session(tmp_path, room: str, seed: int, sim: list[str], run: list[str]):

@@ -73,11 +73,16 @@ def exponential_sweep(
     """
     fs = as_scalar(fs, "fs", low=0.0, low_open=True, expected="a positive number of Hz")
     duration = as_scalar(duration, "duration", low=0.0, low_open=True, expected="seconds > 0")
-    f_high = fs / 2 if f_high is None else f_high
+    f_low = as_scalar(f_low, "f_low", expected="a finite number of Hz")
+    f_high = fs / 2 if f_high is None else as_scalar(f_high, "f_high", expected="Hz, or None")
     if not 0 < f_low < f_high <= fs / 2:
         raise InvalidInputError(
             f"the sweep needs 0 < f_low < f_high <= fs / 2 = {fs / 2:g} Hz; got f_low {f_low:g}, "
             f"f_high {f_high:g}"
+        )
+    if round(duration * fs) < 2:
+        raise InvalidInputError(
+            f"duration must give at least 2 samples at fs = {fs:g} Hz; got {duration:g} s"
         )
     t = np.arange(round(duration * fs)) / fs
     rate = math.log(f_high / f_low)
@@ -99,11 +104,12 @@ def mls(nbits: int = 14) -> np.ndarray:
 def excitation_signal(kind: str, fs: float) -> np.ndarray:
     """The excitation ``kind`` ("sweep": a 0.5 s exponential sweep from 20 Hz to fs / 2; "mls":
     a maximum-length sequence of about 0.34 s) at ``fs`` Hz."""
+    if kind not in EXCITATIONS:
+        raise InvalidInputError(f"excitation must be one of {', '.join(EXCITATIONS)}; got {kind!r}")
+    fs = as_scalar(fs, "fs", low=0.0, low_open=True, expected="a positive number of Hz")
     if kind == "sweep":
         return exponential_sweep(fs)
-    if kind == "mls":
-        return mls(max(4, min(24, round(math.log2(0.34 * fs + 1)))))
-    raise InvalidInputError(f"excitation must be one of {', '.join(EXCITATIONS)}; got {kind!r}")
+    return mls(max(4, min(24, round(math.log2(0.34 * fs + 1)))))
 
 
 def record(rirs: ArrayLike, excitation: ArrayLike) -> np.ndarray:
@@ -127,7 +133,8 @@ def deconvolve(
 
     Raises:
         InvalidInputError naming the argument: recordings not (M, L) or not finite, an excitation
-        not (E,), not finite, all zeros or not shorter than the recordings by at least 3 samples.
+        not (E,), not finite, all zeros or not shorter than the recordings by at least 2 samples
+        (the RIRs would have fewer than 3).
     """
     y = as_float_array(recordings, "recordings")
     if y.ndim != 2 or y.shape[0] < 1:
