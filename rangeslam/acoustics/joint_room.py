@@ -36,6 +36,7 @@ from rangeslam.acoustics.shared_walls import (
 from rangeslam.errors import InvalidInputError
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
+from rangeslam.verdict.thresholds import WALL_CONTRADICTED_MISSING
 
 __all__ = [
     "WALL_MATCH_DEGREES",
@@ -165,14 +166,77 @@ def _drop_lone_wall(pts, labs, cols: np.ndarray, rec, ropts: dict, rng):
     return cols, rec, ""
 
 
-def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng):
+def _echo_checks(pts, labs, dets, cols: np.ndarray, rec, c: float) -> np.ndarray:
+    """(K, 2) int: for each wall that one loudspeaker labelled, the echoes of it that the other
+    loudspeakers' first-order images in it predict (tests) and the ones their detections hold
+    (found); 0, 0 for the other walls. Loudspeaker i tests the wall at microphone m when the
+    specular point of its image there lies on the wall's face (the room's other walls hold it,
+    within i's labelling tolerance), i's labelling heard an echo of another wall at m, and the
+    predicted range is within the span of m's detected peaks; the echo is found when a peak is
+    within that tolerance of the predicted range."""
+    k_n = cols.shape[1]
+    out = np.zeros((rec.wall_normals.shape[0], 2), dtype=int)
+    room = rec.room
+    for k in range(k_n):
+        if (cols[:, k] > 0).sum() != 1:
+            continue
+        n, o = rec.wall_normals[k], rec.wall_offsets[k]
+        for i in np.flatnonzero(cols[:, k] == 0):
+            lab, s = labs[i], rec.sources[i]
+            y = s - 2.0 * (n @ s - o) * n
+            diff = y - pts
+            t = (o - pts @ n) / (diff @ n)
+            q = pts + t[:, None] * diff
+            face = np.all(q @ room.normals.T <= room.offsets + lab.tolerance, axis=1)
+            pred = np.linalg.norm(diff, axis=1)
+            for m in np.flatnonzero(face & (t > 0) & (t < 1) & lab.mask[:, 1:].any(axis=1)):
+                r = np.asarray(dets[i][m].times, dtype=float) * c
+                if not len(r) or pred[m] > r.max() + lab.tolerance:
+                    continue
+                out[k, 0] += 1
+                out[k, 1] += int(np.abs(r - pred[m]).min() <= lab.tolerance)
+    return out
+
+
+def _drop_contradicted(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng):
+    """Walls that one loudspeaker labelled and the others' echoes contradict: at least
+    ``WALL_CONTRADICTED_MISSING`` of the echoes they predict (:func:`_echo_checks`) absent, and
+    fewer present than absent. They are left out and the rest refitted (a wall the data deny is
+    no part of the answer; when the rest do not bound a room the refit says so). Returns
+    (columns, reconstruction, the (J, ) lists of labelling columns left out, a note or "")."""
+    freed: list[list[int]] = [[] for _ in labs]
+    if len(labs) < 2 or not rec.converged or rec.room is None:
+        return cols, rec, freed, ""
+    checks = _echo_checks(pts, labs, dets, cols, rec, c)[: cols.shape[1]]
+    missing = checks[:, 0] - checks[:, 1]
+    bad = np.flatnonzero((missing >= WALL_CONTRADICTED_MISSING) & (checks[:, 1] < missing))
+    if not len(bad) or len(bad) == cols.shape[1]:
+        return cols, rec, freed, ""
+    said = []
+    for k in bad:
+        j = int(np.flatnonzero(cols[:, k])[0])
+        freed[j].append(int(cols[j, k]))
+        said.append(
+            f"wall {k} (normal {np.round(rec.wall_normals[k], 2).tolist()}, labelled by "
+            f"loudspeaker {j} only): the other loudspeakers' echoes of it are absent at "
+            f"{missing[k]} of the {checks[k, 0]} microphones where they are predicted"
+        )
+    keep = np.delete(cols, bad, axis=1)
+    ranges, masks = _joint_ranges(labs, keep)
+    trial = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
+    return keep, trial, freed, f"left out {'; '.join(said)}; "
+
+
+def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng, freed):
     """When the labelled walls converged to a room and several loudspeakers were located: the
     walls their free echoes show jointly (:func:`shared_walls`), added and refitted with the
     others. Returns (the walls added, the reconstruction, a note for the message: the walls
     added, or the echoes left unexplained, or "")."""
     if len(labs) < 2 or not rec.converged or rec.room is None:
         return (), rec, ""
-    found = shared_walls(labs, dets, pts, rec.room, c=c, min_cut=WALL_MATCH_METRES, rng=rng)
+    found = shared_walls(
+        labs, dets, pts, rec.room, c=c, min_cut=WALL_MATCH_METRES, rng=rng, freed=freed
+    )
     note = "".join(f"{u}; " for u in found.unexplained)
     if not found.walls:
         return (), rec, note
@@ -274,14 +338,14 @@ def room_from_loudspeakers(
     dropped = ""
     if rec.room is None:
         cols, rec, dropped = _drop_lone_wall(pts, [labs[j] for j in usable], cols, rec, ropts, rng)
-        columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
-        columns[usable] = cols
-    shared, rec, added = _add_shared_walls(
-        pts, [labs[j] for j in usable], [dets_j[j] for j in usable], cols, rec, ropts, c, rng
-    )
+    ulabs, udets = [labs[j] for j in usable], [dets_j[j] for j in usable]
+    cols, rec, freed, denied = _drop_contradicted(pts, ulabs, udets, cols, rec, ropts, c, rng)
+    columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
+    columns[usable] = cols
+    shared, rec, added = _add_shared_walls(pts, ulabs, udets, cols, rec, ropts, c, rng, freed)
     msg = (
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
-        f"{dropped}{added}reconstruction: {rec.message}"
+        f"{dropped}{denied}{added}reconstruction: {rec.message}"
     )
     if not rec.converged:
         status = Status(rec.status)

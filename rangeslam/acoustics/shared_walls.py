@@ -135,12 +135,15 @@ class _Scene:
     min_cut: float  # metres: a new wall cuts the room by more
 
 
-def _free_peaks(lab: EchoLabelling, dets: Sequence[EchoDetection], pts, c: float) -> Peaks:
+def _free_peaks(
+    lab: EchoLabelling, dets: Sequence[EchoDetection], pts, c: float, freed: Sequence[int] = ()
+) -> Peaks:
     """Loudspeaker ``lab``'s echo peaks that its labelling did not give to the direct path or an
-    image source (first or higher order), at or after the direct path."""
+    image source (first or higher order), at or after the direct path; the peaks of its columns
+    ``freed`` (walls left out) count as free."""
     d_src = np.linalg.norm(pts - lab.source, axis=1)
     ranges, usable = [], []
-    taken = _taken(lab, pts, dets, c)
+    taken = _taken(lab, pts, dets, c, freed)
     for m, det in enumerate(dets):
         r = np.asarray(det.times, dtype=float) * c
         u = r >= d_src[m] - lab.tolerance
@@ -150,10 +153,12 @@ def _free_peaks(lab: EchoLabelling, dets: Sequence[EchoDetection], pts, c: float
     return Peaks(ranges, usable)
 
 
-def _taken(lab: EchoLabelling, pts, dets, c: float) -> list[list[int]]:
-    """Per microphone, the peaks of the labelling's columns and of its higher-order points (the
-    peak nearest each point's predicted range, within the fit tolerance)."""
-    out = [[int(p) for p in lab.peaks[m] if p >= 0] for m in range(len(pts))]
+def _taken(lab: EchoLabelling, pts, dets, c: float, freed: Sequence[int] = ()) -> list[list[int]]:
+    """Per microphone, the peaks of the labelling's columns (but ``freed``) and of its
+    higher-order points (the peak nearest each point's predicted range, within the fit
+    tolerance)."""
+    keep = np.setdiff1d(np.arange(lab.peaks.shape[1]), np.asarray(freed, dtype=int))
+    out = [[int(p) for p in lab.peaks[m, keep] if p >= 0] for m in range(len(pts))]
     for x in lab.higher_order:
         pred = np.linalg.norm(pts - x, axis=1)
         for m, det in enumerate(dets):
@@ -369,6 +374,7 @@ def shared_walls(
     c: float,
     min_cut: float,
     rng: np.random.Generator,
+    freed: Sequence[Sequence[int]] | None = None,
 ) -> SharedWalls:
     """Walls that the J loudspeakers' free echoes show jointly (module docstring).
 
@@ -378,6 +384,8 @@ def shared_walls(
         mics: (M, 3) metres. room: the room of the walls found so far. c: m/s.
         min_cut: metres; a new wall cuts ``room`` deeper than this (a plane within it of the
             room's vertices would be one of its walls). rng: Generator.
+        freed: for each labelling, its columns (1..) whose peaks are free (walls left out as
+            contradicted); default none.
 
     Returns:
         A :class:`SharedWalls`: walls with their echoes, and notes on echoes left unexplained.
@@ -386,7 +394,12 @@ def shared_walls(
     scene = _Scene(
         pts=pts,
         sources=np.array([lab.source for lab in labellings], dtype=float),
-        peaks=[_free_peaks(lab, d, pts, c) for lab, d in zip(labellings, detections, strict=True)],
+        peaks=[
+            _free_peaks(lab, d, pts, c, f)
+            for lab, d, f in zip(
+                labellings, detections, freed or [()] * len(labellings), strict=True
+            )
+        ],
         fit_tol=np.array([lab.fit_tolerance for lab in labellings]),
         sigma=np.array([_spread(lab) for lab in labellings]),
         tol=np.array([lab.tolerance for lab in labellings]),
