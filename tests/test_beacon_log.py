@@ -112,6 +112,22 @@ def test_rangeslam_run_takes_a_beacon_log(room, tmp_path, capsys, form):
     assert np.mean(np.linalg.norm(xy - room.poses[:, :2], axis=1)) < ROOM["range_std"]
 
 
+@pytest.mark.parametrize(
+    "flags",
+    [["--unknown-emission"], ["--excitation", "sweep.wav"], ["--mics", "m.csv", "--fixed-c"]],
+)
+def test_rangeslam_run_refuses_rir_flags_with_a_log(tmp_path, capsys, flags):
+    """Options for RIRs given with a beacon log are refused in one line naming them (they were
+    ignored without a word), before anything is written."""
+    path = tmp_path / "log.csv"
+    path.write_text(HANDWRITTEN)
+    out = tmp_path / "out"
+    assert main(["run", str(path), *flags, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and all(f in err[0] for f in flags if f.startswith("--")), err
+    assert not list(out.glob("run_*"))
+
+
 def test_rangeslam_run_refuses_a_bad_log_in_one_line(tmp_path, capsys):
     path = tmp_path / "bad.csv"
     path.write_text(HANDWRITTEN.replace("odometry, 1.0, 0.5, 0.1", "odometry, 1.0, 0.5"))

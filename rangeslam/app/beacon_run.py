@@ -25,6 +25,24 @@ def beacon_log_given(paths: list[Path]) -> bool:
     return len(paths) == 1 and is_beacon_log(paths[0])
 
 
+#: ``rangeslam run``'s options for RIRs (dest: flag), refused with a beacon log rather than
+#: ignored: --excitation or --unknown-emission on a log did nothing and said nothing.
+RIR_FLAGS = {
+    "fs": "--fs", "mics": "--mics", "mics_from_npz": "--mics-from-npz",
+    "step_bounds": "--step-bounds", "step_bounds_from_npz": "--step-bounds-from-npz",
+    "keyframes": "--keyframes", "c": "--c", "measured": "--measured",
+    "use_clipped": "--use-clipped", "fixed_c": "--fixed-c", "excitation": "--excitation",
+    "unknown_emission": "--unknown-emission",
+}  # fmt: skip
+
+
+def _rir_flags(args: argparse.Namespace) -> list[str]:
+    """The options for RIRs (:data:`RIR_FLAGS`) given, in the order of the table."""
+    return [
+        flag for dest, flag in RIR_FLAGS.items() if getattr(args, dest, None) not in (None, False)
+    ]
+
+
 def _settings(log) -> dict:
     """beacon_slam's keywords from what the log states (the rest derived from its data)."""
     settings: dict = {}
@@ -114,6 +132,14 @@ def beacon_run(args: argparse.Namespace) -> int:
     from rangeslam.datasets.beacon_log import load_beacon_log
     from rangeslam.errors import InvalidInputError, SolverError
 
+    given = _rir_flags(args)
+    if given:
+        print(
+            f"rangeslam: error: {', '.join(given)}: for RIRs; a beacon log ({args.rirs[0]}) "
+            "takes none of them (its noise, known beacons and truth are in the file)",
+            file=sys.stderr,
+        )
+        return 2
     try:
         log = load_beacon_log(args.rirs[0])
         res = beacon_slam(log.data, **_settings(log))
