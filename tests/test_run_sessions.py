@@ -7,6 +7,7 @@ import pytest
 
 from rangeslam import InvalidInputError
 from rangeslam.acoustics.joint_room import match_walls
+from rangeslam.acoustics.pipeline import run_loudspeakers
 from rangeslam.app.cli import main
 from rangeslam.status import Status
 
@@ -239,3 +240,29 @@ def test_a_wall_the_other_loudspeaker_does_not_hear_is_left_out(tmp_path):
     assert "found jointly" in record["message"]
     errors = _wall_errors(record)
     assert len(record["walls"]) == 7 and np.all(errors <= WALL_TOL), errors
+
+
+def test_measured_preset_runs_several_loudspeakers(tmp_path):
+    """``run A.npz B.npz --measured`` (each loudspeaker's RIRs matched-filtered with its own
+    direct sound, the measured preset's detection and 4 cm labelling tolerance) on a simulated
+    shoebox session: converged, every wall within 1 cm, both loudspeakers within 1 cm. It was
+    refused ("--measured takes one loudspeaker")."""
+    code, record, (a, b) = _session(tmp_path, "shoebox", "--measured")
+    assert code == 0 and record["converged"], record["message"]
+    errors = _wall_errors(record)
+    assert len(record["walls"]) == 6 and np.all(errors <= WALL_TOL), errors
+    assert np.allclose(record["sources"], [a["source"], b["source"]], atol=WALL_TOL)
+
+
+def test_run_loudspeakers_passes_the_direct_template_on(rng):
+    """A direct template reaches each loudspeaker's detection (a reversed window is refused
+    naming it), and is refused with ``estimate_c`` (c from the direct paths is for RIRs that are
+    not matched-filtered), both as InvalidInputError."""
+    mics = rng.uniform(0.5, 2.5, size=(6, 3))
+    rirs = rng.standard_normal((6, 400))
+    with pytest.raises(InvalidInputError, match="direct_template must be"):
+        run_loudspeakers([rirs, rirs], 48000.0, mics=mics, direct_template=(0.001, -0.001))
+    with pytest.raises(InvalidInputError, match="estimate_c is for RIRs without direct_template"):
+        run_loudspeakers(
+            [rirs, rirs], 48000.0, mics=mics, direct_template=(1e-4, 1e-3), estimate_c=True
+        )

@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_points, as_rng, check_options_for, check_positive
-from rangeslam.acoustics.echoes import EchoDetection, detect_echoes, detect_echoes_many
-from rangeslam.acoustics.labelling import EchoLabelling, label_echoes
+from rangeslam.acoustics.echoes import EchoDetection, detect_echoes
+from rangeslam.acoustics.labelling import EchoLabelling, detect_with_template, label_echoes
 from rangeslam.acoustics.shared_walls import (
     WALL_MATCH_DEGREES,
     WALL_MATCH_METRES,
@@ -287,6 +287,7 @@ def room_from_loudspeakers(
     *,
     c: float,
     rng: np.random.Generator | int | None = None,
+    direct_template: tuple[float, float] | None = None,
     detect_options: dict[str, Any] | None = None,
     label_options: dict[str, Any] | None = None,
     reconstruct_options: dict[str, Any] | None = None,
@@ -296,6 +297,9 @@ def room_from_loudspeakers(
     Args:
         rir_sets: J >= 1 arrays (M, L_j), one per loudspeaker, t = 0 at its emission.
         fs: Hz. mics: (M, 3) metres. c: m/s. rng: Generator or seed, passed down.
+        direct_template: (before, after) seconds: as
+            :func:`~rangeslam.acoustics.labelling.room_from_rirs`, each loudspeaker's RIRs
+            matched-filtered with its own strongest direct sound (measured RIRs).
         detect_options: keywords of :func:`~rangeslam.acoustics.echoes.detect_echoes_many`.
         label_options: keywords of :func:`~rangeslam.acoustics.labelling.label_echoes`; default
             ``n_images=None`` (each loudspeaker labels the walls it confirms; the match joins them).
@@ -318,7 +322,10 @@ def room_from_loudspeakers(
             label_options, "label_options", label_echoes, passed=("detections", "mics", "c", "rng")
         )
     )
-    dets_j = [tuple(detect_echoes_many(x, fs, **opts)) for x in _rir_sets(rir_sets, len(pts))]
+    dets_j = [
+        detect_with_template(x, fs, direct_template=direct_template, detect_options=opts)
+        for x in _rir_sets(rir_sets, len(pts))
+    ]
     labs = tuple(label_echoes(d, pts, c=c, rng=rng, **lopts) for d in dets_j)
     dets = tuple(d for ds in dets_j for d in ds)
     notes = "; ".join(f"loudspeaker {j}: {lab.message}" for j, lab in enumerate(labs))

@@ -110,6 +110,7 @@ __all__ = [
     "MAX_HYPOTHESES",
     "EchoLabelling",
     "RoomFromRirs",
+    "detect_with_template",
     "label_echoes",
     "room_from_rirs",
 ]
@@ -714,14 +715,7 @@ def room_from_rirs(
         reconstruct_options, "reconstruct_options", reconstruct_room,
         passed=("mics", "ranges", "mask", "rng"),
     )  # fmt: skip
-    shift = 0.0
-    if direct_template is not None:
-        if "excitation" in opts:
-            raise InvalidInputError("pass either direct_template or an excitation, not both")
-        opts["excitation"], shift = _direct_template(rirs, fs, direct_template)
-    dets = tuple(detect_echoes_many(rirs, fs, **opts))
-    if shift:  # times of the template's peak, not of its start
-        dets = tuple(replace(d, times=frozen(d.times + shift)) for d in dets)
+    dets = detect_with_template(rirs, fs, direct_template=direct_template, detect_options=opts)
     lab = label_echoes(dets, mics, c=c, rng=rng, **lopts)
     if lab.n_images == 0 or not np.all(np.isfinite(lab.source)):
         status = lab.status if not lab.converged else Status.NOT_IDENTIFIABLE
@@ -742,6 +736,29 @@ def room_from_rirs(
     else:
         status = Status.CONVERGED
     return RoomFromRirs(dets, lab, rec, status, msg)
+
+
+def detect_with_template(
+    rirs: ArrayLike,
+    fs: float,
+    *,
+    direct_template: tuple[float, float] | None,
+    detect_options: dict[str, Any],
+) -> tuple[EchoDetection, ...]:
+    """The M detections of :func:`room_from_rirs`: ``detect_echoes_many`` with
+    ``detect_options`` (checked), matched-filtered with the direct sound of the strongest RIR
+    when ``direct_template`` (before, after) seconds is given, the times then at the template's
+    peak. Raises InvalidInputError for a bad template or one with an ``excitation``."""
+    opts = dict(detect_options)
+    shift = 0.0
+    if direct_template is not None:
+        if "excitation" in opts:
+            raise InvalidInputError("pass either direct_template or an excitation, not both")
+        opts["excitation"], shift = _direct_template(rirs, fs, direct_template)
+    dets = tuple(detect_echoes_many(rirs, fs, **opts))
+    if shift:  # times of the template's peak, not of its start
+        dets = tuple(replace(d, times=frozen(d.times + shift)) for d in dets)
+    return dets
 
 
 def _direct_template(rirs, fs, direct_template) -> tuple[np.ndarray, float]:

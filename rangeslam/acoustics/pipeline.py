@@ -342,6 +342,7 @@ def run_loudspeakers(
     c: float = SPEED_OF_SOUND,
     rng: np.random.Generator | int | None = None,
     clipped: str = "mask",
+    direct_template: tuple[float, float] | None = None,
     detect_options: dict[str, Any] | None = None,
     label_options: dict[str, Any] | None = None,
     reconstruct_options: dict[str, Any] | None = None,
@@ -353,7 +354,9 @@ def run_loudspeakers(
     :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
     loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located. ``estimate_c``: c
     from every loudspeaker's direct paths (their estimates' inverse-variance mean).
-    ``unknown_emission``: as :func:`run_rirs`, one delay per loudspeaker.
+    ``unknown_emission``: as :func:`run_rirs`, one delay per loudspeaker. ``direct_template``:
+    as :func:`run_rirs` (each loudspeaker's own direct sound; ``MEASURED_RIR_OPTIONS`` holds it);
+    not with ``estimate_c``.
 
     Raises:
         InvalidInputError as :func:`run_rirs`, naming ``rir_sets[j]``; fewer than one set.
@@ -371,8 +374,12 @@ def run_loudspeakers(
             raise InvalidInputError(
                 f"rir_sets[{j}] must hold one RIR per microphone, {len(pts)}; got {len(x)}"
             )
+    if estimate_c and direct_template is not None:
+        raise InvalidInputError(
+            "estimate_c is for RIRs without direct_template; got a direct_template"
+        )
     if check_unknown_emission(unknown_emission, "array", estimate_c):
-        opts = RirRunOptions(None, detect_options, label_options, reconstruct_options)
+        opts = RirRunOptions(direct_template, detect_options, label_options, reconstruct_options)
         return loudspeakers_unknown_emission(sets, fs, pts, opts, c=c, rng=rng, clipped=clipped)
     screens = [_screen_rirs(x, clipped) for x in sets]
     speed = _joint_c(screens, fs, pts, c, detect_options) if estimate_c else None
@@ -383,6 +390,7 @@ def run_loudspeakers(
         pts,
         c=c,
         rng=rng,
+        direct_template=direct_template,
         detect_options=detect_options,
         label_options=label_options,
         reconstruct_options=reconstruct_options,

@@ -113,7 +113,8 @@ def loudspeakers_unknown_emission(sets, fs: float, mics, options, *, c: float, r
 
     again = partial(
         run_loudspeakers, fs=fs, mics=mics, c=c, rng=rng, clipped=clipped,
-        detect_options=options.detect_options, label_options=options.label_options,
+        direct_template=options.direct_template, detect_options=options.detect_options,
+        label_options=options.label_options,
         reconstruct_options=options.reconstruct_options,
     )  # fmt: skip
     return with_unknown_emission(

@@ -417,8 +417,6 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
             "several RIRS files are several loudspeakers at one known array: give --mics (or "
             "npz files holding mics); a walk takes one file"
         )
-    if args.measured:
-        raise InvalidInputError("--measured takes one loudspeaker (one RIRS file) for now")
     first = sets[0]
     for path, other in zip(args.rirs[1:], sets[1:], strict=True):
         if other.fs != first.fs:
@@ -442,6 +440,9 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
         c=inputs.c,
         rng=args.seed,
         clipped="use" if args.use_clipped else "mask",
+        direct_template=inputs.options.get("direct_template"),
+        detect_options=inputs.options.get("detect_options"),
+        label_options=inputs.options.get("label_options"),
         estimate_c=bool(inputs.options.get("estimate_c", False)),
         unknown_emission=bool(inputs.options.get("unknown_emission", False)),
     )
