@@ -266,3 +266,18 @@ def test_run_loudspeakers_passes_the_direct_template_on(rng):
         run_loudspeakers(
             [rirs, rirs], 48000.0, mics=mics, direct_template=(1e-4, 1e-3), estimate_c=True
         )
+
+
+def test_a_wall_left_out_whose_echoes_stay_unexplained_is_not_converged(tmp_path):
+    """Frozen: cut-corner session 272702 at 8 microphones (held out from the first rule, which
+    checked only the other loudspeaker's echoes: 1 predicted, and said converged with a 7th wall
+    205 mm off). Loudspeaker 1 alone labelled that plane; its own and loudspeaker 0's predicted
+    echoes of it are absent, so it is left out; its image is then no higher-order image of the
+    6 walls found and the cut wall is not found jointly, so its echoes stay unexplained: not
+    converged (exit 1), the 6 walls reported all right."""
+    code, record, _ = _session(tmp_path, "cut-corner", seed=272702, mics="8")
+    assert code == 1 and not record["converged"], record["message"]
+    assert "echoes of it are absent" in record["message"], record["message"]
+    assert "stay unexplained" in record["message"], record["message"]
+    errors = _wall_errors(record)
+    assert len(record["walls"]) == 6 and np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors

@@ -12,7 +12,11 @@ for walls that the loudspeakers hear jointly, each at too few microphones to lab
 (:func:`~rangeslam.acoustics.shared_walls.shared_walls`: a small wall, such as a cut corner,
 reflects a loudspeaker to the few microphones whose specular point falls on it); those found
 are added and the room refitted, and an echo set that fits a wall the others do not confirm is
-named in the message as left unexplained.
+named in the message as left unexplained. Before that, a wall one loudspeaker alone labelled is
+checked against the echoes its image predicts for every loudspeaker (microphones whose specular
+point is on its face); one whose predicted echoes are absent (``WALL_CONTRADICTED_MISSING``) is
+left out, said so, and its peaks searched again; when its image is then no higher-order image of
+the walls found, its echoes stay unexplained and the run is not converged (OUTLIERS).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from rangeslam.acoustics.shared_walls import (
     WALL_MATCH_DEGREES,
     WALL_MATCH_METRES,
     SharedWall,
+    is_higher_order_image,
     shared_walls,
 )
 from rangeslam.errors import InvalidInputError
@@ -64,8 +69,9 @@ class RoomFromLoudspeakers(HasStatus):
             :class:`~rangeslam.localization.room_reconstruction.RoomReconstruction`, or None when
             no loudspeaker was located with an echo.
         status: CONVERGED when the joint reconstruction converged and its walls bound a room; else
-            the reconstruction's status, OUT_OF_RANGE (walls not bounding a room), or
-            NOT_IDENTIFIABLE (nothing to reconstruct).
+            the reconstruction's status, OUT_OF_RANGE (walls not bounding a room), OUTLIERS (a
+            wall left out as contradicted whose image is no higher-order image of the walls
+            found: its echoes stay unexplained), or NOT_IDENTIFIABLE (nothing to reconstruct).
         message: what happened, each labelling's message included, and the echoes left
             unexplained (an echo set that fits a wall the others do not confirm).
     """
@@ -167,13 +173,14 @@ def _drop_lone_wall(pts, labs, cols: np.ndarray, rec, ropts: dict, rng):
 
 
 def _echo_checks(pts, labs, dets, cols: np.ndarray, rec, c: float) -> np.ndarray:
-    """(K, 2) int: for each wall that one loudspeaker labelled, the echoes of it that the other
+    """(K, 2) int: for each wall that one loudspeaker labelled, the echoes of it that the
     loudspeakers' first-order images in it predict (tests) and the ones their detections hold
     (found); 0, 0 for the other walls. Loudspeaker i tests the wall at microphone m when the
     specular point of its image there lies on the wall's face (the room's other walls hold it,
-    within i's labelling tolerance), i's labelling heard an echo of another wall at m, and the
-    predicted range is within the span of m's detected peaks; the echo is found when a peak is
-    within that tolerance of the predicted range."""
+    within i's labelling tolerance), i's labelling heard an echo of another wall at m and (the
+    loudspeaker that labelled the wall) none of this one, and the predicted range is within the
+    span of m's detected peaks; the echo is found when a peak is within that tolerance of the
+    predicted range."""
     k_n = cols.shape[1]
     out = np.zeros((rec.wall_normals.shape[0], 2), dtype=int)
     room = rec.room
@@ -181,15 +188,18 @@ def _echo_checks(pts, labs, dets, cols: np.ndarray, rec, c: float) -> np.ndarray
         if (cols[:, k] > 0).sum() != 1:
             continue
         n, o = rec.wall_normals[k], rec.wall_offsets[k]
-        for i in np.flatnonzero(cols[:, k] == 0):
+        for i in range(len(labs)):
             lab, s = labs[i], rec.sources[i]
+            heard = lab.mask[:, 1:].any(axis=1)
+            if cols[i, k]:
+                heard = heard & ~lab.mask[:, cols[i, k]]
             y = s - 2.0 * (n @ s - o) * n
             diff = y - pts
             t = (o - pts @ n) / (diff @ n)
             q = pts + t[:, None] * diff
             face = np.all(q @ room.normals.T <= room.offsets + lab.tolerance, axis=1)
             pred = np.linalg.norm(diff, axis=1)
-            for m in np.flatnonzero(face & (t > 0) & (t < 1) & lab.mask[:, 1:].any(axis=1)):
+            for m in np.flatnonzero(face & (t > 0) & (t < 1) & heard):
                 r = np.asarray(dets[i][m].times, dtype=float) * c
                 if not len(r) or pred[m] > r.max() + lab.tolerance:
                     continue
@@ -199,7 +209,7 @@ def _echo_checks(pts, labs, dets, cols: np.ndarray, rec, c: float) -> np.ndarray
 
 
 def _drop_contradicted(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng):
-    """Walls that one loudspeaker labelled and the others' echoes contradict: at least
+    """Walls that one loudspeaker labelled and the echoes contradict: at least
     ``WALL_CONTRADICTED_MISSING`` of the echoes they predict (:func:`_echo_checks`) absent, and
     fewer present than absent. They are left out and the rest refitted (a wall the data deny is
     no part of the answer; when the rest do not bound a room the refit says so). Returns
@@ -225,6 +235,25 @@ def _drop_contradicted(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: f
     ranges, masks = _joint_ranges(labs, keep)
     trial = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
     return keep, trial, freed, f"left out {'; '.join(said)}; "
+
+
+def _unexplained_left_out(labs, freed, rec) -> str:
+    """A note when a wall left out as contradicted is no image of order 2 or 3 of the walls
+    fitted at the end (its echoes then stay unexplained: the run is not converged), else ""."""
+    if rec.room is None:
+        return ""
+    bad = [
+        f"loudspeaker {j}'s image {np.round(lab.images[col - 1], 3).tolist()}"
+        for j, (lab, cols) in enumerate(zip(labs, freed, strict=True))
+        for col in cols
+        if not is_higher_order_image(rec.room, rec.sources[j], lab.images[col - 1], lab.tolerance)
+    ]
+    if not bad:
+        return ""
+    return (
+        f"; the echoes of the wall(s) left out stay unexplained ({', '.join(bad)} is no image "
+        "of order 2 or 3 of the walls found): a wall they show may be missing"
+    )
 
 
 def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: float, rng, freed):
@@ -354,11 +383,16 @@ def room_from_loudspeakers(
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
         f"{dropped}{denied}{added}reconstruction: {rec.message}"
     )
-    if not rec.converged:
-        status = Status(rec.status)
-    elif rec.room is None:
-        status = Status.OUT_OF_RANGE
-        msg += f"; the {cols.shape[1]} walls found do not bound a room"
-    else:
-        status = Status.CONVERGED
+    status, msg = _status(rec, cols.shape[1], _unexplained_left_out(ulabs, freed, rec), msg)
     return RoomFromLoudspeakers(dets, labs, columns, shared, rec, status, msg)
+
+
+def _status(rec, k_n: int, left: str, msg: str) -> tuple[Status, str]:
+    """The verdict of :func:`room_from_loudspeakers` (its ``status``) and the message."""
+    if not rec.converged:
+        return Status(rec.status), msg
+    if rec.room is None:
+        return Status.OUT_OF_RANGE, f"{msg}; the {k_n} walls found do not bound a room"
+    if left:
+        return Status.OUTLIERS, msg + left
+    return Status.CONVERGED, msg

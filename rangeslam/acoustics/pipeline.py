@@ -403,25 +403,29 @@ def run_loudspeakers(
         clipped_mode=clipped,
     )
     rec = res.reconstruction
-    if rec is None:
-        answer = PipelineAnswer(result=res, finite=False)
-    else:
-        finite = bool(
-            np.all(np.isfinite(rec.sources))
-            and np.all(np.isfinite(rec.wall_normals))
-            and np.all(np.isfinite(rec.wall_offsets))
-        )
-        answer = PipelineAnswer(
-            result=res,
-            finite=finite,
-            source=frozen(np.array(rec.sources[0])),
-            image_sources=frozen(np.array(rec.image_sources[0])),
-            wall_normals=frozen(np.array(rec.wall_normals)),
-            wall_offsets=frozen(np.array(rec.wall_offsets)),
-            wall_support=frozen(rec.inliers[:, :, 1:].sum(axis=(0, 1)).astype(int)),
-        )
-    out = _verdict("array", answer, screen, fs=fs, c=c, mics=pts, speed=speed)
+    out = _verdict("array", _joint_answer(res), screen, fs=fs, c=c, mics=pts, speed=speed)
     return replace(out, sources=None if rec is None else frozen(np.array(rec.sources)))
+
+
+def _joint_answer(res: Any) -> PipelineAnswer:
+    """The answer of :func:`run_loudspeakers` from its ``room_from_loudspeakers`` result."""
+    rec = res.reconstruction
+    if rec is None:
+        return PipelineAnswer(result=res, finite=False)
+    finite = bool(
+        np.all(np.isfinite(rec.sources))
+        and np.all(np.isfinite(rec.wall_normals))
+        and np.all(np.isfinite(rec.wall_offsets))
+    )
+    return PipelineAnswer(
+        result=res,
+        finite=finite,
+        source=frozen(np.array(rec.sources[0])),
+        image_sources=frozen(np.array(rec.image_sources[0])),
+        wall_normals=frozen(np.array(rec.wall_normals)),
+        wall_offsets=frozen(np.array(rec.wall_offsets)),
+        wall_support=frozen(rec.inliers[:, :, 1:].sum(axis=(0, 1)).astype(int)),
+    )
 
 
 def _joint_c(screens, fs: float, pts: np.ndarray, c: float, detect_options):

@@ -51,7 +51,14 @@ from rangeslam.acoustics.labelling import EchoLabelling
 from rangeslam.geometry.room import Room
 from rangeslam.verdict.thresholds import JOINT_WALL_CHECKS, JOINT_WALL_RANGES
 
-__all__ = ["WALL_MATCH_DEGREES", "WALL_MATCH_METRES", "SharedWall", "SharedWalls", "shared_walls"]
+__all__ = [
+    "WALL_MATCH_DEGREES",
+    "WALL_MATCH_METRES",
+    "SharedWall",
+    "SharedWalls",
+    "is_higher_order_image",
+    "shared_walls",
+]
 
 #: Two walls are one wall when their outward normals are within this many degrees and their
 #: offsets within WALL_MATCH_METRES (:func:`rangeslam.acoustics.joint_room.match_walls`, and the
@@ -318,10 +325,15 @@ def _higher_order(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bo
     echoes are then explained without a new wall (as step 4 of label_echoes tells them)."""
     k = int(np.argmax((idx >= 0).sum(axis=1)))
     s = scene.sources[k]
-    y = s - 2.0 * (n @ s - o) * n
-    images = scene.room.image_sources(s, order=_ORDER)
+    return is_higher_order_image(scene.room, s, s - 2.0 * (n @ s - o) * n, scene.tol[k])
+
+
+def is_higher_order_image(room: Room, source: np.ndarray, point: np.ndarray, tol: float) -> bool:
+    """True when ``point`` (3,) is within 3 ``tol`` of an image of ``source`` of order 2 or 3 in
+    ``room``'s walls (an echo a first-order image would take, explained without a new wall)."""
+    images = room.image_sources(np.asarray(source, dtype=float), order=_ORDER)
     far = images.positions[images.orders >= 2]
-    return bool(len(far) and np.linalg.norm(far - y, axis=1).min() <= 3.0 * scene.tol[k])
+    return bool(len(far) and np.linalg.norm(far - point, axis=1).min() <= 3.0 * tol)
 
 
 def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
