@@ -215,7 +215,8 @@ def test_a_session_whose_echoes_give_no_room_is_not_converged(tmp_path):
     """Frozen: shoebox session 462163 recorded as sweeps with noise 0.3, where loudspeaker 0
     labels no echo and loudspeaker 1 one wall: the one wall, labelled by one loudspeaker, was
     left out to look for a room without it, and the empty range matrix raised InvalidInputError
-    (exit 2). Now a result that is not converged (exit 1) naming the wall found and why."""
+    (exit 2). Now a result that is not converged (exit 1) naming the wall found and why, each
+    loudspeaker in its own row."""
     stem = tmp_path / "s.npz"
     sim = ["simulate", "room", "--sources", "2", "--seed", "462163", "--recordings", "sweep"]
     assert main([*sim, "--noise", "0.3", "--out", str(stem)]) == 0
@@ -226,6 +227,10 @@ def test_a_session_whose_echoes_give_no_room_is_not_converged(tmp_path):
     assert not record["converged"]
     assert "1 walls found do not bound a room" in record["message"], record["message"]
     assert len(record["walls"]) == 1
+    # loudspeaker 1 alone was located: its row, not loudspeaker 0's (row 0 once held it)
+    assert record["sources"][0] is None
+    true1 = np.load(files[1])["source"]
+    assert np.linalg.norm(np.array(record["sources"][1]) - true1) <= WALL_TOL
 
 
 def test_a_wall_the_other_loudspeaker_does_not_hear_is_left_out(tmp_path):

@@ -137,7 +137,8 @@ class RunResult(HasStatus):
         masked: (M,) True for the RIRs left out (silent, or clipped and masked): the pipeline saw
             zeros there and took no range from them.
         no_echoes: (M,) True for RIRs in which the detector found nothing (masked ones included).
-        sources: (J, 3) every loudspeaker (:func:`run_loudspeakers`; ``source`` is row 0), or None.
+        sources: (J, 3) every loudspeaker (:func:`run_loudspeakers`; ``source`` is row 0; NaN
+            rows, and ``source`` None, for a loudspeaker not located with an echo), or None.
         c_std: m/s, the standard deviation of ``c`` when it was estimated (``estimate_c``), else
             None.
         emission_offsets: (J,) seconds from sample 0 to each loudspeaker's emission, estimated
@@ -352,7 +353,8 @@ def run_loudspeakers(
     """The room from J loudspeakers' RIRs at the same M known microphones, walls fitted jointly
     (:func:`rangeslam.acoustics.joint_room.room_from_loudspeakers`); array mode of
     :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
-    loudspeaker by loudspeaker; ``sources`` holds every loudspeaker located. ``estimate_c``: c
+    loudspeaker by loudspeaker; ``sources`` holds each loudspeaker, in order (NaN where not
+    located; ``source`` is loudspeaker 0, None then). ``estimate_c``: c
     from every loudspeaker's direct paths (their estimates' inverse-variance mean).
     ``unknown_emission``: as :func:`run_rirs`, one delay per loudspeaker. ``direct_template``:
     as :func:`run_rirs` (each loudspeaker's own direct sound; ``MEASURED_RIR_OPTIONS`` holds it);
@@ -404,7 +406,11 @@ def run_loudspeakers(
     )
     rec = res.reconstruction
     out = _verdict("array", _joint_answer(res), screen, fs=fs, c=c, mics=pts, speed=speed)
-    return replace(out, sources=None if rec is None else frozen(np.array(rec.sources)))
+    if rec is None:
+        return out
+    sources = np.full((len(sets), 3), np.nan)  # a loudspeaker not located: NaN
+    sources[res.located] = rec.sources
+    return replace(out, sources=frozen(sources))
 
 
 def _joint_answer(res: Any) -> PipelineAnswer:
@@ -417,11 +423,12 @@ def _joint_answer(res: Any) -> PipelineAnswer:
         and np.all(np.isfinite(rec.wall_normals))
         and np.all(np.isfinite(rec.wall_offsets))
     )
+    first = bool(res.located[0])  # else the reconstruction's row 0 is another loudspeaker
     return PipelineAnswer(
         result=res,
         finite=finite,
-        source=frozen(np.array(rec.sources[0])),
-        image_sources=frozen(np.array(rec.image_sources[0])),
+        source=frozen(np.array(rec.sources[0])) if first else None,
+        image_sources=frozen(np.array(rec.image_sources[0])) if first else None,
         wall_normals=frozen(np.array(rec.wall_normals)),
         wall_offsets=frozen(np.array(rec.wall_offsets)),
         wall_support=frozen(rec.inliers[:, :, 1:].sum(axis=(0, 1)).astype(int)),

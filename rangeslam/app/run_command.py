@@ -572,14 +572,22 @@ def run(args: argparse.Namespace) -> int:
 
 def _loudspeaker_lines(res, lines: list[str], record: dict) -> None:
     """Several loudspeakers: each one's estimated position, appended to ``lines`` and ``record``."""
+    import numpy as np
+
     if res.sources is None or len(res.sources) < 2:
         return
     lines += ["", f"{len(res.sources)} loudspeakers (fitted jointly with the walls):", ""]
     lines += ["| loudspeaker | x [m] | y [m] | z [m] |", "|---|---|---|---|"]
     lines += [
-        f"| {j} | " + " | ".join(f"{v:.4f}" for v in s) + " |" for j, s in enumerate(res.sources)
+        f"| {j} | " + " | ".join(f"{v:.4f}" for v in s) + " |"
+        if np.all(np.isfinite(s))
+        else f"| {j} | not located | | |"
+        for j, s in enumerate(res.sources)
     ]
-    record["sources"] = res.sources.tolist()
+    # a loudspeaker not located is null in the JSON
+    record["sources"] = [
+        s.tolist() if np.all(np.isfinite(s)) else None for s in np.asarray(res.sources)
+    ]
 
 
 def _run(args: argparse.Namespace) -> int:
