@@ -49,7 +49,9 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
+from rangeslam.acoustics.rir_notes import rir_notes
 from rangeslam.acoustics.unknown_emission import (
+    NOT_FINITE,
     check_unknown_emission,
     loudspeakers_unknown_emission,
     rirs_unknown_emission,
@@ -307,9 +309,10 @@ def run_rirs(
     mode = _check_mode(mics, step_bounds, options)
     pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
     bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
-    if check_unknown_emission(unknown_emission, mode, estimate_c):
-        return rirs_unknown_emission(x, fs, pts, options, c=c, rng=rng, clipped=clipped)
-    screen = _screen_rirs(x, clipped)
+    unknown = check_unknown_emission(unknown_emission, mode, estimate_c)
+    screen = _screen_rirs(x, clipped)  # before any advance smooths a clipped run
+    if unknown:
+        return rirs_unknown_emission(screen, fs, pts, options, c=c, rng=rng)
     speed = _estimate_c(screen.rirs, fs, pts, c, options) if estimate_c else None
     c = c if speed is None else speed.c
     if mode == "array":
@@ -380,10 +383,11 @@ def run_loudspeakers(
         raise InvalidInputError(
             "estimate_c is for RIRs without direct_template; got a direct_template"
         )
-    if check_unknown_emission(unknown_emission, "array", estimate_c):
-        opts = RirRunOptions(direct_template, detect_options, label_options, reconstruct_options)
-        return loudspeakers_unknown_emission(sets, fs, pts, opts, c=c, rng=rng, clipped=clipped)
+    unknown = check_unknown_emission(unknown_emission, "array", estimate_c)
     screens = [_screen_rirs(x, clipped) for x in sets]
+    if unknown:
+        opts = RirRunOptions(direct_template, detect_options, label_options, reconstruct_options)
+        return loudspeakers_unknown_emission(screens, fs, pts, opts, c=c, rng=rng)
     speed = _joint_c(screens, fs, pts, c, detect_options) if estimate_c else None
     c = c if speed is None else speed.c
     res = room_from_loudspeakers(
@@ -693,24 +697,14 @@ def _verdict(
     """The :class:`RunResult`: the pipeline's status (SOLVER_FAILED for an answer that is not
     finite), and a message naming the RIRs left out or without echoes (and the estimate of c,
     ``speed``, when there was one)."""
-    res, m = answer.result, len(screen.silent)
+    res = answer.result
     no_echoes = np.array([not d.found for d in res.detections], dtype=bool)
     status = _pipeline_status(res)
     notes = []
     if status is Status.CONVERGED and not answer.finite:
         status = Status.SOLVER_FAILED
-        notes.append("the answer is not finite: not converged")
-    for flags, what in (
-        (screen.silent, "silent (masked)"),
-        (
-            screen.clipped,
-            "clipped (masked)" if screen.clipped_mode == "mask" else "clipped (used)",
-        ),
-        (no_echoes & ~screen.masked, "without any echo detected (masked)"),
-    ):
-        if flags.any():
-            rows = ", ".join(f"rirs[{i}]" for i in np.flatnonzero(flags))
-            notes.append(f"{int(flags.sum())} of {m} RIRs {what}: {rows}")
+        notes.append(NOT_FINITE)
+    notes += rir_notes(screen.silent, screen.clipped, screen.masked, no_echoes, screen.clipped_mode)
     head = [] if speed is None else [speed.message]
     return RunResult(
         mode=mode,

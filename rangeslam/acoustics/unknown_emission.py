@@ -39,7 +39,9 @@ import numpy as np
 
 from rangeslam._validation import as_flag, frozen
 from rangeslam.acoustics.deconvolution import shift_signals
-from rangeslam.acoustics.echoes import detect_echoes_many
+from rangeslam.acoustics.echoes import ClippedRirWarning, detect_echoes_many
+from rangeslam.acoustics.rir_notes import rir_notes
+from rangeslam.datasets.rir_files import SilentRirWarning
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.localization.emission import (
     multilaterate_with_offset,
@@ -61,6 +63,10 @@ __all__ = [
 #: Samples: a remaining offset above this (and above 3 standard deviations) after the first pass
 #: is taken out by a second pass.
 RERUN_SAMPLES = 0.1
+
+#: The note of ``run_rirs`` for an answer that is not finite (kept when the message is rebuilt).
+NOT_FINITE = "the answer is not finite: not converged"
+_FLAGS = ("silent", "clipped", "masked")
 
 
 def check_unknown_emission(unknown_emission: object, mode: str, estimate_c: object) -> bool:
@@ -93,35 +99,36 @@ class EmissionOffset(HasStatus):
     direct_times: np.ndarray | None = None
 
 
-def rirs_unknown_emission(x, fs: float, mics, options, *, c: float, rng, clipped: str):
-    """``run_rirs`` (array mode) on RIRs (M, L) whose emission time is unknown
-    (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions`` of the array mode."""
+def rirs_unknown_emission(screen, fs: float, mics, options, *, c: float, rng):
+    """``run_rirs`` (array mode) on screened RIRs (the pipeline's ``RirScreen`` of (M, L) RIRs)
+    whose emission time is unknown (:func:`with_unknown_emission`); ``options`` a
+    ``RirRunOptions`` of the array mode."""
     from rangeslam.acoustics.pipeline import run_rirs  # pipeline imports this module
 
     again = partial(
-        run_rirs, fs=fs, mics=mics, c=c, rng=rng, clipped=clipped,
+        run_rirs, fs=fs, mics=mics, c=c, rng=rng, clipped=screen.clipped_mode,
         direct_template=options.direct_template, detect_options=options.detect_options,
         label_options=options.label_options, reconstruct_options=options.reconstruct_options,
     )  # fmt: skip
     return with_unknown_emission(
-        lambda sets: again(sets[0]), [x], fs, mics, c=c, detect_options=options.detect_options,
-        rng=rng,
+        lambda sets: again(sets[0]), [screen], fs, mics, c=c,
+        detect_options=options.detect_options, rng=rng,
     )  # fmt: skip
 
 
-def loudspeakers_unknown_emission(sets, fs: float, mics, options, *, c: float, rng, clipped: str):
-    """``run_loudspeakers`` on J RIR sets whose emission times are unknown, one each
-    (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions``."""
+def loudspeakers_unknown_emission(screens, fs: float, mics, options, *, c: float, rng):
+    """``run_loudspeakers`` on J screened RIR sets (``RirScreen``) whose emission times are
+    unknown, one each (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions``."""
     from rangeslam.acoustics.pipeline import run_loudspeakers  # pipeline imports this module
 
     again = partial(
-        run_loudspeakers, fs=fs, mics=mics, c=c, rng=rng, clipped=clipped,
+        run_loudspeakers, fs=fs, mics=mics, c=c, rng=rng, clipped=screens[0].clipped_mode,
         direct_template=options.direct_template, detect_options=options.detect_options,
         label_options=options.label_options,
         reconstruct_options=options.reconstruct_options,
     )  # fmt: skip
     return with_unknown_emission(
-        again, sets, fs, mics, c=c, detect_options=options.detect_options, rng=rng
+        again, screens, fs, mics, c=c, detect_options=options.detect_options, rng=rng
     )
 
 
@@ -218,7 +225,7 @@ def _echo_offsets(res: Any, mics: np.ndarray, c: float, rng, offsets: list) -> l
 
 def with_unknown_emission(
     run: Callable[[list[np.ndarray]], Any],
-    rir_sets: Sequence[np.ndarray],
+    screens: Sequence[Any],
     fs: float,
     mics: np.ndarray,
     *,
@@ -226,18 +233,26 @@ def with_unknown_emission(
     detect_options: dict[str, Any] | None = None,
     rng: np.random.Generator | None = None,
 ):
-    """``run`` (J advanced RIR sets -> RunResult) on ``rir_sets`` (J of (M, L_j)) whose emission
-    times are unknown: the module docstring's passes. Returns ``run``'s RunResult with
-    ``emission_offsets`` (J,) seconds from sample 0 to each emission and
+    """``run`` (J advanced RIR sets -> RunResult) on J screened sets whose emission times are
+    unknown: the module docstring's passes. ``screens``: the pipeline's ``RirScreen`` of each set
+    (``rirs`` (M, L_j) with the masked rows zeroed; ``silent``, ``clipped``, ``masked`` (M,);
+    ``clipped_mode``), found on the RIRs as given: the advance smooths the flat run that marks a
+    clipped RIR, so it is screened before. Silent and clipped rows (used ones too: their direct
+    peak is mistimed) are left out of the offset fit. Returns ``run``'s RunResult with the
+    screens' flags (J * M), ``emission_offsets`` (J,) seconds from sample 0 to each emission and
     ``emission_offset_stds`` (J,) seconds; not converged, with the reason in ``message``, when an
     offset could not be estimated."""
     offsets = [
-        direct_path_offset(x, fs, mics, c=c, detect_options=detect_options, rng=rng)
-        for x in rir_sets
-    ]
+        direct_path_offset(
+            np.where((s.silent | s.clipped)[:, None], 0.0, s.rirs), fs, mics, c=c,
+            detect_options=detect_options, rng=rng,
+        )
+        for s in screens
+    ]  # fmt: skip
+    sets = [s.rirs for s in screens]
     taus = np.array([o.time for o in offsets])
     stds = np.array([o.std for o in offsets])
-    res = run(_advanced(rir_sets, taus, fs))
+    res = _run_screened(run, _advanced(sets, taus, fs))
     echoes = _echo_offsets(res, mics, c, rng, offsets)
     # the echoes disagree with the direct paths beyond their own noise: their offset is taken
     moved = [
@@ -253,8 +268,31 @@ def with_unknown_emission(
             moved, [e[1] if m else 0.0 for e, m in zip(echoes, moved, strict=True)], stds
         )
         log.info("unknown emission: the echoes moved the offsets to %s s; running again", taus)
-        res = run(_advanced(rir_sets, taus, fs))
+        res = _run_screened(run, _advanced(sets, taus, fs))
+    res = _with_screens(res, screens)
     return _emission_verdict(res, taus, stds, offsets, echoes, moved)
+
+
+def _run_screened(run: Callable[[list[np.ndarray]], Any], sets: list[np.ndarray]):
+    """``run`` on advanced sets whose masked rows are zeros, without the warnings the screen of
+    the RIRs as given has already raised (a masked row now silent, a used clipped one again)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SilentRirWarning)
+        warnings.simplefilter("ignore", ClippedRirWarning)
+        return run(sets)
+
+
+def _with_screens(res, screens: Sequence[Any]):
+    """``res`` with the flags of the RIRs as given (``screens``, J * M rows) and its message's
+    notes on them (the run on the advanced RIRs saw the masked rows as silent ones)."""
+    flags = {k: np.concatenate([getattr(s, k) for s in screens]) for k in _FLAGS}
+    kept = [n for n in res.message.split("; ") if n == NOT_FINITE]
+    notes = rir_notes(
+        flags["silent"], flags["clipped"], flags["masked"], np.asarray(res.no_echoes),
+        screens[0].clipped_mode,
+    )  # fmt: skip
+    message = "; ".join([res.result.message, *kept, *notes])
+    return replace(res, message=message, **{k: frozen(v) for k, v in flags.items()})
 
 
 def _advanced(rir_sets, taus: np.ndarray, fs: float) -> list[np.ndarray]:
