@@ -242,6 +242,7 @@ def with_unknown_emission(
     screens' flags (J * M), ``emission_offsets`` (J,) seconds from sample 0 to each emission and
     ``emission_offset_stds`` (J,) seconds; not converged, with the reason in ``message``, when an
     offset could not be estimated."""
+    _warn_used_clipped(screens)
     offsets = [
         direct_path_offset(
             np.where((s.silent | s.clipped)[:, None], 0.0, s.rirs), fs, mics, c=c,
@@ -271,6 +272,20 @@ def with_unknown_emission(
         res = _run_screened(run, _advanced(sets, taus, fs))
     res = _with_screens(res, screens)
     return _emission_verdict(res, taus, stds, offsets, echoes, moved)
+
+
+def _warn_used_clipped(screens: Sequence[Any]) -> None:
+    """A ClippedRirWarning for each clipped RIR kept (``clipped="use"``): the screen warns only
+    about those it masks, and the detector no longer sees them clipped once advanced."""
+    for j, s in enumerate(screens if screens[0].clipped_mode == "use" else ()):
+        who = f" (loudspeaker {j})" if len(screens) > 1 else ""
+        for i in np.flatnonzero(s.clipped):
+            warnings.warn(
+                f"rirs[{i}]{who} looks clipped: used (clipped='use'), with less accurate echo "
+                "times near its peak, and left out of the emission-time fit",
+                ClippedRirWarning,
+                stacklevel=5,
+            )
 
 
 def _run_screened(run: Callable[[list[np.ndarray]], Any], sets: list[np.ndarray]):
