@@ -303,9 +303,8 @@ def run_rirs(
     x = _as_rirs(rirs)
     fs, c, dim = check_fs(fs), _check_c(c), as_dim(dim)
     options = RirRunOptions(  # in the order of its fields
-        direct_template, detect_options, label_options, reconstruct_options,
-        keyframes, track_options, slam_options,
-    )  # fmt: skip
+        direct_template, detect_options, label_options, reconstruct_options, keyframes,
+        track_options, slam_options)  # fmt: skip
     mode = _check_mode(mics, step_bounds, options)
     pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
     bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
