@@ -12,7 +12,8 @@ for walls that the loudspeakers hear jointly, each at too few microphones to lab
 (:func:`~rangeslam.acoustics.shared_walls.shared_walls`: a small wall, such as a cut corner,
 reflects a loudspeaker to the few microphones whose specular point falls on it); those found
 are added and the room refitted, and an echo set that fits a wall the others do not confirm is
-named in the message as left unexplained. Before that, a wall one loudspeaker alone labelled is
+named in the message as left unexplained, and the run is then not converged (OUTLIERS: a wall
+they show may be missing). Before that, a wall one loudspeaker alone labelled is
 checked against the echoes its image predicts for every loudspeaker (microphones whose specular
 point is on its face); one whose predicted echoes are absent (``WALL_CONTRADICTED_MISSING``) is
 left out, said so, and its peaks searched again; when its image is then no higher-order image of
@@ -71,7 +72,9 @@ class RoomFromLoudspeakers(HasStatus):
         status: CONVERGED when the joint reconstruction converged and its walls bound a room; else
             the reconstruction's status, OUT_OF_RANGE (walls not bounding a room), OUTLIERS (a
             wall left out as contradicted whose image is no higher-order image of the walls
-            found: its echoes stay unexplained), or NOT_IDENTIFIABLE (nothing to reconstruct).
+            found, or an echo set that fits a wall the echoes do not deny but too few confirm:
+            echoes stay unexplained; the walls found are kept), or NOT_IDENTIFIABLE (nothing to
+            reconstruct).
         message: what happened, each labelling's message included, and the echoes left
             unexplained (an echo set that fits a wall the others do not confirm).
     """
@@ -394,7 +397,10 @@ def room_from_loudspeakers(
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
         f"{dropped}{denied}{added}reconstruction: {rec.message}"
     )
-    status, msg = _status(rec, cols.shape[1], _unexplained_left_out(ulabs, freed, rec), msg)
+    left = _unexplained_left_out(ulabs, freed, rec)
+    if "echoes left unexplained" in added and not left:
+        left = "; echoes left unexplained (above): a wall they show may be missing"
+    status, msg = _status(rec, cols.shape[1], left, msg)
     return RoomFromLoudspeakers(dets, labs, columns, shared, rec, status, msg)
 
 

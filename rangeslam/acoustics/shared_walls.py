@@ -37,6 +37,7 @@ accepted (see :class:`SharedWalls`).
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -49,7 +50,13 @@ from rangeslam.acoustics.echoes import EchoDetection
 from rangeslam.acoustics.label_search import Peaks, Triples, batch_refine, hypotheses
 from rangeslam.acoustics.labelling import EchoLabelling
 from rangeslam.geometry.room import Room
-from rangeslam.verdict.thresholds import JOINT_WALL_CHECKS, JOINT_WALL_RANGES
+from rangeslam.verdict.thresholds import (
+    JOINT_WALL_CHECKS,
+    JOINT_WALL_RANGES,
+    WALL_CONTRADICTED_MISSING,
+)
+
+logger = logging.getLogger(__name__)
 
 __all__ = [
     "WALL_MATCH_DEGREES",
@@ -137,6 +144,7 @@ class _Scene:
     fit_tol: np.ndarray  # (J,) metres
     sigma: np.ndarray  # (J,) metres: the robust spread of the direct paths
     tol: np.ndarray  # (J,) metres: the labellings' tolerances
+    heard: np.ndarray  # (J, M) bool: the labelling heard an echo of a wall there
     room: Room  # the room of the walls found so far
     verts: np.ndarray  # its vertices
     min_cut: float  # metres: a new wall cuts the room by more
@@ -336,6 +344,32 @@ def is_higher_order_image(room: Room, source: np.ndarray, point: np.ndarray, tol
     return bool(len(far) and np.linalg.norm(far - point, axis=1).min() <= 3.0 * tol)
 
 
+def _contradicted(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bool:
+    """True when the echoes that the wall (n, o) predicts deny it (as
+    :func:`rangeslam.acoustics.joint_room.room_from_loudspeakers` checks a wall one loudspeaker
+    labelled): at microphones whose specular point lies on its face (the room found so far holds
+    it, within the labelling's tolerance), where the loudspeaker heard a wall (its labelling or
+    ``idx`` (J, M)) and the predicted range is within the span of the peaks, at least
+    ``WALL_CONTRADICTED_MISSING`` have no detected peak (free or taken) within the labelling's
+    tolerance, more than have one."""
+    present = missing = 0
+    for k, s in enumerate(scene.sources):
+        diff = s - 2.0 * (n @ s - o) * n - scene.pts  # image minus microphones
+        t = (o - scene.pts @ n) / (diff @ n)
+        q = scene.pts + t[:, None] * diff
+        face = np.all(q @ scene.room.normals.T <= scene.room.offsets + scene.tol[k], axis=1)
+        pred = np.linalg.norm(diff, axis=1)
+        for m in np.flatnonzero(face & (t > 0) & (t < 1) & (scene.heard[k] | (idx[k] >= 0))):
+            r = scene.peaks[k].ranges[m]
+            if not len(r) or pred[m] > r.max() + scene.tol[k]:
+                continue
+            hit = idx[k, m] >= 0 or np.abs(r - pred[m]).min() <= scene.tol[k]
+            present += int(hit)
+            missing += int(not hit)
+    logger.debug("wall %s %.3f: %d predicted echoes present, %d absent", n, o, present, missing)
+    return missing >= WALL_CONTRADICTED_MISSING and missing > present
+
+
 def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
     """Step 3, one pass: the first candidate that keeps JOINT_WALL_RANGES echoes with
     JOINT_WALL_CHECKS checks after its fit and is no higher-order image; else None. Also notes on
@@ -348,7 +382,9 @@ def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
             continue
         n, o, idx, _ = fit
         total, checks = (int(v) for v in _checks(idx))
-        if _higher_order(scene, n, o, idx):
+        if total <= _POINT_MICS or _higher_order(scene, n, o, idx):
+            continue
+        if _contradicted(scene, n, o, idx):
             continue
         if total >= JOINT_WALL_RANGES and checks >= JOINT_WALL_CHECKS:
             r = np.full(idx.shape, np.nan)
@@ -356,7 +392,7 @@ def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
                 r[k, m] = scene.peaks[k].ranges[m][idx[k, m]]
             return SharedWall(normal=n, offset=o, ranges=r, peaks=idx), notes
         new = all(n @ n2 < _SAME_COS or abs(o - o2) > WALL_MATCH_METRES for n2, o2 in seen)
-        if total >= _POINT_MICS + 1 and new and len(notes) < _NOTES:
+        if new and len(notes) < _NOTES:
             seen.append((n, o))
             notes.append(_note(n, o, idx, total, checks))
     return None, notes
@@ -415,6 +451,7 @@ def shared_walls(
         fit_tol=np.array([lab.fit_tolerance for lab in labellings]),
         sigma=np.array([_spread(lab) for lab in labellings]),
         tol=np.array([lab.tolerance for lab in labellings]),
+        heard=np.array([lab.mask[:, 1:].any(axis=1) for lab in labellings], dtype=bool),
         room=room,
         verts=room.vertices,
         min_cut=float(min_cut),
