@@ -62,6 +62,7 @@ def sessions(tmp: Path, seeds: list[int], noise: str, mics: list[str]) -> None:
                 f"{room} {seed}: exit {code}, walls [mm] {np.round(errs * 1e3, 2).tolist()}, "
                 f"{len(rec['walls'])} found"
                 + ("; a wall left out as contradicted" if "echoes of it are absent" in msg else "")
+                + ("; echoes left unexplained" if "echoes left unexplained" in msg else "")
             )
         print(
             f"{room}: converged with every wall within 1 cm {good}/{len(seeds)}; converged with a "

@@ -286,3 +286,38 @@ def test_a_wall_left_out_whose_echoes_stay_unexplained_is_not_converged(tmp_path
     assert "stay unexplained" in record["message"], record["message"]
     errors = _wall_errors(record)
     assert len(record["walls"]) == 6 and np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors
+
+
+@pytest.mark.parametrize(
+    ("seed", "n_walls"),
+    [
+        # Frozen: the cut wall heard at 4 + 1 echoes in all (5 < JOINT_WALL_RANGES): converged
+        # with 6 walls, the cut wall missing although the message named its echoes.
+        (762848, 6),
+        # Frozen: shared_walls added a plane 261 mm off the cut wall (5 + 1 echoes) while the
+        # cut wall's own 5 echoes (3 + 2) were named as unexplained: converged and wrong.
+        (487130, 7),
+    ],
+)
+def test_echoes_left_unexplained_make_the_run_not_converged(tmp_path, seed, n_walls):
+    """Cut-corner sessions at 8 microphones whose leftover echoes fit a wall that too few echoes
+    confirm (5, 6 needed) and the predicted echoes do not deny: the echo set is named as left
+    unexplained and the run is not converged (exit 1), the walls found kept. Both said converged
+    with a wall missing or wrong before."""
+    code, record, _ = _session(tmp_path, "cut-corner", seed=seed, mics="8")
+    assert code == 1 and not record["converged"], record["message"]
+    assert "echoes left unexplained" in record["message"], record["message"]
+    assert len(record["walls"]) == n_walls
+
+
+def test_an_echo_set_the_predicted_echoes_deny_is_not_left_unexplained(tmp_path):
+    """Frozen: cut-corner session 762848 at 12 microphones, every wall right, where 5 leftover
+    echoes (2 + 3) fit a plane through the room (normal [-0.66, 0.72, -0.19]) and were named as
+    left unexplained. Its image predicts 17 echoes on its face where the loudspeakers hear walls;
+    12 are absent (34-203 mm from every peak), so it is no wall: no note, converged, all 7 walls
+    within 1 cm."""
+    code, record, _ = _session(tmp_path, "cut-corner", seed=762848)
+    assert code == 0 and record["converged"], record["message"]
+    assert "echoes left unexplained" not in record["message"], record["message"]
+    errors = _wall_errors(record)
+    assert len(record["walls"]) == 7 and np.all(errors <= WALL_TOL), errors
