@@ -64,3 +64,20 @@ def keep_figure(monkeypatch):
     yield kept
     for fig in kept:
         close(fig)
+
+
+@pytest.fixture
+def opened_heartbeats(monkeypatch):
+    """The (label, step) of every progress heartbeat a command opens, in order (how many lines a
+    heartbeat writes depends on the machine's speed; which heartbeats open does not)."""
+    from rangeslam.app import progress
+
+    opened = []
+
+    class Recording(progress.Heartbeat):
+        def __enter__(self):
+            opened.append((self.label, self.step))
+            return super().__enter__()
+
+    monkeypatch.setattr(progress, "Heartbeat", Recording)
+    return opened

@@ -7,31 +7,25 @@ import sys
 
 import pytest
 
-from rangeslam.app import progress
 from rangeslam.app.cli import main
 
 
-def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
+def test_demo_end_to_end(tmp_path, monkeypatch, capsys, opened_heartbeats):
     """`rangeslam demo`, as the README's first line runs it (no --out, in an empty folder), prints
     the wall table, a small Fig. 3 and Fig. 5 comparison, writes every plot (rooms, Fig. 3, Fig. 5,
     the SLAM estimate with its ellipses, the RIR matrix) to ./rangeslam-out, exits 0. Its progress
     goes to standard error: a line per finished cell of Fig. 3 and Fig. 5, and a heartbeat naming
     the step under way around the rooms and the SLAM example (checked through the heartbeats it
     opens: how many lines they write depends on the machine's speed)."""
-    opened = []
-
-    class Recording(progress.Heartbeat):
-        def __enter__(self):
-            opened.append((self.label, self.step))
-            return super().__enter__()
-
-    monkeypatch.setattr(progress, "Heartbeat", Recording)
     monkeypatch.chdir(tmp_path)
     code = main(["demo", "--seed", "3"])
     captured = capsys.readouterr()
     out, err = captured.out, captured.err
     assert code == 0
-    assert opened == [("demo", "rooms from echoes"), ("demo", "a SLAM estimate and the RIR matrix")]
+    assert opened_heartbeats == [
+        ("demo", "rooms from echoes"),
+        ("demo", "a SLAM estimate and the RIR matrix"),
+    ]
     assert re.search(r"rangeslam: fig3: \d+/\d+ trials .*elapsed", err)
     assert re.search(r"rangeslam: compare: \d+/\d+ trials .*elapsed", err)
     assert "rangeslam: fig3: 30/30 trials" in err and "rangeslam: compare: 15/15 trials" in err

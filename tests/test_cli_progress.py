@@ -129,21 +129,13 @@ def test_run_replaces_an_earlier_runs_files(room_npz, tmp_path, capsys, monkeypa
     assert {p.name for p in out.iterdir()} == names
 
 
-def test_simulate_walk_shows_progress(tmp_path, monkeypatch):
+def test_simulate_walk_shows_progress(tmp_path, opened_heartbeats):
     """`simulate walk` (20 s at 600 steps) runs under a progress heartbeat naming what it
     simulates. (Checked through the heartbeat it opens, not through the lines it writes: those
     depend on how long the call takes, and a walk simulated earlier in the session was seen to
     finish before the first line.)"""
-    opened = []
-
-    class Recording(progress.Heartbeat):
-        def __enter__(self):
-            opened.append((self.label, self.step))
-            return super().__enter__()
-
-    monkeypatch.setattr(progress, "Heartbeat", Recording)
     assert main(["simulate", "walk", "--out", str(tmp_path / "w.npz")]) == 0
-    assert opened == [("simulate walk", "113 RIRs (pyroomacoustics)")]
+    assert opened_heartbeats == [("simulate walk", "113 RIRs (pyroomacoustics)")]
 
 
 def test_slam_logs_its_steps():
