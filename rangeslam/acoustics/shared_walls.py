@@ -26,12 +26,14 @@ plane, section 2 of the paper), so the echoes of all loudspeakers check one wall
    collected again until stable) that keeps ``JOINT_WALL_RANGES`` echoes, ``JOINT_WALL_CHECKS``
    of them from loudspeakers other than the one with most (whose echoes alone fix a point), and
    whose image of that loudspeaker is not one of its images of order 2 or 3 in the walls found
-   (those echoes are explained without a new wall). Its peaks are then taken and the room cut by
-   it; the search is repeated while it adds a wall.
+   (those echoes are explained without a new wall), and that the echoes it predicts do not deny
+   (``WALL_CONTRADICTED_MISSING`` of them absent, more than present, as a wall one loudspeaker
+   labelled is checked in :mod:`rangeslam.acoustics.joint_room`). Its peaks are then taken and
+   the room cut by it; the search is repeated while it adds a wall.
 
 What is left unexplained is reported: the echo sets (up to three walls, best checked first) that
-fit one admissible wall with five echoes or more (two more than its unknowns) but are not
-accepted (see :class:`SharedWalls`).
+fit one admissible wall, not denied, with five echoes or more (two more than its unknowns) but
+are not accepted (see :class:`SharedWalls`).
 """
 
 from __future__ import annotations
@@ -366,7 +368,10 @@ def _contradicted(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bo
             hit = idx[k, m] >= 0 or np.abs(r - pred[m]).min() <= scene.tol[k]
             present += int(hit)
             missing += int(not hit)
-    logger.debug("wall %s %.3f: %d predicted echoes present, %d absent", n, o, present, missing)
+    logger.debug(
+        "wall %s %.3f: %d predicted echoes present, %d absent",
+        np.round(n, 3).tolist(), o, present, missing,
+    )  # fmt: skip
     return missing >= WALL_CONTRADICTED_MISSING and missing > present
 
 

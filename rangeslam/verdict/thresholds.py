@@ -183,8 +183,9 @@ JOINT_WALL_CHECKS = 1
 #: loudspeaker's own microphones, 2 of 2, and the right walls above stay (at most 1 absent);
 #: checked on seeds drawn after that (benchmarks/README.md, "rangeslam run on simulated
 #: sessions"). The same count denies a wall found jointly (:mod:`rangeslam.acoustics.shared_walls`:
-#: neither added nor named as unexplained): on cut-corner sessions 762838-762853 (8 and 12
-#: microphones) the right walls it found had 0-1 predicted echoes absent of 6-9 present, the true
-#: cut wall named unexplained (5 echoes) 0-2 of 5-9, a plane through the room (762848, 12
-#: microphones, named unexplained with 5 echoes) 12 absent of 17; checked on seeds drawn after.
+#: neither added nor named as unexplained): on cut-corner sessions 762838-762853 and 487130 (8
+#: and 12 microphones) the right walls it found had 0-1 predicted echoes absent against 7-11
+#: present, the true cut wall named unexplained (5 echoes) 0 against 6-9, a plane through the
+#: room (762848, 12 microphones, named unexplained with 5 echoes) 12 absent against 5; checked on
+#: seeds drawn after (benchmarks/README.md, same section).
 WALL_CONTRADICTED_MISSING = 2
