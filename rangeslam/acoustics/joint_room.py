@@ -274,15 +274,15 @@ def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: fl
     """When the labelled walls converged to a room and several loudspeakers were located: the
     walls their free echoes show jointly (:func:`shared_walls`), added and refitted with the
     others. Returns (the walls added, the reconstruction, a note for the message: the walls
-    added, or the echoes left unexplained, or "")."""
+    added, or the echoes left unexplained, or "", and True when echoes are left unexplained)."""
     if len(labs) < 2 or not rec.converged or rec.room is None:
-        return (), rec, ""
+        return (), rec, "", False
     found = shared_walls(
         labs, dets, pts, rec.room, c=c, min_cut=WALL_MATCH_METRES, rng=rng, freed=freed
     )
     note = "".join(f"{u}; " for u in found.unexplained)
     if not found.walls:
-        return (), rec, note
+        return (), rec, note, bool(found.unexplained)
     ranges, masks = _joint_ranges(labs, cols, found.walls)
     try:
         trial = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
@@ -298,6 +298,7 @@ def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: fl
             found.walls,
             trial,
             f"{note}added {len(found.walls)} wall(s) found jointly ({said}); ",
+            bool(found.unexplained),
         )
     why = why if trial is None else trial.message
     return (
@@ -307,6 +308,7 @@ def _add_shared_walls(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: fl
             f"{note}echoes left unexplained: a wall found jointly ({said}) did not fit with the "
             f"others ({why}); "
         ),
+        True,
     )
 
 
@@ -392,13 +394,15 @@ def room_from_loudspeakers(
     cols, rec, freed, denied = _drop_contradicted(pts, ulabs, udets, cols, rec, ropts, c, rng)
     columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
     columns[usable] = cols
-    shared, rec, added = _add_shared_walls(pts, ulabs, udets, cols, rec, ropts, c, rng, freed)
+    shared, rec, added, unexplained = _add_shared_walls(
+        pts, ulabs, udets, cols, rec, ropts, c, rng, freed
+    )
     msg = (
         f"{len(usable)} of {len(labs)} loudspeakers, {cols.shape[1]} walls matched; {notes}; "
         f"{dropped}{denied}{added}reconstruction: {rec.message}"
     )
     left = _unexplained_left_out(ulabs, freed, rec)
-    if "echoes left unexplained" in added and not left:
+    if unexplained and not left:
         left = "; echoes left unexplained (above): a wall they show may be missing"
     status, msg = _status(rec, cols.shape[1], left, msg)
     return RoomFromLoudspeakers(dets, labs, columns, shared, rec, status, msg)
