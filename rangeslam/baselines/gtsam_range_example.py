@@ -135,7 +135,7 @@ def gtsam_range_example(
     used = range_pose <= n_steps
     inlier = np.zeros(len(data.ranges), dtype=bool)
     if estimate is not None and error is None:
-        inlier[used] = _inliers(data, poses, beacons, range_pose[used], used, models)
+        inlier[used] = _inliers(data, poses, beacons, used, models)
     status, message = _verdict(
         data, (poses, beacons, beacons0), used, inlier, error, f"iSAM2 ({factorization})", robust
     )
@@ -180,10 +180,8 @@ def range_fit(data, poses, beacons, used):
     than their own noise (module comment)."""
     from rangeslam.verdict.checks import PASSED, Check, tail_check
 
-    pose = np.maximum(np.asarray(data.range_pose), 1)[used]
-    beacon, ranges = np.asarray(data.range_beacon)[used], np.asarray(data.ranges)[used]
-    residuals = np.linalg.norm(poses[pose, :2] - beacons[beacon], axis=1) - ranges
-    check = tail_check(residuals, None, None, float(np.median(ranges)))
+    residuals = _used_residuals(data, poses, beacons, used)
+    check = tail_check(residuals, None, None, float(np.median(np.asarray(data.ranges)[used])))
     if check.passed:
         return PASSED
     return Check(
@@ -204,14 +202,10 @@ def ranges_unused(data, poses, beacons, beacons0, used) -> str:
     unplaced = heard[~np.all(np.isfinite(beacons[heard]), axis=1)]
     if unplaced.size:
         return f"beacons ranged to but never placed: {data.beacon_ids[unplaced].tolist()}"
-    pose = np.maximum(np.asarray(data.range_pose), 1)[used]
-    beacon, ranges = np.asarray(data.range_beacon)[used], np.asarray(data.ranges)[used]
     dr = dead_reckoning(np.asarray(data.odometry, dtype=float), data.start)
 
     def rms(p, b):
-        return float(
-            np.sqrt(np.mean((np.linalg.norm(p[pose, :2] - b[beacon], axis=1) - ranges) ** 2))
-        )
+        return float(np.sqrt(np.mean(_used_residuals(data, p, b, used) ** 2)))
 
     end, begin = rms(poses, beacons), rms(dr, beacons0)
     if not end < RANGES_FITTED * begin:
@@ -220,6 +214,16 @@ def ranges_unused(data, poses, beacons, beacons0, used) -> str:
             f"{begin:.3g} m at the start (dead reckoning, random or known beacons; range sigma {RANGE_SIGMA:g} m)"
         )
     return ""
+
+
+def _used_residuals(data, poses, beacons, used) -> np.ndarray:
+    """The used ranges' residuals |p - l| - r at ``poses`` (N + 1, 3) and ``beacons`` (B, 2),
+    each range at the first pose at or after its time (pose 1 at the earliest, as the loop adds
+    them)."""
+    pose = np.maximum(np.asarray(data.range_pose), 1)[used]
+    beacon = np.asarray(data.range_beacon)[used]
+    ranges = np.asarray(data.ranges, dtype=float)[used]
+    return np.linalg.norm(poses[pose, :2] - beacons[beacon], axis=1) - ranges
 
 
 def _known_start(gtsam, beacons, beacon_sigma, beacon_keys, beacons0: np.ndarray) -> list:
@@ -333,12 +337,9 @@ def _run_example(
     return estimate, None
 
 
-def _inliers(data, poses, beacons, range_pose_used, used, models: _Models) -> np.ndarray:
+def _inliers(data, poses, beacons, used, models: _Models) -> np.ndarray:
     """The used ranges' inlier flags: final Tukey weight > 0 (robust), else finite residual."""
-    beacon_row = np.asarray(data.range_beacon)
-    ranges = np.asarray(data.ranges, dtype=float)
-    p = poses[range_pose_used, :2]
-    res = np.linalg.norm(p - beacons[beacon_row[used]], axis=1) - ranges[used]
+    res = _used_residuals(data, poses, beacons, used)
     if not models.robust:
         return np.isfinite(res)
     tukey = models.range.robust()
