@@ -36,13 +36,15 @@ from rangeslam.acoustics.shared_walls import (
     WALL_MATCH_DEGREES,
     WALL_MATCH_METRES,
     SharedWall,
+    denied,
     is_higher_order_image,
+    predicted_echoes,
+    predicted_present,
     shared_walls,
 )
 from rangeslam.errors import InvalidInputError
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import WALL_CONTRADICTED_MISSING
 
 __all__ = [
     "WALL_MATCH_DEGREES",
@@ -195,30 +197,18 @@ def _echo_checks(pts, labs, dets, cols: np.ndarray, rec, c: float) -> np.ndarray
     loudspeaker that labelled the wall) none of this one, and the predicted range is within the
     span of m's detected peaks; the echo is found when a peak is within that tolerance of the
     predicted range."""
-    k_n = cols.shape[1]
     out = np.zeros((rec.wall_normals.shape[0], 2), dtype=int)
-    room = rec.room
-    for k in range(k_n):
+    ranges = [[np.asarray(det.times, dtype=float) * c for det in ds] for ds in dets]
+    for k in range(cols.shape[1]):
         if (cols[:, k] > 0).sum() != 1:
             continue
         n, o = rec.wall_normals[k], rec.wall_offsets[k]
-        for i in range(len(labs)):
-            lab, s = labs[i], rec.sources[i]
+        for i, lab in enumerate(labs):
             heard = lab.mask[:, 1:].any(axis=1)
             if cols[i, k]:
                 heard = heard & ~lab.mask[:, cols[i, k]]
-            y = s - 2.0 * (n @ s - o) * n
-            diff = y - pts
-            t = (o - pts @ n) / (diff @ n)
-            q = pts + t[:, None] * diff
-            face = np.all(q @ room.normals.T <= room.offsets + lab.tolerance, axis=1)
-            pred = np.linalg.norm(diff, axis=1)
-            for m in np.flatnonzero(face & (t > 0) & (t < 1) & heard):
-                r = np.asarray(dets[i][m].times, dtype=float) * c
-                if not len(r) or pred[m] > r.max() + lab.tolerance:
-                    continue
-                out[k, 0] += 1
-                out[k, 1] += int(np.abs(r - pred[m]).min() <= lab.tolerance)
+            on_face, pred = predicted_echoes(rec.room, pts, rec.sources[i], n, o, lab.tolerance)
+            out[k] += predicted_present(ranges[i], pred, on_face & heard, lab.tolerance)
     return out
 
 
@@ -233,7 +223,7 @@ def _drop_contradicted(pts, labs, dets, cols: np.ndarray, rec, ropts: dict, c: f
         return cols, rec, freed, ""
     checks = _echo_checks(pts, labs, dets, cols, rec, c)[: cols.shape[1]]
     missing = checks[:, 0] - checks[:, 1]
-    bad = np.flatnonzero((missing >= WALL_CONTRADICTED_MISSING) & (checks[:, 1] < missing))
+    bad = np.flatnonzero(denied(checks[:, 0], checks[:, 1]))
     if not len(bad) or len(bad) == cols.shape[1]:
         return cols, rec, freed, ""
     said = []

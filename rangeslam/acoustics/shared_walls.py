@@ -65,7 +65,10 @@ __all__ = [
     "WALL_MATCH_METRES",
     "SharedWall",
     "SharedWalls",
+    "denied",
     "is_higher_order_image",
+    "predicted_echoes",
+    "predicted_present",
     "shared_walls",
 ]
 
@@ -346,6 +349,43 @@ def is_higher_order_image(room: Room, source: np.ndarray, point: np.ndarray, tol
     return bool(len(far) and np.linalg.norm(far - point, axis=1).min() <= 3.0 * tol)
 
 
+def predicted_echoes(
+    room: Room, mics: np.ndarray, source: np.ndarray, normal: np.ndarray, offset: float, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the wall (``normal``, ``offset``) predicts an echo of ``source`` (3,) at ``mics``
+    (M, 3): (M,) True where the specular point (where the path from the source's image to the
+    microphone crosses the wall) lies on the wall's face (``room`` holds it, within ``tol``),
+    and (M,) the predicted ranges, metres."""
+    diff = source - 2.0 * (normal @ source - offset) * normal - mics  # image minus microphones
+    t = (offset - mics @ normal) / (diff @ normal)
+    q = mics + t[:, None] * diff
+    face = np.all(q @ room.normals.T <= room.offsets + tol, axis=1)
+    return face & (t > 0) & (t < 1), np.linalg.norm(diff, axis=1)
+
+
+def predicted_present(
+    ranges: Sequence[np.ndarray], pred: np.ndarray, where: np.ndarray, tol: float, known=None
+) -> tuple[int, int]:
+    """(tested, present): of the microphones ``where`` (M,) bool whose predicted range ``pred``
+    (M,) is within the span of their detected ``ranges`` (M lists), those with a peak within
+    ``tol`` of it (or ``known`` (M,) bool: an echo already taken for it)."""
+    tested = present = 0
+    for m in np.flatnonzero(where):
+        r = ranges[m]
+        if not len(r) or pred[m] > r.max() + tol:
+            continue
+        tested += 1
+        present += int((known is not None and known[m]) or np.abs(r - pred[m]).min() <= tol)
+    return tested, present
+
+
+def denied(tested, present):
+    """True where predicted echoes deny a wall: at least ``WALL_CONTRADICTED_MISSING`` of the
+    ``tested`` absent, more than are ``present`` (scalars or arrays)."""
+    missing = np.asarray(tested) - present
+    return (missing >= WALL_CONTRADICTED_MISSING) & (present < missing)
+
+
 def _contradicted(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bool:
     """True when the echoes that the wall (n, o) predicts deny it (as
     :func:`rangeslam.acoustics.joint_room.room_from_loudspeakers` checks a wall one loudspeaker
@@ -353,26 +393,21 @@ def _contradicted(scene: _Scene, n: np.ndarray, o: float, idx: np.ndarray) -> bo
     it, within the labelling's tolerance), where the loudspeaker heard a wall (its labelling or
     ``idx`` (J, M)) and the predicted range is within the span of the peaks, at least
     ``WALL_CONTRADICTED_MISSING`` have no detected peak (free or taken) within the labelling's
-    tolerance, more than have one."""
-    present = missing = 0
+    tolerance, more than have one (:func:`predicted_echoes`, :func:`predicted_present`)."""
+    tested = present = 0
     for k, s in enumerate(scene.sources):
-        diff = s - 2.0 * (n @ s - o) * n - scene.pts  # image minus microphones
-        t = (o - scene.pts @ n) / (diff @ n)
-        q = scene.pts + t[:, None] * diff
-        face = np.all(q @ scene.room.normals.T <= scene.room.offsets + scene.tol[k], axis=1)
-        pred = np.linalg.norm(diff, axis=1)
-        for m in np.flatnonzero(face & (t > 0) & (t < 1) & (scene.heard[k] | (idx[k] >= 0))):
-            r = scene.peaks[k].ranges[m]
-            if not len(r) or pred[m] > r.max() + scene.tol[k]:
-                continue
-            hit = idx[k, m] >= 0 or np.abs(r - pred[m]).min() <= scene.tol[k]
-            present += int(hit)
-            missing += int(not hit)
+        on_face, pred = predicted_echoes(scene.room, scene.pts, s, n, o, scene.tol[k])
+        heard = scene.heard[k] | (idx[k] >= 0)
+        t_k, p_k = predicted_present(
+            scene.peaks[k].ranges, pred, on_face & heard, scene.tol[k], known=idx[k] >= 0
+        )
+        tested += t_k
+        present += p_k
     logger.debug(
         "wall %s %.3f: %d predicted echoes present, %d absent",
-        np.round(n, 3).tolist(), o, present, missing,
+        np.round(n, 3).tolist(), o, present, tested - present,
     )  # fmt: skip
-    return missing >= WALL_CONTRADICTED_MISSING and missing > present
+    return bool(denied(tested, present))
 
 
 def _search(scene: _Scene, rng) -> tuple[SharedWall | None, list[str]]:
