@@ -36,6 +36,7 @@ from rangeslam.acoustics.shared_walls import (
     WALL_MATCH_DEGREES,
     WALL_MATCH_METRES,
     SharedWall,
+    bisector_planes,
     denied,
     is_higher_order_image,
     predicted_echoes,
@@ -103,9 +104,7 @@ def _usable(lab: EchoLabelling) -> bool:
 
 def _walls_of(lab: EchoLabelling) -> tuple[np.ndarray, np.ndarray]:
     """(K, 3) outward normals and (K,) offsets of the bisectors of ``lab``'s source and images."""
-    d = lab.images - lab.source
-    n = d / np.linalg.norm(d, axis=1, keepdims=True)
-    return n, np.einsum("kd,kd->k", n, (lab.images + lab.source) / 2)
+    return bisector_planes(lab.images, lab.source)
 
 
 def match_walls(

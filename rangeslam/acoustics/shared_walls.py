@@ -42,7 +42,7 @@ import itertools
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -65,6 +65,7 @@ __all__ = [
     "WALL_MATCH_METRES",
     "SharedWall",
     "SharedWalls",
+    "bisector_planes",
     "denied",
     "is_higher_order_image",
     "predicted_echoes",
@@ -198,7 +199,7 @@ def _spread(lab: EchoLabelling) -> float:
     return max(float(sigma), lab.fit_tolerance / 4.0)
 
 
-def _planes(x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def bisector_planes(x: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, 3) unit normals and (N,) offsets of the bisectors of ``s`` (3,) and points x (N, 3)."""
     n = x - s
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
@@ -278,7 +279,7 @@ def _fit_wall(scene: _Scene, j: int, x0: np.ndarray, idx: np.ndarray) -> np.ndar
     mics = scene.pts[sel[:, 1]]
 
     def residuals(x):
-        n, o = _planes(x[None], scene.sources[j])
+        n, o = bisector_planes(x[None], scene.sources[j])
         y = s - 2.0 * (s @ n[0] - o[0])[:, None] * n[0]
         return np.linalg.norm(y - mics, axis=1) - r
 
@@ -291,7 +292,7 @@ def _refine(scene: _Scene, j: int, x0: np.ndarray):
     admissible walls or keeps fewer than four echoes."""
     x, seen = np.asarray(x0, dtype=float), None
     for _ in range(_REFITS):
-        n, o = _planes(x[None], scene.sources[j])
+        n, o = bisector_planes(x[None], scene.sources[j])
         if not _admissible(scene, n, o)[0]:
             return None
         idx, err = _support(scene, n, o)
@@ -320,7 +321,7 @@ def _candidates(scene: _Scene, rng) -> list[tuple[int, np.ndarray, int, int]]:
         x_all = _hypotheses(scene, j, rng)
         for start in range(0, len(x_all), _CHUNK):
             x = x_all[start : start + _CHUNK]
-            n, o = _planes(x, s)
+            n, o = bisector_planes(x, s)
             ok = _admissible(scene, n, o)
             x, n, o = x[ok], n[ok], o[ok]
             idx, _ = _support(scene, n, o)
@@ -512,8 +513,6 @@ def shared_walls(
 def _with_wall(scene: _Scene, wall: SharedWall) -> _Scene | None:
     """The scene with ``wall``'s echoes taken and the room cut by it (None when the cut room is
     degenerate)."""
-    from dataclasses import replace
-
     peaks = []
     for k, p in enumerate(scene.peaks):
         usable = []
