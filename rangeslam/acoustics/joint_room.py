@@ -94,12 +94,7 @@ class RoomFromLoudspeakers(HasStatus):
     def located(self) -> np.ndarray:
         """(J,) bool: the loudspeakers in the joint fit (located, with an echo labelled); the
         reconstruction's sources and image sources are theirs, in order."""
-        return np.array([_usable(lab) for lab in self.labellings], dtype=bool)
-
-
-def _usable(lab: EchoLabelling) -> bool:
-    """A labelling whose source was located with at least one echo labelled."""
-    return bool(np.all(np.isfinite(lab.source)) and lab.n_images)
+        return np.array([lab.has_room for lab in self.labellings], dtype=bool)
 
 
 def _walls_of(lab: EchoLabelling) -> tuple[np.ndarray, np.ndarray]:
@@ -363,7 +358,7 @@ def room_from_loudspeakers(
     labs = tuple(label_echoes(d, pts, c=c, rng=rng, **lopts) for d in dets_j)
     dets = tuple(d for ds in dets_j for d in ds)
     notes = "; ".join(f"loudspeaker {j}: {lab.message}" for j, lab in enumerate(labs))
-    usable = [j for j, lab in enumerate(labs) if _usable(lab)]
+    usable = [j for j, lab in enumerate(labs) if lab.has_room]
     if not usable:
         msg = f"no loudspeaker was located with an echo labelled; {notes}"
         empty = np.zeros((len(labs), 0), dtype=int)

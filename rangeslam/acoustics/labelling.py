@@ -204,6 +204,11 @@ class EchoLabelling(HasStatus):
         """(1+K,) microphones per column (direct path, then each image source)."""
         return self.mask.sum(axis=0)
 
+    @property
+    def has_room(self) -> bool:
+        """True when the source was located and at least one echo labelled (walls to fit)."""
+        return bool(self.n_images and np.all(np.isfinite(self.source)))
+
 
 # ---- the labelling ------------------------------------------------------------------------------
 
@@ -717,7 +722,7 @@ def room_from_rirs(
     )  # fmt: skip
     dets = detect_with_template(rirs, fs, direct_template=direct_template, detect_options=opts)
     lab = label_echoes(dets, mics, c=c, rng=rng, **lopts)
-    if lab.n_images == 0 or not np.all(np.isfinite(lab.source)):
+    if not lab.has_room:
         status = lab.status if not lab.converged else Status.NOT_IDENTIFIABLE
         msg = f"echo labelling did not converge: {lab.message}"
         return RoomFromRirs(dets, lab, None, status, msg)

@@ -211,7 +211,7 @@ def _echo_offsets(res: Any, mics: np.ndarray, c: float, rng, offsets: list, temp
     labs = getattr(res.result, "labellings", None) or (res.result.labelling,)
     out: list = []
     for lab, o in zip(labs, offsets, strict=True):
-        if lab.n_images == 0 or not np.all(np.isfinite(lab.source)):
+        if not lab.has_room:
             out.append("no echo labelled")
             continue
         bias = _timing_bias(lab, o.direct_times, o.time, c) if template else (0.0, 0.0)
