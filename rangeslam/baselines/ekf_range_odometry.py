@@ -310,17 +310,36 @@ def _add_known(st: _EkfState, known, opts: EkfRangeOptions) -> None:
         return
     var = 0.0 if known.sigma is None else known.sigma**2
     for j in np.flatnonzero(known.known):
-        st.offset[j] = len(st.ekf.x)
         joint = opts.n_cal > 0 and (opts.per_beacon or st.shared_at < 0)
         mean, cov = known.positions[j], np.full(2, var)
         if joint:
-            st.cal_at[j] = st.offset[j] + 2
-            st.shared_at = st.cal_at[j] if not opts.per_beacon else st.shared_at
             mean = np.concatenate([mean, np.zeros(opts.n_cal)])
             cov = np.concatenate([cov, opts.prior_sd**2])
-        else:
-            st.cal_at[j] = st.shared_at
-        st.ekf = _augment(st.ekf, mean, np.diag(cov))
+        _enter_beacon(st, j, mean, np.diag(cov), joint=joint, per_beacon=opts.per_beacon)
+
+
+def _enter_beacon(
+    st: _EkfState,
+    j: int,
+    mean: np.ndarray,
+    cov: np.ndarray,
+    *,
+    joint: bool,
+    per_beacon: bool,
+    g: np.ndarray | None = None,
+) -> None:
+    """Beacon ``j`` (mean, cov) appended to the state (:func:`_augment`). ``joint``: its own
+    calibration block follows it (the shared one when not ``per_beacon``); else it uses the
+    shared block, through ``g`` (None: no cross-covariance)."""
+    st.offset[j] = len(st.ekf.x)
+    if joint:
+        st.cal_at[j] = st.offset[j] + 2
+        if not per_beacon:
+            st.shared_at = st.cal_at[j]
+        st.ekf = _augment(st.ekf, mean, cov)
+    else:
+        st.cal_at[j] = st.shared_at
+        st.ekf = _augment(st.ekf, mean, cov, g, st.shared_at)
 
 
 def _from_the_data(data: BaselineData, range_sigma, odometry_sigma, init_spread):
@@ -408,15 +427,7 @@ def _buffer_range(
     if fit is None:
         return
     st.inlier[st.buf_idx[j]] = fit.inlier
-    st.offset[j] = len(st.ekf.x)
-    if joint:
-        st.cal_at[j] = st.offset[j] + 2
-        if not opts.per_beacon:
-            st.shared_at = st.cal_at[j]
-        st.ekf = _augment(st.ekf, fit.mean, fit.cov)
-    else:
-        st.cal_at[j] = st.shared_at
-        st.ekf = _augment(st.ekf, fit.mean, fit.cov, fit.g, st.shared_at)
+    _enter_beacon(st, j, fit.mean, fit.cov, joint=joint, per_beacon=opts.per_beacon, g=fit.g)
     log.info(
         "beacon %d initialised at pose %d from %d ranges: %s",
         data.beacon_ids[j],
