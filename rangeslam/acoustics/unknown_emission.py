@@ -113,16 +113,10 @@ def rirs_unknown_emission(screen, fs: float, mics, options, *, c: float, rng):
     ``RirRunOptions`` of the array mode."""
     from rangeslam.acoustics.pipeline import run_rirs  # pipeline imports this module
 
-    again = partial(
-        run_rirs, fs=fs, mics=mics, c=c, rng=rng, clipped=screen.clipped_mode,
-        direct_template=options.direct_template, detect_options=options.detect_options,
-        label_options=options.label_options, reconstruct_options=options.reconstruct_options,
-    )  # fmt: skip
-    return with_unknown_emission(
-        lambda sets: again(sets[0]), [screen], fs, mics, c=c,
-        detect_options=options.detect_options, rng=rng,
-        template=options.direct_template is not None,
-    )  # fmt: skip
+    def run(sets, **kwargs):
+        return run_rirs(sets[0], **kwargs)
+
+    return _unknown_emission_run(run, [screen], fs, mics, options, c=c, rng=rng)
 
 
 def loudspeakers_unknown_emission(screens, fs: float, mics, options, *, c: float, rng):
@@ -130,11 +124,16 @@ def loudspeakers_unknown_emission(screens, fs: float, mics, options, *, c: float
     unknown, one each (:func:`with_unknown_emission`); ``options`` a ``RirRunOptions``."""
     from rangeslam.acoustics.pipeline import run_loudspeakers  # pipeline imports this module
 
+    return _unknown_emission_run(run_loudspeakers, screens, fs, mics, options, c=c, rng=rng)
+
+
+def _unknown_emission_run(run, screens, fs: float, mics, options, *, c: float, rng):
+    """:func:`with_unknown_emission` of ``run`` (J sets, then the pipeline's keywords), given
+    ``options``' array-mode tuning and the screens' ``clipped_mode``."""
     again = partial(
-        run_loudspeakers, fs=fs, mics=mics, c=c, rng=rng, clipped=screens[0].clipped_mode,
+        run, fs=fs, mics=mics, c=c, rng=rng, clipped=screens[0].clipped_mode,
         direct_template=options.direct_template, detect_options=options.detect_options,
-        label_options=options.label_options,
-        reconstruct_options=options.reconstruct_options,
+        label_options=options.label_options, reconstruct_options=options.reconstruct_options,
     )  # fmt: skip
     return with_unknown_emission(
         again, screens, fs, mics, c=c, detect_options=options.detect_options, rng=rng,
@@ -300,7 +299,7 @@ def _warn_used_clipped(screens: Sequence[Any]) -> None:
                 f"rirs[{i}]{who} looks clipped: used (clipped='use'), with less accurate echo "
                 "times near its peak, and left out of the emission-time fit",
                 ClippedRirWarning,
-                stacklevel=5,
+                stacklevel=6,  # the caller of run_rirs / run_loudspeakers
             )
 
 
