@@ -91,6 +91,7 @@ from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
+from rangeslam.verdict.checks import consistency_check
 from rangeslam.verdict.thresholds import CHI2_LEVEL
 
 __all__ = ["EkfRangeOptions", "ekf_range_odometry"]
@@ -536,8 +537,9 @@ def _kept_ranges_misfit(
     data: BaselineData, poses: np.ndarray, beacons: np.ndarray, scale, bias, inlier, sigma: float
 ) -> str:
     """Why the ranges the filter kept do not fit its answer ('' when they do): their residuals
-    against the final beacons and calibration, at the filtered poses, have a mean square above
-    ``sigma``^2 times the chi-square's upper :data:`CHI2_LEVEL` quantile per degree of freedom.
+    against the final beacons and calibration, at the filtered poses, fail the chi-square test
+    of :func:`~rangeslam.verdict.checks.consistency_check` (their sum of squares above
+    ``sigma``^2 times the upper :data:`CHI2_LEVEL` quantile, one degree of freedom per range).
     The gate alone lets a wrong state keep ranges up to its edge: with known beacons and a start
     0.3 m off their frame (simulated rooms, seeds 11-13) the kept ranges' RMS was 2.9-3.4 range
     noises, where a right answer's was 0.96-0.99 (and 1.00-1.03 with 5 % wrong picks gated)."""
@@ -547,12 +549,12 @@ def _kept_ranges_misfit(
     j = data.range_beacon[kept]
     dist = np.linalg.norm(poses[data.range_pose[kept], :2] - beacons[j], axis=1)
     model = dist * (1.0 if scale is None else scale[j]) + (0.0 if bias is None else bias[j])
-    mean_square = float(np.mean((data.ranges[kept] - model) ** 2))
-    limit = sigma**2 * chi2.ppf(CHI2_LEVEL, len(kept)) / len(kept)
-    if mean_square <= limit:
+    residuals = data.ranges[kept] - model
+    if consistency_check(residuals, None, len(kept), sigma, 1.0, 0.0, tail=False).passed:
         return ""
+    rms = float(np.sqrt(np.mean(residuals**2)))
     return (
-        f"the {len(kept)} ranges kept fit the answer to {np.sqrt(mean_square):.3g} m RMS, above "
+        f"the {len(kept)} ranges kept fit the answer to {rms:.3g} m RMS, above "
         f"the {sigma:.3g} m range noise (chi-square at {CHI2_LEVEL}): the state and its ranges "
         "disagree (a start_pose outside the known beacons' frame, or a range model that does not "
         "fit)"
