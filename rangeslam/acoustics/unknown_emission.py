@@ -279,10 +279,9 @@ def with_unknown_emission(
         for e, t in zip(echoes, taus, strict=True)
     ]
     if any(moved):
-        taus = taus + [e[0] if m else 0.0 for e, m in zip(echoes, moved, strict=True)]
-        stds = np.where(
-            moved, [e[1] if m else 0.0 for e, m in zip(echoes, moved, strict=True)], stds
-        )
+        for j in np.flatnonzero(moved):
+            taus[j] += echoes[j][0]
+            stds[j] = echoes[j][1]
         log.info("unknown emission: the echoes moved the offsets to %s s; running again", taus)
         res = _run_screened(run, _advanced(sets, taus, fs))
     res = _with_screens(res, screens)
@@ -316,7 +315,9 @@ def _with_screens(res, screens: Sequence[Any]):
     """``res`` with the flags of the RIRs as given (``screens``, J * M rows) and its message's
     notes on them (the run on the advanced RIRs saw the masked rows as silent ones)."""
     flags = {k: np.concatenate([getattr(s, k) for s in screens]) for k in _FLAGS}
-    kept = [n for n in res.message.split("; ") if n == NOT_FINITE]
+    # run_rirs's verdict turned a converged pipeline with an answer not finite into SOLVER_FAILED
+    failed = Status(res.result.status) is Status.CONVERGED and res.status is Status.SOLVER_FAILED
+    kept = [NOT_FINITE] if failed else []
     notes = rir_notes(
         flags["silent"], flags["clipped"], flags["masked"], np.asarray(res.no_echoes),
         screens[0].clipped_mode,
