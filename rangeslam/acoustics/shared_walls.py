@@ -163,28 +163,26 @@ def _free_peaks(
     image source (first or higher order), at or after the direct path; the peaks of its columns
     ``freed`` (walls left out) count as free."""
     d_src = np.linalg.norm(pts - lab.source, axis=1)
-    ranges, usable = [], []
-    taken = _taken(lab, pts, dets, c, freed)
-    for m, det in enumerate(dets):
-        r = np.asarray(det.times, dtype=float) * c
-        u = r >= d_src[m] - lab.tolerance
-        u[taken[m]] = False
-        ranges.append(r)
+    ranges = [np.asarray(det.times, dtype=float) * c for det in dets]
+    usable = []
+    for m, taken in enumerate(_taken(lab, pts, ranges, freed)):
+        u = ranges[m] >= d_src[m] - lab.tolerance
+        u[taken] = False
         usable.append(u)
     return Peaks(ranges, usable)
 
 
-def _taken(lab: EchoLabelling, pts, dets, c: float, freed: Sequence[int] = ()) -> list[list[int]]:
-    """Per microphone, the peaks of the labelling's columns (but ``freed``) and of its
-    higher-order points (the peak nearest each point's predicted range, within the fit
-    tolerance)."""
+def _taken(lab: EchoLabelling, pts, ranges, freed: Sequence[int] = ()) -> list[list[int]]:
+    """Per microphone, the peaks (of ``ranges``, M lists, metres) of the labelling's columns (but
+    ``freed``) and of its higher-order points (the peak nearest each point's predicted range,
+    within the fit tolerance)."""
     keep = np.setdiff1d(np.arange(lab.peaks.shape[1]), np.asarray(freed, dtype=int))
     out = [[int(p) for p in lab.peaks[m, keep] if p >= 0] for m in range(len(pts))]
     for x in lab.higher_order:
         pred = np.linalg.norm(pts - x, axis=1)
-        for m, det in enumerate(dets):
-            if len(det.times):
-                e = np.abs(np.asarray(det.times) * c - pred[m])
+        for m, r in enumerate(ranges):
+            if len(r):
+                e = np.abs(r - pred[m])
                 if e.min() <= lab.fit_tolerance:
                     out[m].append(int(np.argmin(e)))
     return out
