@@ -80,7 +80,7 @@ class IsamRun:
     ):
         """An iSAM2 instance and a graph holding the gauge prior on pose 0 at ``start`` (3,), or
         with ``known`` beacons their priors and a loose prior on pose 0 (module notes of
-        :mod:`rangeslam.beacons.known`)."""
+        :mod:`rangeslam.beacons.known`), the known beacons placed at their positions."""
         import gtsam
 
         self.gtsam, self.data, self.cfg, self.isam_cfg = gtsam, data, cfg, isam_cfg
@@ -111,6 +111,8 @@ class IsamRun:
             self.add(gtsam.PriorFactorPose2(key_x(0), gtsam.Pose2(*start), model))
             for factor in known_priors(gtsam, known, cfg.range_sigma, key_l):
                 self.add(factor)
+            for j in np.flatnonzero(known.known):
+                self.place(int(j), known.positions[j])
         self.window_rows: list[int] = []
         self.log = WindowLog()
         self.fresh = self.updates = self.k = 0
@@ -350,9 +352,6 @@ def beacon_slam_incremental(
     if known is not None:
         dr = known_start(data, dr, cfg.window_length, known)
     run = IsamRun(data, cfg, isam_cfg, dr[0], known)
-    if known is not None:
-        for j in np.flatnonzero(known.known):
-            run.place(int(j), known.positions[j])
     consume(run, dr, rng)
     estimate, poses, settled = settle(run)
     refined = polish(run, estimate, poses, POLISH_ITERATIONS, known)
