@@ -161,10 +161,10 @@ def _numbers(path, number, kind, fields, *, keep_last_word=False) -> list[float]
     except ValueError as exc:
         raise InvalidInputError(f"{path}, line {number}: {kind}: {exc}") from exc
     if not np.all(np.isfinite(values)):
-        name = BEACON_LOG_FIELDS[kind][int(np.argmax(~np.isfinite(values)))]
+        bad = int(np.argmax(~np.isfinite(values)))
         raise InvalidInputError(
-            f"{path}, line {number}: {kind}: numbers must be finite; {name} is "
-            f"{values[int(np.argmax(~np.isfinite(values)))]}"
+            f"{path}, line {number}: {kind}: numbers must be finite; "
+            f"{BEACON_LOG_FIELDS[kind][bad]} is {values[bad]}"
         )
     return values
 
