@@ -190,7 +190,9 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
     if not path.is_file():
         raise InvalidInputError(f"beacon log {path} is not a file")
     records, settings = _records(path)
-    rows: dict[str, list] = {kind: [] for kind in (*BEACON_LOG_KINDS, "steps")}
+    # the step records (odometry, speed, wheels) together, in file order, as "steps"
+    rows: dict[str, list] = {kind: [] for kind in BEACON_LOG_KINDS if kind not in STEP_KINDS}
+    rows["steps"] = []
     for number, kind, fields in records:
         is_beacon = kind == "beacon"
         if is_beacon and (not fields or fields[-1].lower() not in ("known", "truth")):
@@ -198,9 +200,10 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
                 f"{path}, line {number}: a beacon record ends in 'known' or 'truth'"
             )
         values = _numbers(path, number, kind, fields, keep_last_word=is_beacon)
-        rows[kind].append((number, values, fields[-1].lower() if is_beacon else None))
         if kind in STEP_KINDS:
             rows["steps"].append((number, kind, values))
+        else:
+            rows[kind].append((number, values, fields[-1].lower() if is_beacon else None))
     if len(rows["start"]) != 1:
         raise InvalidInputError(
             f"{path}: a beacon log has one start record; got {len(rows['start'])}"
