@@ -365,16 +365,14 @@ def room_from_loudspeakers(
         return RoomFromLoudspeakers(dets, labs, empty, (), None, Status.NOT_IDENTIFIABLE, msg)
     walls = [_walls_of(labs[j]) for j in usable]
     cols = match_walls([w[0] for w in walls], [w[1] for w in walls])
-    columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
-    columns[usable] = cols
-    ranges, masks = _joint_ranges([labs[j] for j in usable], cols)
+    ulabs, udets = [labs[j] for j in usable], [dets_j[j] for j in usable]
+    ranges, masks = _joint_ranges(ulabs, cols)
     tol = max(labs[j].tolerance for j in usable)
     ropts = {"inlier_threshold": 2.0 * tol, **(reconstruct_options or {})}
     rec = reconstruct_room(pts, ranges, mask=masks, rng=rng, **ropts)
     dropped = ""
     if rec.room is None:
-        cols, rec, dropped = _drop_lone_wall(pts, [labs[j] for j in usable], cols, rec, ropts, rng)
-    ulabs, udets = [labs[j] for j in usable], [dets_j[j] for j in usable]
+        cols, rec, dropped = _drop_lone_wall(pts, ulabs, cols, rec, ropts, rng)
     cols, rec, freed, denied = _drop_contradicted(pts, ulabs, udets, cols, rec, ropts, c, rng)
     columns = np.zeros((len(labs), cols.shape[1]), dtype=int)
     columns[usable] = cols
