@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rangeslam.app.progress import format_seconds
-from rangeslam.app.run_recordings import deconvolve_loaded
+from rangeslam.app.run_recordings import deconvolve_loaded, emission_lines, emission_plot_rirs
 from rangeslam.logsteps import logged_step
 
 __all__ = [
@@ -330,7 +330,6 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
     import warnings
 
     from rangeslam.acoustics.pipeline import run_rirs
-    from rangeslam.app.run_recordings import emission_plot_rirs
     from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 
     loaded = inputs = res = error = None
@@ -409,7 +408,6 @@ def _run_loudspeakers(args: argparse.Namespace, sets: list, inputs: RunInputs):
     import numpy as np
 
     from rangeslam.acoustics.pipeline import run_loudspeakers
-    from rangeslam.app.run_recordings import emission_plot_rirs
     from rangeslam.errors import InvalidInputError
 
     if inputs.mics is None:
@@ -593,7 +591,6 @@ def _loudspeaker_lines(res, lines: list[str], record: dict) -> None:
 def _run(args: argparse.Namespace) -> int:
     """The body of :func:`run`."""
     from rangeslam.app.reports import versions, write_summary
-    from rangeslam.app.run_recordings import emission_lines
     from rangeslam.app.run_report import (
         array_report,
         report_header,
