@@ -134,10 +134,7 @@ def float_in(low: float, high: float, unit: str = ""):
     """An argument type: a number in [low, high] (``unit`` after the limits in the message)."""
 
     def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"must be a number; got {shown(text)}") from None
+        value = _number(text)
         if not low <= value <= high:
             raise argparse.ArgumentTypeError(
                 f"must be from {low:g} to {high:g}{unit}; got {shown(text)}"
