@@ -275,6 +275,11 @@ def _next_command(path: Path, flag: str) -> str:
     return f"rangeslam run {shlex.quote(str(path))} {flag}"
 
 
+def _room_flags(args: argparse.Namespace) -> str:
+    """The options of the ``rangeslam run`` suggested after ``simulate room``."""
+    return "--mics-from-npz" + (" --unknown-emission" if args.delay else "")
+
+
 def simulate_room(args: argparse.Namespace) -> int:
     """``rangeslam simulate room``: the RIRs of a loudspeaker (or J, one file each) at M
     microphones, and the truth."""
@@ -310,10 +315,7 @@ def _simulate_loudspeakers(args: argparse.Namespace, room) -> int:
         code = _simulate_one(args, room, src, path, say_next=False, index=j)
         if code:
             return code
-    more = " --unknown-emission" if args.delay else ""
-    print(
-        f"next: rangeslam run {' '.join(shlex.quote(str(p)) for p in paths)} --mics-from-npz{more}"
-    )
+    print(f"next: rangeslam run {' '.join(shlex.quote(str(p)) for p in paths)} {_room_flags(args)}")
     return 0
 
 
@@ -373,8 +375,7 @@ def _simulate_one(
         "mics, source, " + ("room_size, " if truth else "") + "wall_normals, wall_offsets"
     )
     if say_next:
-        more = " --unknown-emission" if args.delay else ""
-        print(f"next: {_next_command(out, '--mics-from-npz' + more)}")
+        print(f"next: {_next_command(out, _room_flags(args))}")
     return 0
 
 
