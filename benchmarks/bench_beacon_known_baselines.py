@@ -40,15 +40,10 @@ ESTIMATORS = {
 }
 
 
-def mean_ape(result, run) -> float:
+def errors(result, run) -> tuple[float, float]:
+    """(mean APE, the largest beacon error) [m] after the poses' rigid alignment."""
     fit = ape(result.poses[:, :2], run.poses[:, :2], result.beacons, run.beacons)
-    return float(ape_statistics(fit.errors).mean)
-
-
-def worst_beacon(result, run) -> float:
-    """The largest beacon error [m] after the poses' rigid alignment."""
-    fit = ape(result.poses[:, :2], run.poses[:, :2], result.beacons, run.beacons)
-    return float(np.nanmax(fit.beacon_errors))
+    return float(ape_statistics(fit.errors).mean), float(np.nanmax(fit.beacon_errors))
 
 
 def known_table(seeds) -> str:
@@ -59,10 +54,10 @@ def known_table(seeds) -> str:
             plain = run_it(run.data, seed)
             known = run_it(run.data, seed, beacons=run.beacons)
             moved = float(np.max(np.linalg.norm(known.beacons - run.beacons, axis=1)))
+            (plain_ape, plain_worst), (known_ape, _) = errors(plain, run), errors(known, run)
             rows.append(
-                [name, seed, f"{mean_ape(plain, run):.4g}", f"{worst_beacon(plain, run):.2g}",
-                 plain.status.name,
-                 f"{mean_ape(known, run):.4g}", known.status.name, f"{moved:.2g}"]
+                [name, seed, f"{plain_ape:.4g}", f"{plain_worst:.2g}", plain.status.name,
+                 f"{known_ape:.4g}", known.status.name, f"{moved:.2g}"]
             )  # fmt: skip
     header = [
         "method",
@@ -82,9 +77,7 @@ def verdict_table(first: int, runs: int) -> str:
     for seed in range(first, first + runs):
         run = simulate_beacon_run(np.random.default_rng(seed), range_rate=0.1)
         res = gtsam_range_example(run.data, rng=np.random.default_rng(seed))
-        by_status.setdefault(res.status.name, []).append(
-            (mean_ape(res, run), worst_beacon(res, run))
-        )
+        by_status.setdefault(res.status.name, []).append(errors(res, run))
     rows = []
     for status, pairs in sorted(by_status.items()):
         a, b = np.array(pairs).T
