@@ -93,23 +93,15 @@ class RunAttempt:
 
 def read_matrix(path: Path, flag: str):
     """A numeric matrix from .npy, or .csv / .txt (comma- or whitespace-separated, '#' comments)."""
-    import numpy as np
-
+    from rangeslam.datasets.rir_files import read_numbers
     from rangeslam.errors import DataFormatError, InvalidInputError
 
     if not path.is_file():
         raise InvalidInputError(f"{flag} {path}: no such file")
     try:
-        if path.suffix.lower() == ".npy":
-            arr = np.load(path, allow_pickle=False)
-        else:
-            text = path.read_text()
-            delimiter = "," if "," in text else None
-            arr = np.loadtxt(path, delimiter=delimiter, ndmin=2)
-        arr = np.asarray(arr, dtype=float)
+        return read_numbers(path, ndmin=2)
     except (OSError, ValueError) as exc:
         raise DataFormatError(f"{flag} {path}: not a readable numeric matrix ({exc})") from exc
-    return arr
 
 
 def load_for_run(args: argparse.Namespace):

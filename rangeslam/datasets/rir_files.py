@@ -24,7 +24,7 @@ from rangeslam._validation import as_float_array, as_scalar, frozen, shape_str
 from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 
-__all__ = ["LoadedRirs", "SilentRirWarning", "load_excitation", "load_rirs"]
+__all__ = ["LoadedRirs", "SilentRirWarning", "load_excitation", "load_rirs", "read_numbers"]
 
 
 # scipy.io.wavfile's warnings when a file ends before its RIFF header says (scipy 1.x wording).
@@ -442,13 +442,8 @@ def load_excitation(path: str | Path) -> tuple[float | None, np.ndarray]:
         x = x[0]
     else:
         try:
-            if p.suffix.lower() == ".npy":
-                x = np.load(p, allow_pickle=False)
-            else:
-                text = p.read_text()
-                x = np.loadtxt(p, delimiter="," if "," in text else None, ndmin=1)
-            x = np.asarray(x, dtype=float)
-        except (OSError, ValueError, UnicodeDecodeError) as exc:
+            x = read_numbers(p, ndmin=1)
+        except (OSError, ValueError) as exc:  # UnicodeDecodeError is a ValueError
             raise DataFormatError(f"{p}: not a readable excitation ({exc})") from exc
         if x.ndim == 2 and 1 in x.shape:
             x = x.reshape(-1)
@@ -462,3 +457,15 @@ def load_excitation(path: str | Path) -> tuple[float | None, np.ndarray]:
     if not np.any(x):
         raise DataFormatError(f"{p}: every sample is 0; an excitation must play something")
     return rate, frozen(x)
+
+
+def read_numbers(path: Path, *, ndmin: int) -> np.ndarray:
+    """The float64 array of an ``.npy``, or of a ``.csv`` / ``.txt`` (comma- or
+    whitespace-separated, '#' comments; at least ``ndmin`` dimensions). Raises what numpy
+    raises (OSError, ValueError): each caller names the file and what it wanted."""
+    if path.suffix.lower() == ".npy":
+        arr = np.load(path, allow_pickle=False)
+    else:
+        text = path.read_text()
+        arr = np.loadtxt(path, delimiter="," if "," in text else None, ndmin=ndmin)
+    return np.asarray(arr, dtype=float)
