@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.io import wavfile
+from sessions import two_loudspeaker_session, wall_errors
 
 from rangeslam import InvalidInputError
 from rangeslam.acoustics.deconvolution import (
@@ -108,34 +109,16 @@ def test_bad_excitation_settings_are_refused_naming_the_argument(make, match):
         make()
 
 
-def _session(tmp_path, room: str, seed: int, sim: list[str], run: list[str]):
-    """``simulate room --sources 2`` with ``sim`` flags, then ``run`` with ``run`` flags; (exit
-    code, the run's JSON record, the two npz)."""
-    stem = tmp_path / "session.npz"
-    argv = ["simulate", "room", "--room", room, "--sources", "2", "--seed", str(seed), *sim]
-    assert main([*argv, "--out", str(stem)]) == 0
-    files = [str(tmp_path / f"session-src{j}.npz") for j in range(2)]
-    out = tmp_path / "out"
-    code = main(["run", *files, *run, "--out", str(out)])
-    record = json.loads((out / "run_summary.json").read_text())
-    return code, record, [np.load(f) for f in files]
-
-
-def _wall_errors(record) -> np.ndarray:
-    """The true walls' errors, metres (inf: not found)."""
-    return np.array([np.inf if e is None else e for e in record["wall_errors_m"].values()])
-
-
 def test_two_loudspeakers_from_sweep_recordings_give_every_wall(tmp_path):
     """A shoebox session of two loudspeakers written as recordings of a sweep (npz
     ``recordings`` and ``excitation``, no RIRs) and run as they are: converged, every wall and
     both loudspeakers within 1 cm."""
-    code, record, files = _session(
-        tmp_path, "shoebox", SEEDS["shoebox"], ["--recordings", "sweep"], []
+    code, record, files = two_loudspeaker_session(
+        tmp_path, "shoebox", SEEDS["shoebox"], sim=["--recordings", "sweep"]
     )
     assert "rirs" not in files[0] and len(files[0]["recordings"]) == len(files[0]["mics"])
     assert code == 0 and record["converged"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(errors) == 6 and np.all(errors <= WALL_TOL), errors
     true = np.array([f["source"] for f in files])
     assert np.allclose(record["sources"], true, atol=WALL_TOL)
@@ -146,11 +129,11 @@ def test_non_box_room_from_recordings_finds_what_its_rirs_find(tmp_path):
     found within 1 cm, and the same walls found as from the session's RIRs themselves (the cut
     wall, when missed, is missed by the RIR-file run too: tests/test_run_sessions.py). Measured
     with 12 microphones: all 7 walls within 0.06 mm."""
-    code, record, files = _session(
-        tmp_path, "cut-corner", SEEDS["cut-corner"], ["--recordings", "mls"], []
+    code, record, files = two_loudspeaker_session(
+        tmp_path, "cut-corner", SEEDS["cut-corner"], sim=["--recordings", "mls"]
     )
     assert code == 0 and record["converged"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert np.isfinite(errors).sum() >= 6
     assert np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors
     for j, f in enumerate(files):
@@ -158,7 +141,7 @@ def test_non_box_room_from_recordings_finds_what_its_rirs_find(tmp_path):
                  **{k: f[k] for k in ("fs", "c", "mics", "source", "wall_normals", "wall_offsets")})  # fmt: skip
     out = tmp_path / "rir-run"
     main(["run", str(tmp_path / "rirs0.npz"), str(tmp_path / "rirs1.npz"), "--out", str(out)])
-    direct = _wall_errors(json.loads((out / "run_summary.json").read_text()))
+    direct = wall_errors(json.loads((out / "run_summary.json").read_text()))
     assert np.array_equal(np.isfinite(direct), np.isfinite(errors))
 
 
@@ -167,11 +150,11 @@ def test_unknown_emission_recovers_the_delays_and_the_walls(tmp_path):
     emission, run with --unknown-emission: converged, every wall and both loudspeakers within
     1 cm, each delay within a tenth of a sample, with a positive std reported in the summary."""
     sim = ["--recordings", "mls", "--delay", "0.05"]
-    code, record, files = _session(
-        tmp_path, "shoebox", SEEDS["delayed"], sim, ["--unknown-emission"]
+    code, record, files = two_loudspeaker_session(
+        tmp_path, "shoebox", SEEDS["delayed"], sim=sim, run=["--unknown-emission"]
     )
     assert code == 0 and record["converged"]
-    assert np.all(_wall_errors(record) <= WALL_TOL), _wall_errors(record)
+    assert np.all(wall_errors(record) <= WALL_TOL), wall_errors(record)
     assert np.allclose(record["sources"], [f["source"] for f in files], atol=WALL_TOL)
     true = np.array([float(f["emission_delay"]) for f in files])
     assert np.all(true > 1e-4)  # 3.4 cm of range or more: beyond the walls' 1 cm
@@ -194,10 +177,10 @@ def test_a_delayed_recording_without_the_flag_is_not_a_room(tmp_path):
     out = tmp_path / "out"
     code = main(["run", str(path), "--out", str(out)])
     record = json.loads((out / "run_summary.json").read_text())
-    assert code == 1 or np.any(_wall_errors(record) > WALL_TOL)
+    assert code == 1 or np.any(wall_errors(record) > WALL_TOL)
     code = main(["run", str(path), "--unknown-emission", "--out", str(out)])
     record = json.loads((out / "run_summary.json").read_text())
-    assert code == 0 and np.all(_wall_errors(record) <= WALL_TOL), _wall_errors(record)
+    assert code == 0 and np.all(wall_errors(record) <= WALL_TOL), wall_errors(record)
     assert abs(record["emission_offset_errors_s"][0]) <= OFFSET_TOL
 
 

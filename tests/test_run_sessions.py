@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from sessions import two_loudspeaker_session, wall_errors
 
 from rangeslam import InvalidInputError
 from rangeslam.acoustics.joint_room import match_walls
@@ -28,22 +29,11 @@ def _session(tmp_path, room: str, *extra: str, seed: int | None = None, mics: st
     """Simulate a two-loudspeaker session (``seed``, default SESSION_SEEDS[room]; ``mics``,
     default simulate's) and run it (with ``extra`` flags); (exit code, record, the two npz)."""
     seed = SESSION_SEEDS[room] if seed is None else seed
-    stem = tmp_path / "session.npz"
-    sim = ["simulate", "room", "--room", room, "--sources", "2", "--seed", str(seed)]
-    sim += [] if mics is None else ["--mics", mics]
-    assert main([*sim, "--out", str(stem)]) == 0
-    files = [str(tmp_path / f"session-src{j}.npz") for j in range(2)]
-    a, b = (np.load(f) for f in files)
+    sim = [] if mics is None else ["--mics", mics]
+    code, record, (a, b) = two_loudspeaker_session(tmp_path, room, seed, sim=sim, run=extra)
     np.testing.assert_array_equal(a["mics"], b["mics"])
     assert np.linalg.norm(a["source"] - b["source"]) > 0.3
-    out = tmp_path / "out"
-    code = main(["run", *files, *extra, "--out", str(out)])
-    return code, json.loads((out / "run_summary.json").read_text()), (a, b)
-
-
-def _wall_errors(record) -> np.ndarray:
-    """The true walls' errors, metres (inf: not found; the JSON writes it as null)."""
-    return np.array([np.inf if e is None else e for e in record["wall_errors_m"].values()])
+    return code, record, (a, b)
 
 
 @pytest.mark.parametrize(
@@ -56,7 +46,7 @@ def test_two_loudspeakers_through_run_give_every_wall(tmp_path, room, seed):
     code, record, (a, b) = _session(tmp_path, room, seed=seed)
     assert len(a["mics"]) == 12
     assert code == 0 and record["converged"], record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(errors) == len(a["wall_normals"]) == len(record["walls"])
     true = np.array([a["source"], b["source"]])
     assert np.allclose(record["sources"], true, atol=WALL_TOL)
@@ -70,7 +60,7 @@ def test_a_wall_each_loudspeaker_hears_at_three_microphones_is_found_jointly(tmp
     code, record, _ = _session(tmp_path, "cut-corner", seed=618300, mics="8")
     assert code == 0 and record["converged"], record["message"]
     assert "found jointly" in record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 7 and np.all(errors <= WALL_TOL), errors
 
 
@@ -155,7 +145,7 @@ def test_run_estimates_the_speed_of_sound(tmp_path, room):
     error = abs(record["c_estimated"] - float(truth["c"]))
     assert error <= 1.0 and error <= 3 * max(record["c_std"], 1e-3)
     assert record["source_error_m"] <= WALL_TOL
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors
     assert np.isfinite(errors).sum() >= 6
 
@@ -196,7 +186,7 @@ def test_two_loudspeakers_estimate_the_speed_of_sound_together(tmp_path):
     code, record, (a, _) = _session(tmp_path, "shoebox", "--c", "345")
     assert code == 0 and record["converged"], record["message"]
     assert abs(record["c_estimated"] - float(a["c"])) <= 1.0
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(errors) == 6 and np.all(errors <= WALL_TOL), errors
 
 
@@ -207,7 +197,7 @@ def test_a_wrong_wall_one_loudspeaker_labelled_is_left_out(tmp_path, monkeypatch
     monkeypatch.setitem(SESSION_SEEDS, "shoebox", 618299)
     code, record, _ = _session(tmp_path, "shoebox", mics="8")
     assert code == 0 and "left out wall" in record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 6 and np.all(errors <= WALL_TOL), errors
 
 
@@ -243,7 +233,7 @@ def test_a_wall_the_other_loudspeaker_does_not_hear_is_left_out(tmp_path):
     assert code == 0 and record["converged"], record["message"]
     assert "echoes of it are absent at 2 of the 2" in record["message"], record["message"]
     assert "found jointly" in record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 7 and np.all(errors <= WALL_TOL), errors
 
 
@@ -254,7 +244,7 @@ def test_measured_preset_runs_several_loudspeakers(tmp_path):
     refused ("--measured takes one loudspeaker")."""
     code, record, (a, b) = _session(tmp_path, "shoebox", "--measured")
     assert code == 0 and record["converged"], record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 6 and np.all(errors <= WALL_TOL), errors
     assert np.allclose(record["sources"], [a["source"], b["source"]], atol=WALL_TOL)
 
@@ -284,7 +274,7 @@ def test_a_wall_left_out_whose_echoes_stay_unexplained_is_not_converged(tmp_path
     assert code == 1 and not record["converged"], record["message"]
     assert "echoes of it are absent" in record["message"], record["message"]
     assert "stay unexplained" in record["message"], record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 6 and np.all(errors[np.isfinite(errors)] <= WALL_TOL), errors
 
 
@@ -319,5 +309,5 @@ def test_an_echo_set_the_predicted_echoes_deny_is_not_left_unexplained(tmp_path)
     code, record, _ = _session(tmp_path, "cut-corner", seed=762848)
     assert code == 0 and record["converged"], record["message"]
     assert "echoes left unexplained" not in record["message"], record["message"]
-    errors = _wall_errors(record)
+    errors = wall_errors(record)
     assert len(record["walls"]) == 7 and np.all(errors <= WALL_TOL), errors
