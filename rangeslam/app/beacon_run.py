@@ -19,10 +19,9 @@ __all__ = ["beacon_log_given", "beacon_run"]
 
 
 def beacon_log_given(paths: list[Path]) -> bool:
-    """True when ``rangeslam run`` was given one file and it is a beacon log."""
-    from rangeslam.datasets.beacon_log import is_beacon_log
-
-    return len(paths) == 1 and is_beacon_log(paths[0])
+    """True when ``rangeslam run`` was given one .csv or .txt file: a beacon log (RIRs are never
+    text), so a file not in the format is refused naming the line that broke it."""
+    return len(paths) == 1 and paths[0].suffix.lower() in (".csv", ".txt") and paths[0].is_file()
 
 
 #: ``rangeslam run``'s options for RIRs (dest: flag), refused with a beacon log rather than
@@ -43,9 +42,16 @@ def _rir_flags(args: argparse.Namespace) -> list[str]:
     ]
 
 
+#: The kernel on the range factors of a beacon log's run (beacon_slam's default, named here so
+#: the report can say it): ranges 40 sigmas long, 5% of them, are found and the path stays within
+#: the noise (README, "Beacon logs"; Cauchy and Tukey did about as well).
+RUN_KERNEL = "huber"
+
+
 def _settings(log) -> dict:
-    """beacon_slam's keywords from what the log states (the rest derived from its data)."""
-    settings: dict = {}
+    """beacon_slam's keywords from what the log states (the rest derived from its data), and
+    the robust kernel :data:`RUN_KERNEL`."""
+    settings: dict = {"robust": RUN_KERNEL}
     if log.range_sigma is not None:
         settings["range_sigma"] = log.range_sigma
     if log.odometry_sigma is not None:
@@ -71,6 +77,69 @@ def _against_truth(log, res) -> list[str]:
     return lines
 
 
+def _outlier_lines(log, res, record: dict) -> list[str]:
+    """Report lines on the ranges the fit does not explain (beyond 3 range sigmas of it:
+    ``res.range_inlier``; ranges to beacons never placed are unused, not outliers): how many,
+    per beacon, their lines in the file; the counts and every line in ``record``."""
+    from rangeslam.beacons.defaults import range_noise
+
+    d = log.data
+    placed = np.all(np.isfinite(res.beacons), axis=1)[d.range_beacon]
+    out = placed & ~np.asarray(res.range_inlier, dtype=bool)
+    sigma, said = log.range_sigma, "stated"
+    if sigma is None:
+        sigma, said = range_noise(d), "from the data"
+    where = log.range_lines[out] if log.range_lines is not None else np.array([], dtype=int)
+    record.update(
+        n_ranges=len(d.ranges),
+        n_outliers=int(out.sum()),
+        outlier_threshold_m=3.0 * sigma,
+        outlier_lines=[int(n) for n in where],
+    )
+    per_beacon = [
+        f"{int(b)}: {int(out[d.range_beacon == k].sum())} of {int(np.sum(d.range_beacon == k))}"
+        for k, b in enumerate(d.beacon_ids)
+    ]
+    text = [
+        f"- outliers: {int(out.sum())} of {len(d.ranges)} ranges ({100 * out.mean():.1f}%) are "
+        f"more than 3 range sigmas ({3 * sigma:.3g} m, sigma {said}) off the fit, which the "
+        f"robust kernel ({RUN_KERNEL}) down-weighted; per beacon: {', '.join(per_beacon)}"
+    ]
+    if out.any():
+        more = " ..." if out.sum() > 10 else ""
+        text.append(
+            f"- outlying ranges on lines {', '.join(str(int(n)) for n in where[:10])}{more} "
+            "(all in run_summary.json, outlier_lines)"
+        )
+    for k, b in enumerate(d.beacon_ids):
+        mine = d.range_beacon == k
+        if np.any(placed[mine]) and 2 * np.sum(out[mine]) >= np.sum(mine):
+            text.append(
+                f"- warning: beacon {int(b)} kept at most half of its ranges: it is placed "
+                "against the other half of its data"
+            )
+    return text
+
+
+def _as_json(value):
+    """A calibration for the JSON: None, a float (shared), or a list (per beacon)."""
+    if value is None:
+        return None
+    return float(value) if np.ndim(value) == 0 else np.asarray(value, dtype=float).tolist()
+
+
+def _calibration_lines(res, record: dict) -> list[str]:
+    """The range calibration found (measured = scale x distance + bias) in the report and in
+    ``record``: floats when one is shared by the beacons (beacon_slam's default)."""
+    scale, bias = res.range_scale, res.range_bias
+    record.update(range_scale=_as_json(scale), range_bias=_as_json(bias))
+    if np.ndim(scale) or np.ndim(bias):
+        return []
+    scale = 1.0 if scale is None else scale
+    bias = 0.0 if bias is None else bias
+    return [f"- range calibration (shared): measured = {scale:.5g} x distance + {bias:.3g} m"]
+
+
 def _plot(out: Path, log, res) -> Path:
     """run_trajectory.png: the path and the beacons placed, rigidly aligned onto the file's
     truth when it has one (with the true beacons)."""
@@ -92,7 +161,7 @@ def _plot(out: Path, log, res) -> Path:
     )  # fmt: skip
 
 
-def _write(out: Path, log, res, lines: list[str]) -> list[Path]:
+def _write(out: Path, log, res, lines: list[str], extra: dict) -> list[Path]:
     """run_summary.md / .json, run_trajectory.csv and run_landmarks.csv in ``out``."""
     from rangeslam.app.reports import versions, write_csv, write_summary
     from rangeslam.app.run_command import clear_run_files
@@ -118,8 +187,7 @@ def _write(out: Path, log, res, lines: list[str]) -> list[Path]:
         "method": res.method,
         "status": res.status.name,
         "message": res.message,
-        "range_scale": None if res.range_scale is None else float(np.nanmedian(res.range_scale)),
-        "range_bias": None if res.range_bias is None else float(np.nanmedian(res.range_bias)),
+        **extra,
         "seconds": res.seconds,
     }
     summary = write_summary(out / "run_summary.json", **record, versions=versions())
@@ -149,7 +217,7 @@ def beacon_run(args: argparse.Namespace) -> int:
     except SolverError as exc:
         print(f"rangeslam: not converged: {exc}", file=sys.stderr)
         return 1
-    d = log.data
+    d, extra = log.data, {}
     lines = [
         f"# Beacon log {log.path.name}",
         "",
@@ -158,9 +226,11 @@ def beacon_run(args: argparse.Namespace) -> int:
             f" ({int(np.sum(np.isfinite(log.known[:, 0])))} known)" if log.known is not None else ""
         ),
         f"- {res.method}: {res.status.name} in {res.seconds:.1f} s ({res.message})",
+        *_outlier_lines(log, res, extra),
+        *_calibration_lines(res, extra),
         *_against_truth(log, res),
     ]
-    written = _write(args.out, log, res, lines)
+    written = _write(args.out, log, res, lines, extra)
     print("\n".join(lines))
     print("\nwritten: " + ", ".join(str(p) for p in written))
     if not res.converged:

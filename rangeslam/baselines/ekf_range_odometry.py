@@ -87,7 +87,7 @@ from rangeslam.baselines.odometry_only import BaselineData, baseline_data
 from rangeslam.beacons.data import RangeOdometry
 from rangeslam.beacons.known import check_known_positions
 from rangeslam.beacons.options import RANGE_CALIBRATIONS
-from rangeslam.beacons.result import BeaconSlamResult
+from rangeslam.beacons.result import BeaconSlamResult, as_calibration
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
@@ -524,11 +524,11 @@ def _verdict(
         pose_time=frozen(np.array(data.pose_time, dtype=float)),
         poses=frozen(poses),
         beacons=frozen(beacons),
-        range_bias=frozen(bias) if opts.has_b else None,
+        range_bias=as_calibration(bias, opts.per_beacon) if opts.has_b else None,
         range_inlier=frozen(st.inlier),
         status=status,
         message="; ".join(notes),
-        range_scale=frozen(scale) if opts.has_s else None,
+        range_scale=as_calibration(scale, opts.per_beacon) if opts.has_s else None,
         seconds=seconds,
     )
 

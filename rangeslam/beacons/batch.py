@@ -29,7 +29,7 @@ from rangeslam.beacons.graph import (
 from rangeslam.beacons.known import check_known_beacons, known_initialisation
 from rangeslam.beacons.lm import MAX_LM_ITERATIONS, LMReport, levenberg_marquardt
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation
-from rangeslam.beacons.result import BeaconSlamResult, calibration_check
+from rangeslam.beacons.result import BeaconSlamResult, as_calibration, calibration_check
 from rangeslam.beacons.windows import Initialisation, edm_initialisation
 from rangeslam.status import Status
 
@@ -207,13 +207,13 @@ def _verdict(
         pose_time=data.pose_time,
         poses=frozen(refined.poses),
         beacons=frozen(refined.beacons),
-        range_bias=refined.offset,
+        range_bias=as_calibration(refined.offset, cfg.per_beacon),
         range_inlier=range_inliers(
             data, refined.poses, refined.beacons, refined.scale, refined.offset, cfg
         ),
         status=status,
         message="; ".join(notes),
-        range_scale=refined.scale,
+        range_scale=as_calibration(refined.scale, cfg.per_beacon),
         initial_poses=frozen(init.poses),
         initial_beacons=frozen(init.beacons),
         seconds=seconds,

@@ -34,7 +34,7 @@ from rangeslam.beacons.known import KnownBeacons, check_known_beacons, known_pri
 from rangeslam.beacons.lm import LMReport
 from rangeslam.beacons.native import NativeRanges, ScaleSecant, scale_step
 from rangeslam.beacons.options import BeaconSlamOptions, check_initialisation, positive_number
-from rangeslam.beacons.result import BeaconSlamResult, calibration_check
+from rangeslam.beacons.result import BeaconSlamResult, as_calibration, calibration_check
 from rangeslam.beacons.windows import Initialisation, WindowLog, place_window, windows
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import Status
@@ -470,11 +470,11 @@ def _verdict(run: IsamRun, refined: Refinement, settled: bool, seconds: float):
         pose_time=data.pose_time,
         poses=frozen(poses),
         beacons=frozen(beacons),
-        range_bias=offset,
+        range_bias=as_calibration(offset, cfg.per_beacon),
         range_inlier=range_inliers(data, poses, beacons, scale, offset, cfg),
         status=status,
         message="; ".join(notes),
-        range_scale=scale,
+        range_scale=as_calibration(scale, cfg.per_beacon),
         initial_poses=None,
         initial_beacons=frozen(run.beacons0),
         seconds=seconds,

@@ -6,10 +6,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rangeslam._validation import frozen
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import PASSED, Check
 
-__all__ = ["MAX_RELATIVE_BIAS", "MAX_SCALE_ERROR", "BeaconSlamResult", "calibration_check"]
+__all__ = [
+    "MAX_RELATIVE_BIAS",
+    "MAX_SCALE_ERROR",
+    "BeaconSlamResult",
+    "as_calibration",
+    "calibration_check",
+]
 
 
 @dataclass(frozen=True, eq=False)  # arrays: compared by identity
@@ -23,8 +30,9 @@ class BeaconSlamResult(HasStatus):
         poses: (N + 1, 3) x, y [m] and heading [rad] of each pose (headings not wrapped).
         beacons: (B, 2) beacon positions [m], same frame; NaN rows for beacons the method did not
             place (e.g. odometry alone, or a beacon never initialised).
-        range_bias: (B,) the estimated constant range offset per beacon [m] (one value repeated
-            when it is shared); None when the method does not estimate one.
+        range_bias: the estimated constant range offset [m]: a float when one calibration is
+            shared by all beacons (the default), (B,) with one per beacon (``per_beacon``, NaN
+            for beacons not placed); None when the method does not estimate one.
         range_inlier: (R,) True for ranges the estimate accepts (beacon_slam: calibrated
             residual within 3 range_sigma; rangeslam.baselines: their kernel weight or gate); None when
             the method does not use the ranges.
@@ -35,8 +43,8 @@ class BeaconSlamResult(HasStatus):
             never placed; SOLVER_FAILED: the optimiser stalled, did not settle, raised or
             diverged. ``converged`` is derived from it.
         message: why not, or a short description of the stop.
-        range_scale: (B,) estimated range scale 1 + s per beacon (measured = scale * distance +
-            bias); None when not estimated, NaN for beacons not placed (likewise ``range_bias``).
+        range_scale: the estimated range scale 1 + s (measured = scale * distance + bias): a
+            float when shared, (B,) per beacon, as ``range_bias``; None when not estimated.
         initial_poses: (N + 1, 3) the initialisation the optimiser started from (None if none).
         initial_beacons: (B, 2) likewise (NaN for beacons not placed).
         seconds: wall time of the whole estimate [s].
@@ -57,6 +65,19 @@ class BeaconSlamResult(HasStatus):
     initial_beacons: np.ndarray | None = None
     seconds: float = float("nan")
     cost: float = float("nan")
+
+
+def as_calibration(values: np.ndarray | None, per_beacon: bool) -> float | np.ndarray | None:
+    """A calibration as a result holds it: the (B,) per-beacon ``values`` (NaN for beacons not
+    placed) with ``per_beacon``, else the one shared value as a float (NaN when no beacon was
+    placed); None stays None."""
+    if values is None:
+        return None
+    values = np.asarray(values, dtype=float)
+    if per_beacon:
+        return frozen(values.copy())
+    finite = values[np.isfinite(values)]
+    return float(finite[0]) if finite.size else float("nan")
 
 
 #: A range offset beyond this fraction of a beacon's median range, or a range scale further than

@@ -29,6 +29,12 @@ path length and heading change are exact; the arc's chord, at half the heading c
 along the step's starting heading, as a Pose2(d, 0, dtheta) increment does (a sideways error of
 about d * dtheta / 2 a step, the same as in ``odometry`` records written from such an arc).
 
+A first row of column names (no field a number, the first naming no record, e.g.
+``kind, time, a, b``) is a header and skipped. A comment ``# name = value`` is a setting: the
+names are those above (:data:`BEACON_LOG_SETTINGS`); any other name, a name set twice, or a
+setting's name without "=" is refused, naming the line (``# range_sigam = 0.05`` silently left the
+noise to the data). Any other comment is free text.
+
 A range joins the first pose at or after its time (as :func:`rangeslam.datasets.plaza` does);
 ranges after the last pose are refused. Truth rows, when given, give every pose (in pose order).
 Beacon ids are any integers >= 0 (rows of the result in increasing id order, as
@@ -38,6 +44,8 @@ Beacon ids are any integers >= 0 (rows of the result in increasing id order, as
 from __future__ import annotations
 
 import csv
+import difflib
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -50,10 +58,12 @@ from rangeslam.errors import InvalidInputError
 __all__ = [
     "BEACON_LOG_FIELDS",
     "BEACON_LOG_KINDS",
+    "BEACON_LOG_SETTINGS",
     "ODOMETRY_FORMS",
     "STEP_KINDS",
     "BeaconLog",
     "is_beacon_log",
+    "is_header",
     "load_beacon_log",
     "write_beacon_log",
 ]
@@ -78,10 +88,15 @@ BEACON_LOG_FIELDS = {
     "truth": ("time", "x", "y", "heading"),
     "beacon": ("beacon id", "x", "y"),
 }
+#: The ``# name = value`` settings a log may state, and how many positive numbers each holds
+#: (module notes); any other ``# name = ...`` comment is refused, naming these.
+BEACON_LOG_SETTINGS = {"range_sigma": 1, "odometry_sigma": 3, "wheel_base": 1}
 #: The records that are one odometry step each (module notes).
 STEP_KINDS = ("odometry", "speed", "wheels")
 #: How :func:`write_beacon_log` writes the odometry: increments, (v, omega) or wheel speeds.
 ODOMETRY_FORMS = ("increments", "speed", "wheels")
+# A comment that states a setting: a name (words, underscores), then "=".
+SETTING = re.compile(r"^\s*([A-Za-z_][\w \-]*?)\s*=(.*)$")
 
 
 @dataclass(frozen=True, eq=False)  # arrays
@@ -96,6 +111,8 @@ class BeaconLog:
         range_sigma: the stated range noise [m], or None.
         odometry_sigma: (3,) the stated odometry noise, or None.
         path: the file.
+        range_lines: (R,) int, the file's line of each range of ``data`` (in its order), so a
+            range can be named by its line.
     """
 
     data: RangeOdometry
@@ -105,46 +122,116 @@ class BeaconLog:
     range_sigma: float | None
     odometry_sigma: np.ndarray | None
     path: Path
+    range_lines: np.ndarray | None = None
 
 
 def is_beacon_log(path: Path) -> bool:
-    """True when ``path`` is a file whose first record is a beacon log's (a ``start`` row, or
-    the ``# rangeslam beacon log`` comment)."""
+    """True when ``path`` is a .csv / .txt file whose first record (after a header row, if
+    any) is a beacon log's, or which starts with the ``# rangeslam beacon log`` comment."""
     path = Path(path)
     if not path.is_file() or path.suffix.lower() not in (".csv", ".txt"):
         return False
     with open(path, newline="", errors="replace") as fh:
+        first = True
         for line in fh:
             text = line.strip()
             if text.lower().startswith("# rangeslam beacon log"):
                 return True
             if text and not text.startswith("#"):
-                return text.split(",")[0].strip().lower() in BEACON_LOG_KINDS
+                fields = [f.strip() for f in text.split(",")]
+                if first and is_header(fields):
+                    first = False
+                    continue
+                return fields[0].lower() in BEACON_LOG_KINDS
     return False
 
 
+def is_header(fields: list[str]) -> bool:
+    """True when a first row ``fields`` is a header (column names): its first field names no
+    record and none of its fields is a number."""
+    if fields[0].lower() in BEACON_LOG_KINDS:
+        return False
+    for f in fields:
+        try:
+            float(f)
+        except ValueError:
+            continue
+        return False
+    return True
+
+
+def _lines(path: Path) -> list[str]:
+    """The file's lines; InvalidInputError naming the file when it is not text."""
+    try:
+        return path.read_text().splitlines()
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(
+            f"{path}: not a text file ({exc.reason} at byte {exc.start}); a beacon log is CSV "
+            "text (rangeslam run --help)"
+        ) from exc
+
+
 def _records(path: Path):
-    """(line number, kind, fields) of each record, and the ``# name = value`` settings."""
+    """(line number, kind, fields) of each record, and the ``# name = value`` settings as
+    {name: (line number, value)}. A first row of column names (a header) is skipped."""
     records, settings = [], {}
-    with open(path, newline="") as fh:
-        for number, row in enumerate(csv.reader(fh), start=1):
-            fields = [f.strip() for f in row]
-            if not fields or not any(fields):
-                continue
-            if fields[0].startswith("#"):
-                text = ",".join(row).lstrip("#").strip()
-                if "=" in text:
-                    name, value = (s.strip() for s in text.split("=", 1))
-                    settings[name] = (number, value)
-                continue
-            kind = fields[0].lower()
-            if kind not in BEACON_LOG_KINDS:
-                raise InvalidInputError(
-                    f"{path}, line {number}: the first field must be one of "
-                    f"{sorted(BEACON_LOG_KINDS)}; got {fields[0]!r:.40}"
-                )
-            records.append((number, kind, fields[1:]))
+    header_allowed = True
+    for number, line in enumerate(_lines(path), start=1):
+        text = line.strip()
+        if not text:
+            continue
+        if text.startswith("#"):
+            _comment(path, number, text.lstrip("#").strip(), settings)
+            continue
+        try:
+            fields = [f.strip() for f in next(csv.reader([text]))]
+        except csv.Error as exc:
+            raise InvalidInputError(f"{path}, line {number}: not a CSV row ({exc})") from exc
+        if header_allowed and is_header(fields):
+            header_allowed = False
+            continue
+        header_allowed = False
+        kind = fields[0].lower()
+        if kind not in BEACON_LOG_KINDS:
+            raise InvalidInputError(
+                f"{path}, line {number}: the first field must be one of "
+                f"{sorted(BEACON_LOG_KINDS)}; got {fields[0]!r:.40} (a beacon log's format: "
+                "rangeslam run --help)"
+            )
+        records.append((number, kind, fields[1:]))
+    if not records:
+        raise InvalidInputError(
+            f"{path}: no records (empty, or only comments); a beacon log has a start record, "
+            "odometry and range records (rangeslam run --help)"
+        )
     return records, settings
+
+
+def _comment(path: Path, number: int, text: str, settings: dict) -> None:
+    """Record the setting a comment ``text`` states in ``settings``; refuse an unknown or
+    repeated name, or a known name without "=" (a typo would otherwise change the result)."""
+    known = ", ".join(BEACON_LOG_SETTINGS)
+    match = SETTING.match(text)
+    if match is None:
+        first = re.split(r"[\s:]+", text, maxsplit=1)[0].lower()
+        if first in BEACON_LOG_SETTINGS:
+            raise InvalidInputError(
+                f"{path}, line {number}: write the setting as '# {first} = value'; got {text!r:.60}"
+            )
+        return
+    name, value = match.group(1).strip().lower(), match.group(2).strip()
+    if name not in BEACON_LOG_SETTINGS:
+        close = difflib.get_close_matches(name, BEACON_LOG_SETTINGS, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise InvalidInputError(
+            f"{path}, line {number}: unknown setting {name!r:.40}{hint}; the settings are "
+            f"{known} (a comment that is not a setting must not start with 'name =')"
+        )
+    if name in settings:
+        raise InvalidInputError(
+            f"{path}, line {number}: {name} is set again (first on line {settings[name][0]})"
+        )
+    settings[name] = (number, value)
 
 
 def _numbers(path, number, kind, fields, *, keep_last_word=False) -> list[float]:
@@ -166,12 +253,30 @@ def _numbers(path, number, kind, fields, *, keep_last_word=False) -> list[float]
             f"{path}, line {number}: {kind}: numbers must be finite; "
             f"{BEACON_LOG_FIELDS[kind][bad]} is {values[bad]}"
         )
+    if kind in ("range", "beacon"):
+        _check_range_record(path, number, kind, values)
     return values
 
 
-def _setting(path, settings, name, size):
+def _check_range_record(path, number: int, kind: str, values: list[float]) -> None:
+    """A beacon id (integer >= 0) and, in a range record, a range > 0; naming the line."""
+    beacon = values[1] if kind == "range" else values[0]
+    if beacon != round(beacon) or beacon < 0:
+        raise InvalidInputError(
+            f"{path}, line {number}: {kind}: the beacon id must be an integer >= 0; got {beacon:g}"
+        )
+    if kind == "range" and values[2] <= 0:
+        raise InvalidInputError(
+            f"{path}, line {number}: range: the range must be > 0 metres; got {values[2]:g}"
+        )
+
+
+def _setting(path, settings, name):
+    """The value of the setting ``name`` (a float, or an array of BEACON_LOG_SETTINGS[name]
+    numbers), or None when the log does not state it."""
     if name not in settings:
         return None
+    size = BEACON_LOG_SETTINGS[name]
     number, text = settings[name]
     try:
         values = np.array([float(v) for v in text.replace(",", " ").split()])
@@ -184,13 +289,9 @@ def _setting(path, settings, name, size):
     return float(values[0]) if size == 1 else values
 
 
-def load_beacon_log(path: str | Path) -> BeaconLog:
-    """Read a beacon log (module notes). InvalidInputError names the file and the line."""
-    path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"beacon log {path} is not a file")
-    records, settings = _records(path)
-    # the step records (odometry, speed, wheels) together, in file order, as "steps"
+def _sorted_rows(path, records) -> dict[str, list]:
+    """The records by kind (step records, in file order, under "steps"), each checked: (line,
+    numbers, last word of a beacon record) per record; (line, kind, numbers) per step."""
     rows: dict[str, list] = {kind: [] for kind in BEACON_LOG_KINDS if kind not in STEP_KINDS}
     rows["steps"] = []
     for number, kind, fields in records:
@@ -204,31 +305,49 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
             rows["steps"].append((number, kind, values))
         else:
             rows[kind].append((number, values, fields[-1].lower() if is_beacon else None))
-    if len(rows["start"]) != 1:
+    starts = [number for number, _, _ in rows["start"]]
+    if len(starts) != 1:
+        where = f" (lines {', '.join(map(str, starts))})" if starts else ""
         raise InvalidInputError(
-            f"{path}: a beacon log has one start record; got {len(rows['start'])}"
+            f"{path}: a beacon log has one start record; got {len(starts)}{where} ('start, "
+            "time' gives the time of pose 0)"
         )
     if not rows["steps"] or not rows["range"]:
         raise InvalidInputError(
-            f"{path}: a beacon log needs odometry (odometry, speed or wheels) and range records"
+            f"{path}: a beacon log needs odometry (odometry, speed or wheels) and range records; "
+            f"it has {len(rows['steps'])} and {len(rows['range'])}"
         )
-    wheel_base = _setting(path, settings, "wheel_base", 1)
+    return rows
+
+
+def load_beacon_log(path: str | Path) -> BeaconLog:
+    """Read a beacon log (module notes). InvalidInputError names the file and, for a record or
+    a setting, its line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"beacon log {path} is not a file")
+    records, settings = _records(path)
+    rows = _sorted_rows(path, records)
+    wheel_base = _setting(path, settings, "wheel_base")
     pose_time, odometry = steps_from_records(
         path, rows["steps"], rows["start"][0][1][0], wheel_base
     )
     rng_rows = np.array([v for _, v, _ in rows["range"]])
     order = np.argsort(rng_rows[:, 0], kind="stable")
     rng_rows = rng_rows[order]
+    lines = np.array([number for number, _, _ in rows["range"]], dtype=np.int64)[order]
     pose = np.searchsorted(pose_time, rng_rows[:, 0], side="left")
     if np.any(pose >= len(pose_time)):
-        late = rows["range"][int(order[np.argmax(pose >= len(pose_time))])][0]
-        raise InvalidInputError(f"{path}, line {late}: a range after the last pose's time")
-    ids = rng_rows[:, 1]
-    if np.any(ids != np.round(ids)) or np.any(ids < 0):
-        raise InvalidInputError(f"{path}: beacon ids must be integers >= 0")
-    data = RangeOdometry.from_beacon_ids(
-        pose_time, odometry, pose, ids.astype(np.int64), rng_rows[:, 2]
-    )
+        late = int(lines[np.argmax(pose >= len(pose_time))])
+        raise InvalidInputError(
+            f"{path}, line {late}: a range after the last pose's time ({pose_time[-1]:g} s)"
+        )
+    try:
+        data = RangeOdometry.from_beacon_ids(
+            pose_time, odometry, pose, rng_rows[:, 1].astype(np.int64), rng_rows[:, 2]
+        )
+    except InvalidInputError as exc:  # what the records' own checks cannot see (sizes)
+        raise InvalidInputError(f"{path}: {exc}") from exc
     truth = _truth(path, rows["truth"], len(pose_time))
     beacons, known = _beacons(path, rows["beacon"], data.beacon_ids)
     return BeaconLog(
@@ -236,9 +355,10 @@ def load_beacon_log(path: str | Path) -> BeaconLog:
         truth=truth,
         beacons=beacons,
         known=known,
-        range_sigma=_setting(path, settings, "range_sigma", 1),
-        odometry_sigma=_setting(path, settings, "odometry_sigma", 3),
+        range_sigma=_setting(path, settings, "range_sigma"),
+        odometry_sigma=_setting(path, settings, "odometry_sigma"),
         path=path,
+        range_lines=frozen(lines),
     )
 
 
@@ -274,11 +394,13 @@ def steps_from_records(path, steps, start_time: float, wheel_base: float | None)
 
 
 def _truth(path, rows, n_poses) -> np.ndarray | None:
+    """(n_poses, 3) the truth records' poses in file order (heading NaN where not given)."""
     if not rows:
         return None
     if len(rows) != n_poses:
         raise InvalidInputError(
-            f"{path}: truth records must give every pose ({n_poses}); got {len(rows)}"
+            f"{path}, lines {rows[0][0]} to {rows[-1][0]}: truth records must give every pose "
+            f"({n_poses}, one per start or step record); got {len(rows)}"
         )
     out = np.full((n_poses, 3), np.nan)
     for i, (_, values, _) in enumerate(rows):
@@ -287,13 +409,15 @@ def _truth(path, rows, n_poses) -> np.ndarray | None:
 
 
 def _beacons(path, rows, ids) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(B, 2) true and known beacon positions from the beacon records (NaN rows where not
+    given; None when none is)."""
     if not rows:
         return None, None
     truth = np.full((len(ids), 2), np.nan)
     known = np.full((len(ids), 2), np.nan)
     row_of = {int(b): k for k, b in enumerate(ids)}
     for number, values, what in rows:
-        if values[0] != round(values[0]) or int(values[0]) not in row_of:
+        if int(values[0]) not in row_of:
             raise InvalidInputError(
                 f"{path}, line {number}: beacon {values[0]:g} has no range in the log"
             )
