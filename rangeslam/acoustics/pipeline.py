@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import logging
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -41,6 +40,7 @@ from numpy.typing import ArrayLike
 
 from rangeslam._validation import (
     as_dim,
+    as_flag,
     as_float_array,
     as_points,
     as_rng,
@@ -48,7 +48,14 @@ from rangeslam._validation import (
     frozen,
     shape_str,
 )
-from rangeslam.acoustics.echoes import CLIP_RUN, SPEED_OF_SOUND, ClippedRirWarning, clip_run
+from rangeslam.acoustics.echoes import SPEED_OF_SOUND
+from rangeslam.acoustics.input_sanity import (
+    InputCheck,
+    RirScreen,
+    check_screens,
+    screen_rirs,
+    with_input_checks,
+)
 from rangeslam.acoustics.rir_notes import rir_notes
 from rangeslam.acoustics.unknown_emission import (
     NOT_FINITE,
@@ -146,6 +153,10 @@ class RunResult(HasStatus):
         emission_offsets: (J,) seconds from sample 0 to each loudspeaker's emission, estimated
             (``unknown_emission``; NaN where not found), else None. emission_offset_stds: (J,)
             their standard deviations, seconds (NaN where not estimated), or None.
+        input_checks: (J,) what each loudspeaker's direct paths say of the input
+            (:class:`~rangeslam.acoustics.input_sanity.InputCheck`: a delay before the emission,
+            a wrong ``fs``, microphones not in metres); the first that found something sets
+            ``status`` and leads ``message``. None in walk mode or with ``check_input=False``.
     """
 
     mode: str
@@ -171,6 +182,7 @@ class RunResult(HasStatus):
     c_std: float | None = None
     emission_offsets: np.ndarray | None = None
     emission_offset_stds: np.ndarray | None = None
+    input_checks: tuple[InputCheck, ...] | None = None
 
     @property
     def n_rirs(self) -> int:
@@ -258,20 +270,18 @@ def run_rirs(
     slam_options: dict[str, Any] | None = None,
     estimate_c: bool = False,
     unknown_emission: bool = False,
+    check_input: bool = True,
 ) -> RunResult:
     """The room (known microphones) or the trajectory (step bounds) from M RIRs of one loudspeaker.
 
     Args:
         rirs: (M, L) RIRs, or M 1-D arrays of one length; sample n is time n / fs from the emission.
-        fs: sampling rate, Hz.
-        mics: (M, 3) microphone positions, metres: array mode,
+        fs: sampling rate, Hz. mics: (M, 3) microphone positions, metres: array mode,
             :func:`rangeslam.acoustics.labelling.room_from_rirs`.
         step_bounds: (lower, upper), each (M - 1,), or a (2, M - 1) array: bounds on the distance
             the microphone moves between consecutive RIRs, metres: walk mode,
-            ``rangeslam.acoustics.walk.walk_from_rirs``. Exactly one of ``mics`` and
-            ``step_bounds``.
-        c: speed of sound, m/s. dim: 3 for an array; 2 or 3 for a walk.
-        rng: Generator or seed, passed down.
+            ``rangeslam.acoustics.walk.walk_from_rirs``. Exactly one of the two.
+        c: speed of sound, m/s. dim: 3 for an array; 2 or 3 for a walk. rng: Generator or seed.
         clipped: what to do with a clipped RIR: "mask" (default: leave it out, as a silent one:
             a clipped direct path can move the answer by centimetres while every residual test
             still passes) or "use" (keep it; its echo times near the clipped samples are less
@@ -288,10 +298,12 @@ def run_rirs(
             paths (:func:`rangeslam.acoustics.sound_speed.estimate_sound_speed`, ``c`` the start)
             and use it; ``c_std`` reports its standard deviation. Not with ``direct_template``.
         unknown_emission: array mode: sample 0 is not the emission (``emission_offsets``).
+        check_input: array mode: what the direct paths say of the input first (``input_checks``:
+            a delay before the emission, a wrong ``fs``, microphones not in metres; default True).
 
     Returns:
-        A :class:`RunResult`; a ``status`` other than CONVERGED, with the reason in ``message``,
-        when there were too few echoes for the geometry or a solver did not converge.
+        A :class:`RunResult`; not CONVERGED, with the reason in ``message``, when the input check
+        found a cause, the echoes were too few for the geometry or a solver did not converge.
 
     Raises:
         InvalidInputError naming the argument: RIRs not (M, L), of different lengths, with NaN or
@@ -305,20 +317,38 @@ def run_rirs(
     options = RirRunOptions(  # in the order of its fields
         direct_template, detect_options, label_options, reconstruct_options, keyframes,
         track_options, slam_options)  # fmt: skip
-    mode = _check_mode(mics, step_bounds, options)
-    pts = _check_mics(mics, dim, len(x)) if mode == "array" else None
-    bounds = _check_walk_bounds(step_bounds, keyframes, len(x)) if mode == "walk" else None
+    mode, pts, bounds = _check_geometry(mics, step_bounds, options, dim, len(x))
     unknown = check_unknown_emission(unknown_emission, mode, estimate_c)
-    screen = _screen_rirs(x, clipped)  # before any advance smooths a clipped run
+    screen = screen_rirs(x, clipped)  # before any advance smooths a clipped run
+    checks = _input_checks(check_input, [screen], fs, pts, c, detect_options, unknown)
     if unknown:
-        return rirs_unknown_emission(screen, fs, pts, options, c=c, rng=rng)
+        res = rirs_unknown_emission(screen, fs, pts, options, c=c, rng=rng)
+        return with_input_checks(res, checks)
     speed = _estimate_c(screen.rirs, fs, pts, c, options) if estimate_c else None
     c = c if speed is None else speed.c
     if mode == "array":
         answer = _run_array(screen.rirs, fs, pts, c=c, rng=rng, options=options)
     else:
         answer = _run_walk(screen.rirs, fs, bounds, c=c, dim=dim, rng=rng, options=options)
-    return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts, speed=speed)
+    return _verdict(mode, answer, screen, fs=fs, c=c, mics=pts, speed=speed, checks=checks)
+
+
+def _check_geometry(mics: Any, step_bounds: Any, options: RirRunOptions, dim: int, m: int):
+    """(mode, (M, 3) mics or None, StepBounds or None) of :func:`run_rirs`, checked."""
+    mode = _check_mode(mics, step_bounds, options)
+    pts = _check_mics(mics, dim, m) if mode == "array" else None
+    bounds = _check_walk_bounds(step_bounds, options.keyframes, m) if mode == "walk" else None
+    return mode, pts, bounds
+
+
+def _input_checks(check_input, screens, fs: float, pts, c: float, detect_options, unknown: bool):
+    """The direct paths' :class:`InputCheck` of each screened set (array mode; None in walk mode
+    or when ``check_input`` is False), taken with ``c`` as given, before it is estimated."""
+    if not as_flag(check_input, "check_input") or pts is None:
+        return None
+    return check_screens(
+        screens, fs, pts, c=c, detect_options=detect_options, emission_known=not unknown
+    )
 
 
 def _estimate_c(x: np.ndarray, fs: float, pts: Any, c: float, options: RirRunOptions):
@@ -351,16 +381,17 @@ def run_loudspeakers(
     reconstruct_options: dict[str, Any] | None = None,
     estimate_c: bool = False,
     unknown_emission: bool = False,
+    check_input: bool = True,
 ) -> RunResult:
     """The room from J loudspeakers' RIRs at the same M known microphones, walls fitted jointly
     (:func:`rangeslam.acoustics.joint_room.room_from_loudspeakers`); array mode of
     :func:`run_rirs` for several loudspeakers. The result's per-RIR flags run over the J * M RIRs,
     loudspeaker by loudspeaker; ``sources`` holds each loudspeaker, in order (NaN where not
-    located; ``source`` is loudspeaker 0, None then). ``estimate_c``: c
-    from every loudspeaker's direct paths (their estimates' inverse-variance mean).
+    located; ``source`` is loudspeaker 0, None then). ``estimate_c``: c from every loudspeaker's
+    direct paths (their estimates' inverse-variance mean).
     ``unknown_emission``: as :func:`run_rirs`, one delay per loudspeaker. ``direct_template``:
     as :func:`run_rirs` (each loudspeaker's own direct sound; ``MEASURED_RIR_OPTIONS`` holds it);
-    not with ``estimate_c``.
+    not with ``estimate_c``. ``check_input``: as :func:`run_rirs`, one check per loudspeaker.
 
     Raises:
         InvalidInputError as :func:`run_rirs`, naming ``rir_sets[j]``; fewer than one set.
@@ -379,14 +410,14 @@ def run_loudspeakers(
                 f"rir_sets[{j}] must hold one RIR per microphone, {len(pts)}; got {len(x)}"
             )
     if estimate_c and direct_template is not None:
-        raise InvalidInputError(
-            "estimate_c is for RIRs without direct_template; got a direct_template"
-        )
+        raise InvalidInputError("estimate_c is for RIRs without direct_template; got one")
     unknown = check_unknown_emission(unknown_emission, "array", estimate_c)
-    screens = [_screen_rirs(x, clipped) for x in sets]
+    screens = [screen_rirs(x, clipped) for x in sets]
+    checks = _input_checks(check_input, screens, fs, pts, c, detect_options, unknown)
     if unknown:
         opts = RirRunOptions(direct_template, detect_options, label_options, reconstruct_options)
-        return loudspeakers_unknown_emission(screens, fs, pts, opts, c=c, rng=rng)
+        res = loudspeakers_unknown_emission(screens, fs, pts, opts, c=c, rng=rng)
+        return with_input_checks(res, checks)
     speed = _joint_c(screens, fs, pts, c, detect_options) if estimate_c else None
     c = c if speed is None else speed.c
     res = room_from_loudspeakers(
@@ -408,7 +439,8 @@ def run_loudspeakers(
         clipped_mode=clipped,
     )
     rec = res.reconstruction
-    out = _verdict("array", _joint_answer(res), screen, fs=fs, c=c, mics=pts, speed=speed)
+    answer = _joint_answer(res)
+    out = _verdict("array", answer, screen, fs=fs, c=c, mics=pts, speed=speed, checks=checks)
     if rec is None:
         return out
     sources = np.full((len(sets), 3), np.nan)  # a loudspeaker not located: NaN
@@ -520,59 +552,6 @@ def _check_walk_bounds(step_bounds: Any, keyframes: ArrayLike | None, m: int) ->
             f"{keys.dtype}"
         )
     return _check_bounds(step_bounds, len(keys), "keyframes")
-
-
-@dataclass(frozen=True, eq=False)
-class RirScreen:
-    """The RIRs the pipeline sees, and which were left out: rirs (M, L) with masked rows zeroed;
-    silent, clipped, masked (M,) bool; ``clipped_mode`` "mask" or "use"."""
-
-    rirs: np.ndarray
-    silent: np.ndarray
-    clipped: np.ndarray
-    masked: np.ndarray
-    clipped_mode: str
-
-
-# Why clipped RIRs are masked by default: a flat top of 4 samples on the direct path of one RIR
-# of ten moved its range by 1 cm and the loudspeaker by 4 cm (from 0.01 mm), with the labelling
-# and the reconstruction still converged (their residual tests do not see an error that size from
-# a compact array); so it is left out rather than passed on as a converged answer.
-def _screen_rirs(x: np.ndarray, clipped: str) -> RirScreen:
-    """Find silent and clipped RIRs, warn about each, and zero the rows left out (a row of zeros:
-    no detection, a masked row)."""
-    m = x.shape[0]
-    if clipped not in ("mask", "use"):
-        raise InvalidInputError(f"clipped must be 'mask' or 'use'; got {clipped!r}")
-    silent = ~np.any(x != 0, axis=1)
-    if silent.all():
-        raise InvalidInputError(f"rirs are all silent: every sample of the {m} RIRs is 0")
-    for i in np.flatnonzero(silent):
-        warnings.warn(
-            f"rirs[{i}] is silent (every sample is 0): no range from it, its row is masked",
-            SilentRirWarning,
-            stacklevel=3,
-        )
-    runs = [clip_run(r) for r in x]
-    is_clipped = np.array([n >= CLIP_RUN for n, _ in runs], dtype=bool)
-    masked = silent | (is_clipped if clipped == "mask" else False)
-    if clipped == "mask":
-        for i in np.flatnonzero(is_clipped):
-            n, at = runs[i]
-            warnings.warn(
-                f"rirs[{i}] looks clipped: {n} consecutive samples from sample {at} are at its "
-                f"largest magnitude {abs(x[i, at]):.6g}; its row is masked (clipped='use' keeps "
-                "it, with less accurate echo times near those samples)",
-                ClippedRirWarning,
-                stacklevel=3,
-            )
-        if masked.all():
-            raise InvalidInputError(
-                f"rirs: every one of the {m} RIRs is silent or clipped; pass clipped='use' to "
-                "use the clipped ones"
-            )
-        x = np.where(masked[:, None], 0.0, x)
-    return RirScreen(x, silent, is_clipped, np.asarray(masked, dtype=bool), clipped)
 
 
 @dataclass(frozen=True, eq=False)
@@ -692,10 +671,11 @@ def _verdict(
     c: float,
     mics: Any,
     speed: Any = None,
+    checks: tuple[InputCheck, ...] | None = None,
 ) -> RunResult:
     """The :class:`RunResult`: the pipeline's status (SOLVER_FAILED for an answer that is not
     finite), and a message naming the RIRs left out or without echoes (and the estimate of c,
-    ``speed``, when there was one)."""
+    ``speed``, when there was one), then the input ``checks`` (:func:`with_input_checks`)."""
     res = answer.result
     no_echoes = np.array([not d.found for d in res.detections], dtype=bool)
     status = _pipeline_status(res)
@@ -705,7 +685,7 @@ def _verdict(
         notes.append(NOT_FINITE)
     notes += rir_notes(screen.silent, screen.clipped, screen.masked, no_echoes, screen.clipped_mode)
     head = [] if speed is None else [speed.message]
-    return RunResult(
+    out = RunResult(
         mode=mode,
         result=res,
         status=status,
@@ -727,6 +707,7 @@ def _verdict(
         no_echoes=frozen(no_echoes),
         c_std=speed.c_std if speed is not None and speed.converged else None,
     )
+    return with_input_checks(out, checks)
 
 
 # ---- evaluation against ground truth ------------------------------------------------------------

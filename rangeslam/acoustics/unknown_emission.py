@@ -134,6 +134,7 @@ def _unknown_emission_run(run, screens, fs: float, mics, options, *, c: float, r
         run, fs=fs, mics=mics, c=c, rng=rng, clipped=screens[0].clipped_mode,
         direct_template=options.direct_template, detect_options=options.detect_options,
         label_options=options.label_options, reconstruct_options=options.reconstruct_options,
+        check_input=False,  # the caller checked the RIRs as given; these are advanced
     )  # fmt: skip
     return with_unknown_emission(
         again, screens, fs, mics, c=c, detect_options=options.detect_options, rng=rng,
