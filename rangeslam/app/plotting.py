@@ -12,6 +12,7 @@ import matplotlib.ticker
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Rectangle
 from scipy.spatial import ConvexHull
 
 from rangeslam.app.bench_plot import plot_fig3, plot_fig5, rms_and_bound
@@ -20,6 +21,8 @@ from rangeslam.app.plot_style import clip_to_box, legend_below, save_figure, ver
 from rangeslam.geometry.room import Room
 
 __all__ = [
+    "NO_SIGNAL_GREY",
+    "no_signal",
     "plot_fig3",
     "plot_fig5",
     "plot_plaza",
@@ -286,6 +289,7 @@ def plot_rir_matrix(
     true_times: np.ndarray | None = None,
     keyframes: np.ndarray | None = None,
     dynamic_range_db: float = 50.0,
+    groups: list[tuple[str, int]] | None = None,
 ) -> Path:
     """The "RIR matrix" of Fig. 4C: one RIR per column (``rirs`` (M, L), index 0..M-1 along x,
     named by ``xlabel``), time in ms along y, |rir| in dB relative to each RIR's own peak and
@@ -298,7 +302,11 @@ def plot_rir_matrix(
     white dots. ``true_times``: (M, J) the true arrival times [s] (direct path and image sources,
     NaN where none) as dashes, when the file has the truth. ``keyframes``:
     indices of the RIRs that are steps, marked at the top when there are more RIRs than steps
-    (then the x axis is 'RIR (frame)'). Returns the path written.
+    (then the x axis is 'RIR (frame)'). ``groups``: (name, count) of consecutive blocks of
+    columns (e.g. each loudspeaker's RIRs), separated by white lines and named at the top.
+    Samples before a RIR's first non-zero sample or after its last (no signal: a simulated RIR
+    ends after its last reflection) are grey, not the black of a quiet sample. Returns the path
+    written.
     """
     rirs = np.asarray(rirs, dtype=float)
     m, length = rirs.shape
@@ -306,19 +314,25 @@ def plot_rir_matrix(
     with np.errstate(divide="ignore", invalid="ignore"):
         mag = 20 * np.log10(np.abs(rirs) / np.where(peak > 0, peak, 1.0))
     mag = np.clip(np.nan_to_num(mag, nan=-np.inf), -dynamic_range_db, 0.0)
+    silent = no_signal(rirs)
     fig, ax = plt.subplots(figsize=(8.0, 6.0))
     t_end = length / fs * 1e3
     im = ax.imshow(
-        mag.T,
+        np.ma.masked_array(mag, mask=silent).T,
         aspect="auto",
         origin="lower",
         interpolation="nearest",
         extent=(-0.5, m - 0.5, 0, t_end),
         vmin=-dynamic_range_db,
         vmax=0,
-        cmap="magma",
+        cmap=matplotlib.colormaps["magma"].with_extremes(bad=NO_SIGNAL_GREY),
     )
     fig.colorbar(im, ax=ax, label="|RIR| relative to its peak [dB]")
+    if silent.any():  # a zero-size patch: the legend's entry for the grey
+        label = "no signal (before a RIR's first or after its last non-zero sample)"
+        ax.add_patch(Rectangle((0, 0), 0, 0, fc=NO_SIGNAL_GREY, ec="0.5", lw=0.5, label=label))
+    if groups:
+        _mark_groups(ax, groups)
     if detections is not None:
         _overlay_detections(ax, detections, t_end, used=used, used_label=used_label)
     if true_times is not None:
@@ -342,6 +356,33 @@ def plot_rir_matrix(
     ax.set_title(title or "RIR at each step of the walk (Fig. 4C)", pad=12)
     legend_below(fig, [ax], ncol=2)
     return save_figure(fig, path, legend_space=True)
+
+
+#: The colour of the samples of the RIR matrix with no signal (:func:`no_signal`).
+NO_SIGNAL_GREY = "0.8"
+
+
+def no_signal(rirs: np.ndarray) -> np.ndarray:
+    """(M, L) True at the samples of ``rirs`` (M, L) before each one's first non-zero sample or
+    after its last (all of an all-zero RIR): where there is no signal, as opposed to a quiet
+    one."""
+    nonzero = np.asarray(rirs) != 0
+    before = np.cumsum(nonzero, axis=1) == 0
+    after = np.cumsum(nonzero[:, ::-1], axis=1)[:, ::-1] == 0
+    return before | after
+
+
+def _mark_groups(ax, groups: list[tuple[str, int]]) -> None:
+    """White lines between consecutive blocks of columns, each block named at the top."""
+    start = 0
+    edge = ax.get_xaxis_transform()  # x in data, y in axes fraction
+    for k, (name, count) in enumerate(groups):
+        if k:
+            ax.axvline(start - 0.5, color="white", lw=1.5, zorder=6)
+        ax.text(start - 0.5 + count / 2, 0.985, name, transform=edge, ha="center", va="top",
+                fontsize=8, color="white", zorder=7,
+                bbox={"boxstyle": "round,pad=0.2", "fc": "black", "ec": "none", "alpha": 0.6})  # fmt: skip
+        start += count
 
 
 def _overlay_detections(ax, detections, t_end: float, *, used=None, used_label: str) -> None:
@@ -447,9 +488,13 @@ def plot_room_estimate(
     e.g. the walls a failed labelling found). Microphones, loudspeaker, image sources; the true
     room and loudspeaker when given. The limits are set by the rooms, microphones and loudspeaker (plus the image
     sources within one room extent); farther estimates are drawn at the edge and counted in a
-    note. ``converged`` False puts 'not converged' in the title. Returns the path written.
+    note. ``converged`` False puts 'not converged' in the title. ``source`` (J, 3) and
+    ``true_source`` (J, 3) are several loudspeakers (NaN rows: not located, or no truth): each
+    is numbered, and the walls are cut through the first one located. Returns the path written.
     """
-    centre = source if source is not None and np.all(np.isfinite(source)) else mics.mean(axis=0)
+    located = None if source is None else np.reshape(source, (-1, mics.shape[1]))
+    located = None if located is None else located[np.all(np.isfinite(located), axis=1)]
+    centre = located[0] if located is not None and len(located) else mics.mean(axis=0)
     core = [mics, centre[None], true_source]
     core += [r.vertices for r in (true_room, room) if r is not None]
     feet = None
@@ -468,6 +513,8 @@ def plot_room_estimate(
             found = converged is False
             _wall_traces(ax, wall_normals, wall_offsets, axes, centre, (lo, hi), found=found)
         _scatter_room_points(ax, axes, mics, image_sources, true_source, source, box=(lo, hi))
+        if source is not None and np.ndim(source) == 2 and len(source) > 1:
+            _number_loudspeakers(ax, axes, np.asarray(source, dtype=float), (lo, hi))
         _view_axes(ax, axes, labels, name, (lo, hi))
         if room is None:
             ax.set_title(name + " (walls cut through the loudspeaker)", fontsize=10)
@@ -475,6 +522,23 @@ def plot_room_estimate(
     _note_far(axs[0][0], (lo, hi), image_sources, source, d=mics.shape[1])
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
+
+
+def _number_loudspeakers(ax, axes, sources: np.ndarray, box) -> None:
+    """Each located loudspeaker of ``sources`` (J, d; NaN rows not located) numbered by its
+    row beside its marker (above it and below it in turn, so that neighbours do not overlap),
+    within ``box``."""
+    lo, hi = box
+    for j, p in enumerate(sources):
+        if np.all(np.isfinite(p)) and np.all((p >= lo) & (p <= hi)):
+            ax.annotate(
+                f"loudspeaker {j}",
+                (p[axes[0]], p[axes[1]]),
+                xytext=(6, 6 if j % 2 == 0 else -14),
+                textcoords="offset points",
+                fontsize=8,
+                color="tab:red",
+            )
 
 
 def _wall_traces(ax, normals, offsets, axes, centre, box, *, found: bool = False) -> None:

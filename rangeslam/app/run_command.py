@@ -89,6 +89,7 @@ class RunAttempt:
     warnings: tuple[str, ...] = ()
     error: Exception | None = None
     emission_truth: tuple = ()
+    files: tuple = ()  # several loudspeakers: each one's LoadedRirs, in the order given
 
 
 def read_matrix(path: Path, flag: str):
@@ -308,8 +309,10 @@ def _announce(loaded, inputs: RunInputs, *, loudspeakers: int = 1) -> float:
         what = "detecting echoes, labelling them, reconstructing the room"
     else:
         what = "detecting and tracking echoes, then SLAM (EDM start, GTSAM); about a minute"
+    files = f", {loudspeakers} files of {loaded.n_rirs}" if loudspeakers > 1 else ""
     print(
-        f"rangeslam: run: {loaded.n_rirs} RIRs read ({loaded.fs:g} Hz); {what} ...",
+        f"rangeslam: run: {loaded.n_rirs * loudspeakers} RIRs read ({loaded.fs:g} Hz{files}); "
+        f"{what} ...",
         file=sys.stderr,
         flush=True,
     )
@@ -326,6 +329,7 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
 
     loaded = inputs = res = error = None
     truth: tuple = ()
+    files: tuple = ()
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always", UserWarning)
         try:
@@ -334,6 +338,7 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
                 s.emission_delay for s in (loaded if isinstance(loaded, list) else [loaded])
             )
             if isinstance(loaded, list):  # several loudspeakers
+                files = tuple(loaded)
                 inputs = run_inputs(args, loaded[0])
                 loaded, res = _run_loudspeakers(args, loaded, inputs)
                 raise _Done
@@ -375,6 +380,7 @@ def _attempt(args: argparse.Namespace) -> RunAttempt:
         warnings=caught,
         error=error,
         emission_truth=truth,
+        files=files,
     )
 
 
@@ -560,26 +566,6 @@ def run(args: argparse.Namespace) -> int:
         return _run(args)
 
 
-def _loudspeaker_lines(res, lines: list[str], record: dict) -> None:
-    """Several loudspeakers: each one's estimated position, appended to ``lines`` and ``record``."""
-    import numpy as np
-
-    if res.sources is None or len(res.sources) < 2:
-        return
-    lines += ["", f"{len(res.sources)} loudspeakers (fitted jointly with the walls):", ""]
-    lines += ["| loudspeaker | x [m] | y [m] | z [m] |", "|---|---|---|---|"]
-    lines += [
-        f"| {j} | " + " | ".join(f"{v:.4f}" for v in s) + " |"
-        if np.all(np.isfinite(s))
-        else f"| {j} | not located | | |"
-        for j, s in enumerate(res.sources)
-    ]
-    # a loudspeaker not located is null in the JSON
-    record["sources"] = [
-        s.tolist() if np.all(np.isfinite(s)) else None for s in np.asarray(res.sources)
-    ]
-
-
 def _run(args: argparse.Namespace) -> int:
     """The body of :func:`run`."""
     from rangeslam.app.reports import versions, write_summary
@@ -603,15 +589,16 @@ def _run(args: argparse.Namespace) -> int:
     lines = report_header(args, attempt)
     record = run_record(args, attempt)
     if res.mode == "array":
-        written = array_report(args.out, res, errs, loaded, lines, record)
-        _loudspeaker_lines(res, lines, record)
+        speakers = {"files": attempt.files, "paths": args.rirs}
+        written = array_report(args.out, res, errs, loaded, lines, record, **speakers)
         if res.c_std is not None:
             lines += ["", f"speed of sound: {res.c:.3f} +- {res.c_std:.2g} m/s (estimated)"]
             record["c_estimated"], record["c_std"] = res.c, res.c_std
         emission_lines(res, list(attempt.emission_truth), lines, record)
     else:
         written = walk_report(args.out, res, errs, lines, record)
-    written += logged_step(log, "run: drawing the plots")(run_plots)(args, loaded, res)
+    plots = logged_step(log, "run: drawing the plots")(run_plots)
+    written += plots(args, loaded, res, files=attempt.files)
     text = "\n".join(lines)
     (args.out / "run_summary.md").write_text(text + "\n")
     written.insert(0, write_summary(args.out / "run_summary.json", **record, versions=versions()))
