@@ -8,6 +8,9 @@
 - :mod:`.tracking`: echoes of a moving microphone followed from RIR to RIR.
 - :mod:`.walk`: RIRs of a moving microphone to its trajectory and landmarks.
 - :mod:`.pipeline`: RIR files plus what is known to a room map or a walk.
+- :mod:`.input_sanity`: what is wrong with the RIRs, named before a room is estimated: silent and
+  clipped RIRs; from the direct paths, a delay before the emission, a wrong ``fs``, microphones
+  not in metres.
 """
 
 from __future__ import annotations

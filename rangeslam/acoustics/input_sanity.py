@@ -12,12 +12,16 @@ the pipeline would otherwise absorb show up on their own:
   the loudspeaker played; pyroomacoustics delays every RIR by its fractional-delay filter's half
   length, ``pra.constants.get('frac_delay_length') // 2`` = 40 samples). With c free and b = 0
   the fit bends c and the loudspeaker to absorb it: 40 samples at 48 kHz (286 mm) gave c =
-  257-347 m/s on six pyroomacoustics rooms (seeds 868969, 404257, 682562), and in the cut-corner
-  room of seed 682562 the pipeline then labelled a consistent subset of the echoes (the
-  direct path from 6 of 8 microphones) and converged with a wall 1.0 m off. Named, with the option
-  that estimates it (``unknown_emission``, ``rangeslam run --unknown-emission``).
+  257-347 m/s in the demo's shoebox and cut-corner room (8 microphones, reflection order 2, seeds
+  868969, 404257, 682562; ``benchmarks/bench_run_input_sanity.py`` builds such files), and in
+  the cut-corner room of seed 682562 the pipeline then labelled a consistent subset of the echoes
+  (the direct path at 6 of 8 microphones) and converged with a wall 1.0 m off: without a known
+  noise level its verdict took the 2.3 mm RMS residual of the walls' fit for noise. Named, with
+  the option that estimates it (``unknown_emission``, ``rangeslam run --unknown-emission``).
 - c / c_given a ratio of two common sampling rates: ``fs`` states another rate than the RIRs'
-  (48 kHz RIRs labelled 16 kHz give c = 343 / 3 = 114.3 m/s).
+  (48 kHz RIRs labelled 16 kHz give c = 343 / 3 = 114.3 m/s). Named even where the pipeline's own
+  estimate of c absorbed it and the walls came out right (labelled 44.1 kHz): the c reported,
+  315 m/s, and every time in seconds are then wrong.
 - c / c_given = 1000, 100 (or the inch's, the foot's): microphones in millimetres, centimetres.
 
 A delay or a speed is only named when it is beyond its own noise (the two-sided
@@ -75,9 +79,10 @@ MATCH_RTOL = 0.02
 #: Beyond this fraction from the given c, a c that no rate or unit explains is still named (the
 #: limit of ``estimate_sound_speed``, which refuses such a c).
 C_FAR = 0.1
-#: Metres of path: a common delay shorter than this is not named. Walls moved by 2-3 times the
-#: delay's path (0.5 sample at 48 kHz, 3.6 mm, moved one 9.9 mm; shoebox, seed 868969), so 1 mm
-#: keeps them within about 3 mm.
+#: Metres of path: a common delay shorter than this is not named. A delay moved the walls by 2-3
+#: times its path while the run still converged (``rangeslam simulate room --seed 868969 --order
+#: 2``, the RIRs delayed with ``shift_signals``: 0.5 sample at 48 kHz, 3.6 mm, put a wall 9.9 mm
+#: off; 1 sample, 19.1 mm), so 1 mm keeps them within about 3 mm.
 DELAY_FLOOR = 1e-3
 #: Direct paths the check needs: five unknowns (s, c, b), one more to measure the noise.
 MIN_DIRECT_PATHS = 6

@@ -25,6 +25,12 @@ clipped one (3 or more consecutive samples at its largest magnitude, the detecto
 :class:`~rangeslam.acoustics.echoes.ClippedRirWarning` and is masked too, unless
 ``clipped="use"`` (see :func:`run_rirs`). Too few echoes for the geometry is a result whose
 ``status`` says why (``converged`` False) with the reason in ``message``.
+
+In array mode the direct paths are checked against the microphones first
+(:mod:`rangeslam.acoustics.input_sanity`, ``check_input``): a delay common to every RIR (sample 0
+is not the emission; pyroomacoustics' RIRs as it writes them), a sampling rate that is not the
+RIRs' and microphones not in metres are named, with what to do, in ``message`` and ``status``
+(and ``input_checks``), whatever the pipeline made of the RIRs; nothing is changed in them.
 """
 
 from __future__ import annotations
