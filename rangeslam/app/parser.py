@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from rangeslam.app import arg_types
@@ -16,6 +17,7 @@ from rangeslam.app.defaults import (
 )
 from rangeslam.app.demo_command import demo as demo_command
 from rangeslam.app.run_command import run as run_command
+from rangeslam.app.run_help import RUN_DESCRIPTION, RUN_EPILOG
 from rangeslam.app.simulate_command import add_simulate_parser
 
 __all__ = ["RUN_FS_LIMITS", "SPEED_LIMITS", "CliParser", "DefaultsHelpFormatter", "build_parser"]
@@ -47,8 +49,19 @@ class CliParser(argparse.ArgumentParser):
             help="log each step and its time on standard error (anywhere on the line)",
         )
 
+    def add_subparsers(self, **kwargs):
+        """Subcommands, as argparse's; remembered so that a missing one prints the help."""
+        self.commands = super().add_subparsers(**kwargs)
+        return self.commands
+
     def error(self, message: str) -> None:
-        """Print ``rangeslam: error: message`` and exit with code 2."""
+        """Print ``rangeslam: error: message`` and exit with code 2; a command missing (plain
+        ``rangeslam``, ``rangeslam bench``) prints the help with the list of commands first."""
+        if getattr(self, "commands", None) is not None and message.startswith(
+            "the following arguments are required"
+        ):
+            self.print_help(sys.stderr)
+            print(file=sys.stderr)
         self.exit(2, f"rangeslam: error: {message}\n")
 
 
@@ -350,21 +363,18 @@ def _add_run(sub) -> None:
     """``rangeslam run``: the room or the trajectory from the user's RIRs."""
     run = sub.add_parser(
         "run",
-        help="the room (known microphones) or the trajectory (step bounds) from your RIRs",
-        description="RIRs of one loudspeaker: an .npz (rirs (M, L), fs; optionally mics, "
-        "step_bounds, c, and ground truth source / room_size / trajectory), one multichannel WAV, "
-        "a directory of mono WAVs (natural order of names) or several mono WAVs (in the order "
-        "given). With microphone positions: the room (walls, loudspeaker); with step bounds of a "
-        "moving microphone: its trajectory and the landmarks. Or one beacon log (.csv: odometry "
-        "and ranges to radio beacons, rangeslam.datasets.beacon_log): the path and the beacons. "
-        "Exit 0 converged, 1 not converged, 2 bad input.",
+        help="the room (known microphones) or the trajectory (step bounds) from your RIRs; a "
+        "robot's path from a beacon log",
+        description=RUN_DESCRIPTION,
+        epilog=RUN_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     run.add_argument(
         "rirs",
         nargs="+",
         type=Path,
         metavar="RIRS",
-        help=".npz, .wav or directory; or a beacon log",
+        help=".npz, .wav or directory, one or several (see above); or a beacon log (.csv)",
     )
     run.add_argument(
         "--fs",

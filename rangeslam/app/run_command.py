@@ -107,17 +107,13 @@ def read_matrix(path: Path, flag: str):
 
 def load_for_run(args: argparse.Namespace):
     """The RIRs named on the command line (``load_rirs``), with the errors that concern a flag
-    naming it: several files mixing .npz and WAV (RIRS), a --fs the files contradict. Several
-    .npz files are several loudspeakers at the same microphones: a list, one LoadedRirs each."""
-    from rangeslam.errors import InvalidInputError
+    naming it: several files of mixed forms (RIRS), a --fs the files contradict. Several .npz
+    files, multichannel WAVs or directories of mono WAVs are several loudspeakers at the same
+    microphones (``one_per_loudspeaker``): a list, one LoadedRirs each."""
+    from rangeslam.datasets.rir_files import one_per_loudspeaker
 
     paths = args.rirs
-    if len(paths) > 1 and any(p.suffix.lower() == ".npz" for p in paths):
-        if not all(p.suffix.lower() == ".npz" for p in paths):
-            raise InvalidInputError(
-                "RIRS: give .npz files (one per loudspeaker), or WAV files; got "
-                + ", ".join(str(p) for p in paths[:4])
-            )
+    if len(paths) > 1 and one_per_loudspeaker(paths):
         return [_load_one(args, p) for p in paths]
     return _load_one(args, paths[0] if len(paths) == 1 else paths)
 
@@ -160,12 +156,16 @@ def _keyframes(args: argparse.Namespace, loaded):
 def _known_geometry(args: argparse.Namespace, loaded, n: int) -> tuple[Any, Any, str]:
     """(mics (M, 3) or None, step bounds (2, n - 1) or None, where they came from): from the
     flags, else from the npz; exactly one of the two."""
+    from rangeslam._validation import shape_str
+    from rangeslam.datasets.rir_files import check_transposed
     from rangeslam.errors import InvalidInputError
 
     m = loaded.n_rirs
     if args.mics is not None:
         mics = read_matrix(args.mics, "--mics")
         if mics.shape != (m, 3):
+            if mics.shape[1:] == (3,):  # the right microphones, RIRs stored (L, M)?
+                check_transposed(loaded, f"--mics {args.mics} {shape_str(mics.shape)}", len(mics))
             raise InvalidInputError(
                 f"--mics {args.mics}: must hold one row x y z per RIR, ({m}, 3); got {mics.shape}"
             )

@@ -1,5 +1,8 @@
 """Room impulse responses from files: one ``.npz``, one multichannel WAV, or several mono WAVs.
 
+Several loudspeakers are several of those, one each (:func:`one_per_loudspeaker` tells them from
+the mono WAVs of one): ``.npz`` files, multichannel WAVs, or directories of mono WAVs.
+
 :func:`load_rirs` reads them, with whatever else an npz says (microphones, step bounds, the speed
 of sound, ground truth), into a :class:`LoadedRirs`; :func:`rangeslam.acoustics.pipeline.run_rirs`
 runs a pipeline on them. Bad files are refused with a :class:`~rangeslam.errors.DataFormatError`
@@ -24,7 +27,15 @@ from rangeslam._validation import as_float_array, as_scalar, frozen, shape_str
 from rangeslam.datasets.paths import data_path
 from rangeslam.errors import DataFormatError, InvalidInputError
 
-__all__ = ["LoadedRirs", "SilentRirWarning", "load_excitation", "load_rirs", "read_numbers"]
+__all__ = [
+    "LoadedRirs",
+    "SilentRirWarning",
+    "check_transposed",
+    "load_excitation",
+    "load_rirs",
+    "one_per_loudspeaker",
+    "read_numbers",
+]
 
 
 # scipy.io.wavfile's warnings when a file ends before its RIFF header says (scipy 1.x wording).
@@ -182,7 +193,8 @@ def load_rirs(
         return _load_npz(paths[0], fs)
     for q in paths:
         if q.suffix.lower() != ".wav":
-            raise DataFormatError(f"{q}: not a .wav or .npz file")
+            alone = " (a beacon log is given alone)" if q.suffix.lower() in (".csv", ".txt") else ""
+            raise DataFormatError(f"{q}: not a .wav or .npz file{alone}")
     return _load_wavs(paths, fs)
 
 
@@ -229,6 +241,58 @@ def _npz_signals(raw: dict, p: Path) -> tuple[str, np.ndarray]:
     return key, rirs
 
 
+def transposed_by(shape: tuple[int, int], counts: dict[str, int]) -> str | None:
+    """The first name in ``counts`` (what each other array says M is: {what: count}) that
+    gives the RIRs' length L rather than M, for RIRs of ``shape`` (M, L) with M != L: evidence
+    they were stored transposed; None when there is none."""
+    m, length = shape
+    if m == length:
+        return None
+    return next((what for what, count in counts.items() if count == length), None)
+
+
+def check_orientation(raw: dict, key: str, shape: tuple[int, int], p: Path) -> None:
+    """DataFormatError naming ``key`` (the RIRs, (M, L)) when the npz's microphones (M, 3),
+    step bounds (2, M - 1) or trajectory (M, d) count L of them instead of M: the RIRs were
+    stored transposed, (L, M), and the other array is right (it was blamed instead)."""
+    counts = {}
+    for name in ("mics", "mics_v3"):
+        if name in raw and np.ndim(raw[name]) == 2 and np.shape(raw[name])[1] == 3:
+            counts[f"{name} {shape_str(np.shape(raw[name]))}"] = np.shape(raw[name])[0]
+    if "keyframes" not in raw:
+        if "step_bounds" in raw and np.ndim(raw["step_bounds"]) == 2:
+            b = np.shape(raw["step_bounds"])
+            counts[f"step_bounds {shape_str(b)}"] = b[1] + 1
+        if "trajectory" in raw and np.ndim(raw["trajectory"]) == 2:
+            counts[f"trajectory {shape_str(np.shape(raw['trajectory']))}"] = len(raw["trajectory"])
+    what = transposed_by(shape, counts)
+    if what is not None:
+        raise DataFormatError(transposed_message(str(p), key, shape, what))
+
+
+def transposed_message(where: str, key: str, shape: tuple[int, int], what: str) -> str:
+    """The error of RIRs ``key`` of ``shape`` in the file ``where`` stored transposed, as
+    ``what`` shows."""
+    m, length = shape
+    return (
+        f"{where}: {key} must have shape (M, L), one RIR of L samples per row; got "
+        f"{shape_str(shape)}, and {what} counts {length} RIRs: {key} is stored transposed "
+        f"(save {key}.T, shape ({length}, {m}))"
+    )
+
+
+def check_transposed(loaded: LoadedRirs, what: str, count: int) -> None:
+    """DataFormatError naming the npz's RIRs (not ``what``, an array given beside them that
+    counts ``count`` RIRs) when they were stored transposed: ``count`` is their length L, not
+    their number M. WAV channels cannot be transposed: nothing to check for them."""
+    where, _, key = loaded.names[0].partition(":")
+    if not where.lower().endswith(".npz") or not key:
+        return
+    if transposed_by(loaded.rirs.shape, {what: count}) is not None:
+        key = key.split("[")[0]
+        raise DataFormatError(transposed_message(where, key, loaded.rirs.shape, what))
+
+
 def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     """The RIRs and whatever else the npz ``p`` holds, each array checked."""
     if not zipfile.is_zipfile(p):
@@ -242,6 +306,7 @@ def _load_npz(p: Path, fs: float | None) -> LoadedRirs:
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFormatError(f"{p}: not a readable npz file ({exc})") from exc
     key, rirs = _npz_signals(raw, p)
+    check_orientation(raw, key, rirs.shape, p)
     m = rirs.shape[0]
     file_fs = _npz_array(raw, ("fs",), p, ())
     if file_fs is None and fs is None:
@@ -309,20 +374,71 @@ def wav_data_shortfall(q: Path) -> int:
     scipy's reader judges those. Catches a file cut inside its samples even when its RIFF size
     was rewritten to match (scipy then reads the samples that are there without a warning).
     """
+    found = _find_chunk(q, b"data")
+    return 0 if found is None else max(0, found[0] + found[1] - q.stat().st_size)
+
+
+def wav_channels(q: Path) -> int | None:
+    """The number of channels the ``fmt`` chunk of the RIFF/RIFX WAV ``q`` declares; None for
+    anything this walk cannot follow (the loader judges such a file)."""
+    found = _find_chunk(q, b"fmt ")
+    if found is None:
+        return None
+    with q.open("rb") as f:
+        f.seek(found[0])
+        body = f.read(4)
+    return struct.unpack(found[2] + "HH", body)[1] if len(body) == 4 else None
+
+
+def _find_chunk(q: Path, wanted: bytes) -> tuple[int, int, str] | None:
+    """(offset of its body, its declared size, byte order) of the first ``wanted`` chunk of the
+    RIFF/RIFX WAV ``q``; None when there is none or the walk cannot follow the file."""
     size = q.stat().st_size
     with q.open("rb") as f:
         head = f.read(12)
         if len(head) < 12 or head[:4] not in (b"RIFF", b"RIFX") or head[8:12] != b"WAVE":
-            return 0
+            return None
         order = "<" if head[:4] == b"RIFF" else ">"
         pos = 12
         while pos + 8 <= size:
             f.seek(pos)
             chunk_id, chunk_size = struct.unpack(order + "4sI", f.read(8))
-            if chunk_id == b"data":
-                return max(0, pos + 8 + chunk_size - size)
+            if chunk_id == wanted:
+                return pos + 8, chunk_size, order
             pos += 8 + chunk_size + (chunk_size % 2)
-    return 0
+    return None
+
+
+def one_per_loudspeaker(paths: Sequence[Path]) -> bool:
+    """True when the RIRS ``paths`` (two or more) are one loudspeaker each: ``.npz`` files,
+    multichannel WAVs (channel m: microphone m) or directories of mono WAVs; False when they are
+    mono WAVs, one microphone each, of one loudspeaker (or anything else: the loader judges it).
+
+    Raises:
+        InvalidInputError naming RIRS: the forms mixed (an .npz among WAVs, mono WAVs among
+        multichannel ones, directories among files).
+    """
+    kinds = {}
+    for q in map(Path, paths):
+        if q.is_dir():
+            kinds[q] = "a directory of mono WAVs"
+        elif q.suffix.lower() == ".npz":
+            kinds[q] = "an .npz"
+        elif q.suffix.lower() == ".wav" and q.is_file():
+            channels = wav_channels(q)  # None: not a WAV this walk follows
+            kinds[q] = {None: "a WAV", 1: "a mono WAV"}.get(channels, "a multichannel WAV")
+        else:
+            kinds[q] = "another file"
+    forms = set(kinds.values())
+    if len(forms) > 1 and ("an .npz" in forms or not forms & {"another file", "a WAV"}):
+        first = {form: q for q, form in reversed(kinds.items())}  # each form's first path
+        examples = [f"{q} ({form})" for form, q in reversed(first.items())]
+        raise InvalidInputError(
+            "RIRS: several files are one loudspeaker each (.npz files, multichannel WAVs or "
+            "directories of mono WAVs) or one microphone each (mono WAVs), not a mix; got "
+            + ", ".join(examples)
+        )
+    return len(forms) == 1 and not forms & {"a mono WAV", "a WAV", "another file"}
 
 
 def _read_wav(q: Path) -> tuple[float, np.ndarray]:
@@ -461,11 +577,30 @@ def load_excitation(path: str | Path) -> tuple[float | None, np.ndarray]:
 
 def read_numbers(path: Path, *, ndmin: int) -> np.ndarray:
     """The float64 array of an ``.npy``, or of a ``.csv`` / ``.txt`` (comma- or
-    whitespace-separated, '#' comments; at least ``ndmin`` dimensions). Raises what numpy
-    raises (OSError, ValueError): each caller names the file and what it wanted."""
+    whitespace-separated, '#' comments, a first row of column names such as ``x,y,z`` skipped;
+    at least ``ndmin`` dimensions). Raises what numpy raises (OSError, ValueError): each caller
+    names the file and what it wanted."""
     if path.suffix.lower() == ".npy":
         arr = np.load(path, allow_pickle=False)
     else:
-        text = path.read_text()
-        arr = np.loadtxt(path, delimiter="," if "," in text else None, ndmin=ndmin)
+        lines = without_header(path.read_text().splitlines())
+        delimiter = "," if any("," in line.split("#")[0] for line in lines) else None
+        arr = np.loadtxt(lines, delimiter=delimiter, ndmin=ndmin)
     return np.asarray(arr, dtype=float)
+
+
+def without_header(lines: list[str]) -> list[str]:
+    """``lines`` of numbers with the first row blanked (so the others keep their numbers) when
+    none of its fields is a number: column names, ``x,y,z``."""
+    for k, line in enumerate(lines):
+        fields = [f for f in re.split(r"[,\s]+", line.split("#")[0]) if f]
+        if not fields:
+            continue
+        for f in fields:
+            try:
+                float(f)
+            except ValueError:
+                continue
+            return lines  # a number: the first row is data
+        return [*lines[:k], "", *lines[k + 1 :]]
+    return lines
