@@ -3,8 +3,9 @@
 The file's format: :mod:`rangeslam.datasets.beacon_log`. One library call does the work
 (:func:`rangeslam.beacons.beacon_slam`, with the noise the file states and its known beacons);
 this module reads the file, then prints and writes the report and a plot of the path and the
-beacons (against the file's truth when it has one). Exit 0 converged, 1 not converged,
-2 bad input.
+beacons (against the file's truth when it has one). The report counts the outliers (ranges more
+than 3 range sigmas off the fit, per beacon, with their lines in the file) and gives the range
+calibration (one scale and bias when shared). Exit 0 converged, 1 not converged, 2 bad input.
 """
 
 from __future__ import annotations
