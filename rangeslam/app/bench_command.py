@@ -55,11 +55,13 @@ def run_bench(
     bounds=(True, False),
     placement: str = "random",
     tum: bool = False,
+    label: str | None = None,
 ) -> int:
     """Plan, run and write a benchmark: CSV per trial (rewritten as trials finish, so a run
     stopped late keeps what it finished), timings, JSON and Markdown summaries, a plot,
-    optionally TUM trajectories. Shows progress on standard error; prints the Markdown table.
-    Returns 0, or 1 when every trial failed (the reasons are in the CSV's status column)."""
+    optionally TUM trajectories. Shows progress on standard error (named ``label``, default
+    ``which``); prints the Markdown table. Returns 0, or 1 when every trial failed (the reasons
+    are in the CSV's status column)."""
     from rangeslam.app import benchmarking as bm
     from rangeslam.app.progress import Progress
 
@@ -78,7 +80,7 @@ def run_bench(
         jobs=jobs,
         scheduler=scheduler,
         keep_trajectories=tum,
-        progress=Progress(len(plan), which),
+        progress=Progress(len(plan), label or which),
         on_outcome=keep,
     )
     wall = time.perf_counter() - t0

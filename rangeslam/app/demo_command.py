@@ -8,7 +8,7 @@ import sys
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["demo"]
+__all__ = ["DEMO_STEPS", "demo", "demo_step"]
 
 
 @dataclass(frozen=True)
@@ -21,18 +21,35 @@ class DemoRoom:
     injected: int
 
 
+#: The demo's steps, as its progress names them ("step 2 of 4: Fig. 3 ...").
+DEMO_STEPS = (
+    "rooms from echoes",
+    "Fig. 3, zero-knowledge calibration (30 trials)",
+    "Fig. 5, range-only SLAM, every method (15 trials)",
+    "a SLAM estimate and the RIR matrix",
+)
+
+
+def demo_step(k: int) -> str:
+    """The name of the demo's step ``k`` (1-based) with its place: 'step 2 of 4: Fig. 3 ...'."""
+    return f"step {k} of {len(DEMO_STEPS)}: {DEMO_STEPS[k - 1]}"
+
+
 def demo(args: argparse.Namespace) -> int:
     """``rangeslam demo``: Problem 1 on the demo rooms, then Fig. 3 and Fig. 5 in small; 0 when
-    every room converged."""
+    every room converged. Each step is named on standard error as it starts, and its progress
+    shown there (a bar on a terminal, lines elsewhere); stdout is flushed before each step."""
     from rangeslam.app.bench_command import run_bench
     from rangeslam.app.progress import Heartbeat
 
     print(
         f"Problem 1 (paper, section 2): rooms from echoes with a known array of {args.mics} microphones, "
         f"{args.sources} loudspeaker(s), range noise {args.sigma * 1e3:g} mm, "
-        f"{args.outliers * 100:g}% wrong echo picks, seed {args.seed}\n"
+        f"{args.outliers * 100:g}% wrong echo picks, seed {args.seed}\n",
+        flush=True,
     )
-    with Heartbeat("demo", step="rooms from echoes"):
+    _announce(1)
+    with Heartbeat("demo", step=demo_step(1)):
         summaries = _demo_rooms(args)
     _print_room_summaries(summaries)
     print(
@@ -40,9 +57,18 @@ def demo(args: argparse.Namespace) -> int:
         "plane, the error that matters for a map (the offset alone ignores the tilt)."
     )
     rooms_ok = all(r.experiment.result.converged for r in summaries)
-    print("\nFig. 3 (paper, section 3): zero-knowledge array calibration, a small run\n")
-    run_bench("fig3", trials=10, seed=args.seed, out=args.out, sigmas=(0.0, 1e-3, 5e-3))
-    print("\nFig. 5 (paper, section 4): range-only SLAM, every method on the same trials\n")
+    print(
+        "\nFig. 3 (paper, section 3): zero-knowledge array calibration, a small run\n", flush=True
+    )
+    _announce(2)
+    run_bench(
+        "fig3", trials=10, seed=args.seed, out=args.out, sigmas=(0.0, 1e-3, 5e-3), label=_bar(2)
+    )
+    print(
+        "\nFig. 5 (paper, section 4): range-only SLAM, every method on the same trials\n",
+        flush=True,
+    )
+    _announce(3)
     run_bench(
         "compare",
         trials=5,
@@ -51,8 +77,11 @@ def demo(args: argparse.Namespace) -> int:
         sigmas=(1e-2,),
         steps=(5, 10, 20),
         bounds=(True,),
+        label=_bar(3),
     )
-    with Heartbeat("demo", step="a SLAM estimate and the RIR matrix"):
+    sys.stdout.flush()
+    _announce(4)
+    with Heartbeat("demo", step=demo_step(4)):
         demo_slam_example(args)
     print(f"\nplots written to {args.out}/")
     for room in summaries:
@@ -60,6 +89,16 @@ def demo(args: argparse.Namespace) -> int:
         if not res.converged:
             print(f"rangeslam: {room.name}: not converged: {res.message}", file=sys.stderr)
     return 0 if rooms_ok else 1
+
+
+def _announce(k: int) -> None:
+    """Say on standard error that the demo's step ``k`` starts."""
+    print(f"rangeslam: demo: {demo_step(k)} ...", file=sys.stderr, flush=True)
+
+
+def _bar(k: int) -> str:
+    """The progress label of the demo's benchmark step ``k``: 'demo 2/4, Fig. 3'."""
+    return f"demo {k}/{len(DEMO_STEPS)}, {DEMO_STEPS[k - 1].split(',')[0]}"
 
 
 def _demo_rooms(args: argparse.Namespace) -> list[DemoRoom]:

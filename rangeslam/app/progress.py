@@ -13,13 +13,15 @@ output; progress never does.
 
 from __future__ import annotations
 
+import io
 import logging
+import os
 import sys
 import threading
 import time
 from typing import TextIO
 
-__all__ = ["HEARTBEAT_SECONDS", "Heartbeat", "Progress", "format_seconds"]
+__all__ = ["HEARTBEAT_SECONDS", "Heartbeat", "Progress", "bar_size", "format_seconds"]
 
 #: Seconds between two lines of a :class:`Heartbeat` (a run, a demo's rooms, a long simulation).
 HEARTBEAT_SECONDS = 10.0
@@ -36,6 +38,18 @@ def format_seconds(seconds: float) -> str:
         return f"{minutes} min {secs:02d} s"
     hours, minutes = divmod(minutes, 60)
     return f"{hours} h {minutes:02d} min"
+
+
+def bar_size(stream) -> dict:
+    """tqdm's ``ncols`` and ``nrows`` for a bar on the terminal ``stream``: none (tqdm measures
+    the terminal), or 80 x 24 when the terminal says it has no size (a pseudo-terminal nobody
+    sized: ``docker exec -t``, ``script``, some IDE consoles), where tqdm draws nothing at all
+    (it takes the bar's row as beyond the last one)."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        return {}
+    return {"ncols": 80, "nrows": 24} if min(size.columns, size.lines) <= 0 else {}
 
 
 class Progress:
@@ -80,7 +94,13 @@ class Progress:
         if enabled and tty:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=self.total, desc=label, unit=unit[:-1] or unit, file=self.stream)
+            self.bar = tqdm(
+                total=self.total,
+                desc=label,
+                unit=unit[:-1] or unit,
+                file=self.stream,
+                **bar_size(self.stream),
+            )
 
     def __enter__(self) -> Progress:
         return self
