@@ -101,7 +101,7 @@ def test_fig5_bound_drawn_only_where_the_oracle_attains_it(rng, tmp_path, keep_f
     bound = lines["RMS CRLB (ranges + step prior), where attained"].get_ydata()
     assert np.isnan(bound[0]) and np.all(np.isfinite(bound[1:]))
     np.testing.assert_allclose(bound[1:], [300 * 0.01 / np.sqrt(m) for m in (10, 20)])
-    assert [t.get_text() for t in fig.axes[0].texts] == ["not\nattained"]
+    assert [t.get_text() for t in fig.axes[0].texts] == ["CRLB not\nattained"]
     assert plot_style.NOT_ATTAINED in _legend_texts(fig)
     at_10 = [r for r in rows if r["m"] == 10]
     yard = [
@@ -205,5 +205,5 @@ def test_fig3_oracle_line_and_bound_only_where_attained(rng, tmp_path, keep_figu
         r["oracle_rms_m"] if np.isfinite(r["oracle_rms_m"]) else r["oracle_error_m"] for r in at_10
     ]
     assert oracle[2] == pytest.approx(_rms(yard) * 1e3)
-    assert [t.get_text() for t in ax.texts] == ["not\nattained"]
+    assert [t.get_text() for t in ax.texts] == ["CRLB not\nattained"]
     assert plot_style.overflow(fig) == []

@@ -142,12 +142,17 @@ def _calibration_lines(res, record: dict) -> list[str]:
 
 
 def _plot(out: Path, log, res) -> Path:
-    """run_trajectory.png: the path and the beacons placed, rigidly aligned onto the file's
-    truth when it has one (with the true beacons)."""
+    """run_trajectory.png: the path and the beacons placed, each named by its id ('known' for
+    a surveyed one), rigidly aligned onto the file's truth when it has one (with the true
+    beacons)."""
     from rangeslam.app.plotting import plot_walk_estimate
     from rangeslam.geometry.alignment import align
 
-    path, marks = res.poses[:, :2], res.beacons[np.all(np.isfinite(res.beacons), axis=1)]
+    placed = np.all(np.isfinite(res.beacons), axis=1)
+    path, marks = res.poses[:, :2], res.beacons[placed]
+    known = np.zeros(len(placed), bool) if log.known is None else np.isfinite(log.known[:, 0])
+    names = [f"beacon {int(b)}" + (" (known)" if k else "")
+             for b, k in zip(log.data.beacon_ids[placed], known[placed], strict=True)]  # fmt: skip
     truth = rot = shift = true_marks = None
     if log.truth is not None and np.all(np.isfinite(path)):
         fit = align(path, log.truth[:, :2])
@@ -157,7 +162,7 @@ def _plot(out: Path, log, res) -> Path:
     verdict = "converged" if res.converged else "not converged"
     return plot_walk_estimate(
         out / "run_trajectory.png", receivers=path, sources=marks, true_trajectory=truth,
-        rotation=rot, translation=shift, true_landmarks=true_marks,
+        rotation=rot, translation=shift, true_landmarks=true_marks, landmark_names=names,
         title=f"{log.path.name}: {res.method}, {verdict}", converged=bool(res.converged),
     )  # fmt: skip
 

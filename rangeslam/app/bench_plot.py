@@ -10,6 +10,7 @@ from pathlib import Path
 
 import matplotlib.ticker
 import numpy as np
+from matplotlib.patches import Rectangle
 
 from rangeslam.app.plot_style import (
     MARKERS,
@@ -30,6 +31,7 @@ __all__ = [
     "draw_yardsticks",
     "ekf_label",
     "ekf_used",
+    "exact_note",
     "fig5_landmark_panel",
     "fig5_trajectory_panel",
     "judge_bound",
@@ -130,7 +132,8 @@ def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
     minimised from the truth: Monte-Carlo ``oracle_rms_m`` where finite, else ``oracle_error_m``)
     as a line, and the RMS of the per-trial CRLBs only at the noise levels where the oracle
     attains it (``rows`` of a ``bench fig3`` run; keys status, sigma [m], mic_error_m, crlb_m,
-    oracle_error_m, oracle_rms_m), on log axes labelled at the noise levels used."""
+    oracle_error_m, oracle_rms_m), on log axes labelled at the noise levels used. Trials at
+    sigma = 0, which a log axis cannot place, are summed up in the legend (:func:`exact_note`)."""
     ok = [r for r in rows if r["status"] == "ok" and r["sigma"] > 0]
     sigmas = sorted({r["sigma"] for r in ok})
     fig, ax = plt.subplots(figsize=(7.0, 5.6))
@@ -148,12 +151,29 @@ def plot_fig3(path: str | Path, rows: list[dict]) -> Path:
         top = draw_yardsticks(ax, s_mm, cells, "mic_error_m", labels=labels, scale=1e3)
         plain_log_axis(ax, "y", headroom=0.2 if top else 0.0)
         plain_log_axis(ax, "x", ticks=s_mm)
+    exact = [r for r in rows if r["sigma"] == 0]
+    if exact:  # sigma = 0 has no place on a log axis: said in the legend, not dropped
+        ax.add_patch(Rectangle((0, 0), 0, 0, fc="none", ec="none", label=exact_note(exact)))
     ax.set_xlabel("range noise sigma [mm]")
     ax.set_ylabel("microphone RMS error after alignment [mm]")
     ax.set_title("Fig. 3: zero-knowledge array calibration\n(RMS over trials)")
     ax.grid(alpha=0.3, which="major")
     legend_below(fig, [ax], ncol=2)
     return save_figure(fig, path, legend_space=True)
+
+
+def exact_note(rows: list[dict]) -> str:
+    """What Fig. 3 says of its trials at sigma = 0 (``rows``), which a log axis cannot show:
+    their RMS microphone error and how many converged (or failed)."""
+    ok = [r for r in rows if r["status"] == "ok"]
+    rms = _rms_finite(column(ok, "mic_error_m")) * 1e3
+    converged = sum(bool(r.get("converged", False)) for r in ok)
+    failed = f", {len(rows) - len(ok)} failed" if len(ok) < len(rows) else ""
+    error = f"RMS error {rms:.2g} mm" if np.isfinite(rms) else "no error to show"
+    return (
+        f"sigma = 0 (exact ranges; off the log axis): {error}, {converged} of {len(rows)} "
+        f"trials converged{failed}"
+    )
 
 
 def ekf_used(row: dict) -> bool:

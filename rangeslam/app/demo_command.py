@@ -193,5 +193,5 @@ def demo_slam_example(args: argparse.Namespace) -> None:
         args.out / "rir_matrix.png",
         rirs[:, : int(0.04 * 16000)],
         16000,
-        title="RIRs along the lemniscate (60 steps of 10 cm; Fig. 4C)",
+        title="RIRs along the lemniscate (60 steps of 10 cm, reflections up to order 2; Fig. 4C)",
     )

@@ -13,6 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import matplotlib.ticker as mticker
 import numpy as np
+from matplotlib.patches import Rectangle
 
 __all__ = [
     "DPI",
@@ -89,8 +90,8 @@ def plain_log_axis(
 def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D") -> None:
     """Draw a lower bound against ``x`` where it is finite (dashed, with large hollow markers on
     top, so isolated points show, also over an oracle at the same value; broken where it is
-    not) and mark with a triangle at the top edge, labelled 'bound infinite' (in the legend
-    'bound infinite: not identifiable'), each x where it is infinite. NaN (no bound, or one not
+    not) and mark with a boxed note 'bound infinite' at the top edge (in the legend 'bound
+    infinite: not identifiable'), each x where it is infinite. NaN (no bound, or one not
     attained) is left out."""
     x, bound = np.asarray(x, dtype=float), np.asarray(bound, dtype=float)
     finite = np.isfinite(bound) & (bound > 0)
@@ -100,37 +101,40 @@ def plot_bound(ax, x, bound, *, label: str, color: str = "k", marker: str = "D")
         ax.plot(x, shown, ls="--", color=color, label=label, **style)  # hollow: over the oracle
     inf = np.isinf(bound)
     if inf.any():
-        style = {"color": color, "marker": "^", "label": "bound infinite: not identifiable"}
-        _top_marks(ax, x[inf], "bound\ninfinite", **style)
+        label = "bound infinite: not identifiable"
+        _top_marks(ax, x[inf], "bound\ninfinite", color=color, label=label)
 
 
 def mark_not_attained(
-    ax, x, *, color: str = "0.35", text: str = "not\nattained", label: str = NOT_ATTAINED
+    ax, x, *, color: str = "0.35", text: str = "CRLB not\nattained", label: str = NOT_ATTAINED
 ) -> None:
-    """Mark each ``x`` where the bound is not attained by the oracle (and so not drawn): a
-    cross at the top edge, ``text`` under it, ``label`` in the legend."""
+    """Mark each ``x`` where the bound is not attained by the oracle (and so not drawn): a boxed
+    note ``text`` at the top edge (a note, not a point: no marker), ``label`` in the legend
+    beside a box like it."""
     x = np.asarray(x, dtype=float)
     if x.size:
-        _top_marks(ax, x, text, color=color, marker="x", label=label)
+        _top_marks(ax, x, text, color=color, label=label)
 
 
-def _top_marks(ax, x, text: str, *, color: str, marker: str, label: str) -> None:
-    """Hollow ``marker`` at the top edge of ``ax`` at each ``x`` (data), ``text`` under each."""
+def _top_marks(ax, x, text: str, *, color: str, label: str) -> None:
+    """``text`` in a white box hanging from the top edge of ``ax`` at each ``x`` (data), and a
+    legend entry ``label`` whose handle is such a box (a zero-size patch: it draws nothing and
+    moves no limit)."""
     edge = ax.get_xaxis_transform()  # x in data, y in axes fraction
-    ax.plot(
-        x,
-        np.full(len(x), 0.97),
-        ls="none",
-        marker=marker,
-        color=color,
-        mfc="none",
-        ms=6,
-        transform=edge,
-        clip_on=False,
-        label=label,
-    )
+    box = {"boxstyle": "round,pad=0.3", "fc": "white", "ec": color, "lw": 0.8}
     for xi in x:
-        ax.annotate(text, (xi, 0.93), xycoords=edge, ha="center", va="top", fontsize=6, color=color)
+        ax.annotate(
+            text,
+            (xi, 0.975),
+            xycoords=edge,
+            ha="center",
+            va="top",
+            fontsize=6,
+            color=color,
+            bbox=box,
+            zorder=6,
+        )
+    ax.add_patch(Rectangle((0, 0), 0, 0, fc="white", ec=color, lw=0.8, label=label))
 
 
 def legend_below(fig, axes, *, ncol: int = 3, fontsize: float = 8) -> None:

@@ -21,7 +21,9 @@ from rangeslam.app.plot_style import clip_to_box, legend_below, save_figure, ver
 from rangeslam.geometry.room import Room
 
 __all__ = [
+    "MARKED_POSITIONS",
     "NO_SIGNAL_GREY",
+    "ellipse_magnification",
     "no_signal",
     "plot_fig3",
     "plot_fig5",
@@ -553,6 +555,11 @@ def _wall_traces(ax, normals, offsets, axes, centre, box, *, found: bool = False
         _wall_trace(ax, n, o, axes, centre, extent, label=label, **style)
 
 
+#: Above this many positions a trajectory is a line, without a marker at each position (600
+#: markers smear into a thick band).
+MARKED_POSITIONS = 60
+
+
 def plot_walk_estimate(
     path: str | Path,
     *,
@@ -567,13 +574,18 @@ def plot_walk_estimate(
     true_landmarks: np.ndarray | None = None,
     true_room: Room | None = None,
     converged: bool | None = None,
+    landmark_names: list[str] | None = None,
 ) -> Path:
     """Top view of a trajectory and its landmarks estimated from RIRs (``rangeslam run``), with
-    2-sigma ellipses when covariances are given. With ``true_trajectory`` the estimate is mapped
-    onto it by (``rotation``, ``translation``), e.g. from :func:`rangeslam.align`; otherwise it
-    is drawn in its own frame. ``true_landmarks`` (K, d) and ``true_room`` (in the frame of the
-    true trajectory) are drawn when given. The limits are set by the truth when there is one
-    (estimates beyond are drawn at the edge). Returns the path written."""
+    2-sigma ellipses when covariances are given (magnified by a power of ten, said in the title
+    and the legend, when the largest would span under 2% of its panel). With
+    ``true_trajectory`` the estimate is mapped onto it by (``rotation``, ``translation``), e.g.
+    from :func:`rangeslam.align`; otherwise it is drawn in its own frame. ``true_landmarks``
+    (K, d) and ``true_room`` (in the frame of the true trajectory) are drawn when given;
+    ``landmark_names`` (K,) are written beside the estimated landmarks (a beacon's id). Over
+    :data:`MARKED_POSITIONS` positions a trajectory is a line without markers. The limits are
+    set by the truth when there is one (estimates beyond are drawn at the edge). Returns the
+    path written."""
     d = receivers.shape[1]
     rot = np.eye(d) if rotation is None else rotation
     shift = np.zeros(d) if translation is None else translation
@@ -596,32 +608,82 @@ def plot_walk_estimate(
             _outline(ax, true_room, (0, 1), color="0.3", lw=1.5, label="true room")
         true_pts = true_trajectory if name == "trajectory" else true_landmarks
         if true_pts is not None:
-            style = "o-" if name == "trajectory" else "s"
+            style = "s" if name == "landmarks" else _path_style(len(true_pts), "o")
             ax.plot(*true_pts[:, :2].T, style, c="k", mfc="none", ms=6, label=f"{name} (true)")
-        _walk_estimate(ax, est, rec, cov, name, (lo, hi) if has_truth else None)
+        box = (lo, hi) if has_truth else None
+        _walk_estimate(ax, est, rec, name, box)
+        if name == "landmarks" and landmark_names is not None:
+            _name_points(ax, est, landmark_names, (lo, hi))
+        ellipses = _walk_ellipses(ax, est, cov, name, float(np.max(hi - lo)))
         _view_axes(ax, (0, 1), ("x [m]", "y [m]"), name, (lo, hi))
         frame = "aligned onto the truth" if true_trajectory is not None else "SLAM frame"
-        ax.set_title(f"{name}, top view ({frame})" + (", 2-sigma" if cov is not None else ""))
+        ax.set_title(f"{name}, top view ({frame}){ellipses}", fontsize=11)
     fig.suptitle(verdict_title(title or "walk from RIRs", converged))
     _note_far(axs[0], land_window, rec, src, d=d)
     legend_below(fig, axs, ncol=4)
     return save_figure(fig, path, legend_space=True)
 
 
-def _walk_estimate(ax, est, rec, cov, name: str, box) -> None:
-    """The estimated trajectory (line with markers, first step circled) or landmarks (crosses;
-    with the estimated walk in grey for scale), 2-sigma ellipses, clipped to ``box``."""
+def _path_style(n: int, marker: str) -> str:
+    """A path of ``n`` positions: line and ``marker`` at each, a line alone beyond
+    :data:`MARKED_POSITIONS`."""
+    return f"{marker}-" if n <= MARKED_POSITIONS else "-"
+
+
+def _walk_estimate(ax, est, rec, name: str, box) -> None:
+    """The estimated trajectory (line with markers up to :data:`MARKED_POSITIONS` positions,
+    first step circled) or landmarks (crosses; with the estimated walk in grey for scale),
+    clipped to ``box``."""
     if name == "landmarks":
-        ax.plot(rec[:, 0], rec[:, 1], ".-", c="0.6", lw=1.0, ms=3, label="_walk for scale")
+        style = _path_style(len(rec), ".")
+        ax.plot(rec[:, 0], rec[:, 1], style, c="0.6", lw=1.0, ms=3, label="_walk for scale")
     if name == "trajectory":
         shown = est if box is None else clip_to_box(est, *box)[0]
-        ax.plot(*shown[:, :2].T, "x-", c="tab:red", ms=6, label="trajectory (est.)")
+        style = _path_style(len(est), "x")
+        ax.plot(*shown[:, :2].T, style, c="tab:red", ms=6, label="trajectory (est.)")
         if len(est):
             ax.plot(*shown[0, :2], "o", c="tab:red", ms=9, mfc="none", label="first step")
     else:
         _scatter_clipped(
             ax, est, (0, 1), box, marker="x", s=40, c="tab:red", label=f"{name} (est.)"
         )
-    if cov is not None:
-        for p, c in zip(est, cov, strict=True):
-            _ellipse(ax, p[:2], c[:2, :2], fc="tab:red", ec="tab:red", alpha=0.2)
+
+
+def _name_points(ax, pts: np.ndarray, names: list[str], box) -> None:
+    """Each of ``pts`` (N, d) inside ``box`` named by ``names`` (N,) beside it."""
+    lo, hi = box
+    for p, name in zip(pts, names, strict=True):
+        if np.all(np.isfinite(p[:2])) and np.all((p[:2] >= lo[:2]) & (p[:2] <= hi[:2])):
+            ax.annotate(name, p[:2], xytext=(6, 5), textcoords="offset points", fontsize=8,
+                        color="tab:red", zorder=6)  # fmt: skip
+
+
+def ellipse_magnification(covs, span: float) -> float:
+    """The factor by which 2-sigma ellipses of ``covs`` (N, >= 2, >= 2; their x-y blocks) are
+    drawn so that the largest reaches 2% of a panel ``span`` metres wide: 1 when it does
+    already, else a power of ten; 1 without a finite, non-zero covariance."""
+    blocks = [np.asarray(c, dtype=float)[:2, :2] for c in covs]
+    blocks = [c for c in blocks if np.all(np.isfinite(c))]
+    if not blocks:
+        return 1.0
+    largest = 2.0 * float(np.sqrt(max(max(np.linalg.eigvalsh(c).max(), 0.0) for c in blocks)))
+    if largest <= 0 or largest >= 0.02 * span:
+        return 1.0
+    return float(10.0 ** np.ceil(np.log10(0.02 * span / largest)))
+
+
+def _walk_ellipses(ax, est, cov, name: str, span: float) -> str:
+    """The 2-sigma ellipses of ``cov`` around ``est`` (magnified by
+    :func:`ellipse_magnification` when too small to see in a panel ``span`` metres wide, the
+    first one labelled for the legend); returns what the panel's title says of them."""
+    if cov is None:
+        return ""
+    k = ellipse_magnification(cov, span)
+    drawn = f", drawn {k:g} x larger" if k > 1 else ""
+    label = f"{name}: 2-sigma ellipses (GTSAM){drawn}"
+    style = {"fc": "tab:red", "ec": "tab:red", "alpha": 0.25}
+    for p, c in zip(est, cov, strict=True):
+        if np.all(np.isfinite(c[:2, :2])):
+            _ellipse(ax, p[:2], c[:2, :2], nsig=2.0 * k, label=label, **style)
+            label = "_nolegend_"  # one legend entry per panel
+    return f", 2-sigma ellipses x{k:g}" if k > 1 else ", 2-sigma ellipses"
