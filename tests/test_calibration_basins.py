@@ -1,5 +1,5 @@
 """A calibration does not accept a minimum when a lower one is within reach (the fuzz's S2):
-the search's answer is probed along its weakest directions (rangeslam.mdu.basin_probe)."""
+the judge's alternatives (rangeslam.mdu.calibration_judge) reach it from the search's answer."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import pytest
 from rangeslam import align, calibrate, mdu_crlb
 from rangeslam.app.experiments import fig3_scene
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.mdu.basin_probe import lower_minimum_nearby
+from rangeslam.mdu.calibration import parse_calibration
+from rangeslam.mdu.calibration_judge import judge_calibration
+from rangeslam.mdu.core import ConvexIterationOptions
 from rangeslam.solvers.least_squares import refine_unfolding
 
 SIGMA = 1e-3  # m
@@ -40,21 +42,25 @@ def test_the_lower_minimum_of_the_fig3_scene_is_taken(declared):
     assert not res.converged or error <= 3 * bound, res.message
 
 
-def test_the_probe_leaves_the_wrong_minimum_for_the_lower_one(monkeypatch):
-    """Without the probe the search stops in the wrong minimum (1.86 times the oracle's cost);
-    the probe from there reaches the oracle's minimum, and from the oracle's finds nothing."""
+def test_the_judge_leaves_the_wrong_minimum_for_the_lower_one(monkeypatch):
+    """Without the judge the search stops in the wrong minimum (1.86 times the oracle's cost);
+    the judge's alternatives from there reach the oracle's minimum, which is its answer."""
     scene, ranges = _s2_scene()
     observed = np.ones(ranges.shape, bool)
     oracle = refine_unfolding(scene.mics, scene.sources, ranges, observed)
     oracle_ssr = float(np.sum(oracle.residuals**2))
-    monkeypatch.setattr("rangeslam.mdu.calibration.lower_minimum_nearby", lambda *a: None)
+    monkeypatch.setattr(
+        "rangeslam.mdu.calibration.judged_outcome", lambda outcome, problem, rng: (outcome, None)
+    )
     wrong = calibrate(ranges, noise_std=SIGMA, rng=0)
     assert _ssr(wrong.receivers, wrong.sources, ranges) > 1.5 * oracle_ssr
-    lower = lower_minimum_nearby(wrong.receivers, wrong.sources, ranges, observed, SIGMA)
-    assert lower is not None
-    assert abs(float(np.sum(lower.residuals**2)) / oracle_ssr - 1) < 1e-6
-    found = lower_minimum_nearby(oracle.receivers, oracle.sources, ranges, observed, SIGMA)
-    assert found is None
+    monkeypatch.undo()
+    problem = parse_calibration(
+        ranges, None, 3, SIGMA, True, False, 100, ConvexIterationOptions(8, 10.0, 50, 1e-6, "cheap")
+    )
+    answer = np.vstack([wrong.receivers, wrong.sources])
+    judged = judge_calibration(problem, answer, SIGMA, np.random.default_rng(0))
+    assert judged.judgement.answer.deviance * SIGMA**2 == pytest.approx(oracle_ssr, rel=1e-6)
 
 
 def test_a_lower_minimum_far_away_that_fits_as_well_is_not_converged():

@@ -27,8 +27,7 @@ from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.mdu.basin_probe import lower_minimum_nearby
-from rangeslam.mdu.calibration_rivals import displaced_rival, rival_configuration, spread
+from rangeslam.mdu.calibration_judge import CalibrationJudgement, judge_calibration, objective_scale
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -56,15 +55,12 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
+from rangeslam.verdict.judge import SAME, CheckRecord
 from rangeslam.verdict.thresholds import (
     EXACT_RTOL,
-    LOWER_RTOL,
     PROBE_OUTLIER_K,
-    PROBE_SPREADS,
     RELATIVE_RMS,
-    ROBUST_CHECK_STARTS,
     SAME_RTOL,
-    SPREAD_RATIO,
 )
 
 if TYPE_CHECKING:
@@ -107,6 +103,10 @@ class Calibration(HasStatus):
         ambiguous_sources: (K,) bool, sources whose mirror image through the (coplanar, or d)
             receivers hearing them fits as well; the receivers fit the same either way.
         source_mirrors: (K, d) their other positions, same frame, metres (NaN elsewhere).
+        checks: every check of the verdict (name, statistic, level, passed, reason), in order.
+        judged: alternatives the judge compared with the answer (random starts, refits without
+            one source or one receiver, mirrors, the fold); ``reached``: random starts (the
+            answer counted) that reached the answer.
     """
 
     receivers: np.ndarray
@@ -128,6 +128,9 @@ class Calibration(HasStatus):
     solver: str
     ambiguous_sources: np.ndarray
     source_mirrors: np.ndarray
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
     @property
     def n_outliers(self) -> int:
@@ -188,7 +191,8 @@ class Start:
 
 @dataclass(frozen=True)
 class SearchOutcome:
-    """The best candidate of the starts tried, whether another start confirmed it, and counts."""
+    """The best candidate of the starts tried, whether another start confirmed it, counts, and
+    every candidate made."""
 
     best: Candidate | None
     confirmed: bool
@@ -197,6 +201,7 @@ class SearchOutcome:
     random_starts: int
     solver_failures: tuple[str, ...]
     noise_floor: float | None = None  # robust: the least inlier spread a sound candidate reached
+    candidates: tuple[Candidate, ...] = ()  # every refined start, the judge's first alternatives
 
 
 def parse_calibration(
@@ -280,7 +285,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     cauchy_scale = problem.noise_std if problem.noise_std else None
     best: Candidate | None = None
     confirmed = False
-    robust_candidates: list[Candidate] = []
+    candidates: list[Candidate] = []
     iterations = attempts = starts = 0
     for start in starting_points(problem, rng, failures):
         if start.completion is not None:
@@ -296,8 +301,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         cand = fit_start(start, problem, cauchy_scale, rng)
         if cand is None:
             continue
-        if problem.robust:
-            robust_candidates.append(cand)
+        candidates.append(cand)
         # Votes count refined fits only: raw SDP points from different weights never coincide.
         same = problem.refine and best is not None and _same(cand, best, problem, spread(cand))
         confirmed = confirmed or same
@@ -316,12 +320,11 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         if problem.auto_robust and heavy_tail(cand, problem, (Status.OUTLIERS,)):
             break  # wrong picks: robust="auto" goes on robustly rather than search further
     floor = None
-    if problem.robust and best is not None:  # a lower minimum found there is a new answer
-        best, confirmed, floor = reranked(robust_candidates, problem)
-        lowest, extra = lowest_on_inliers(best, problem, cauchy_scale, rng)
-        confirmed = confirmed if lowest is best else _same(lowest, best, problem, floor)
-        best, starts = lowest, starts + extra
-    return SearchOutcome(best, confirmed, attempts, iterations, starts, tuple(failures), floor)
+    if problem.robust and best is not None:  # ranked again at the noise the data show
+        best, confirmed, floor = reranked(candidates, problem)
+    return SearchOutcome(
+        best, confirmed, attempts, iterations, starts, tuple(failures), floor, tuple(candidates)
+    )
 
 
 def reranked(cands: list[Candidate], problem: CalibrationProblem):
@@ -343,31 +346,6 @@ def reranked(cands: list[Candidate], problem: CalibrationProblem):
     return best, confirmed, floor
 
 
-def lowest_on_inliers(
-    best: Candidate, problem: CalibrationProblem, cauchy_scale: float | None, rng
-) -> tuple[Candidate, int]:
-    """Whether the robust answer is the lowest configuration its own inliers allow: least squares
-    from random points on those ranges; a lower one (a wrong local minimum that dropped the
-    right ranges) is refitted robustly and kept if its Cauchy cost is lower. Returns the best
-    candidate and the number of random starts made."""
-    m, n_starts = problem.ranges.shape[0], min(ROBUST_CHECK_STARTS, problem.random_starts)
-    kept = np.where(best.inliers, problem.ranges, 0.0)
-    lowest, lowest_ssr = None, best.ssr
-    for _ in range(n_starts):
-        points = rng.standard_normal((problem.n_points, problem.dim)) * problem.scale
-        fit = refine_unfolding(points[:m], points[m:], kept, best.inliers)
-        ssr = float(np.sum(fit.residuals[best.inliers] ** 2))
-        if ssr < lowest_ssr * (1 - 1e-6):
-            lowest, lowest_ssr = np.vstack([fit.receivers, fit.sources]), ssr
-    if lowest is None:
-        return best, n_starts
-    cand = fit_start(Start(lowest, None), problem, cauchy_scale, rng)
-    if cand is None or cand.key >= best.key:
-        return best, n_starts
-    note = "a random start on the robust inliers found a lower configuration; "
-    return dataclasses.replace(cand, message=cand.message + note), n_starts
-
-
 def calibration_breakdown(best: Candidate, problem: CalibrationProblem):
     """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust candidate, receivers only.
     (dEchorate, 30 microphones x 14 sources: the right minima drop at most 5 of a microphone's 14
@@ -380,12 +358,16 @@ def calibration_breakdown(best: Candidate, problem: CalibrationProblem):
     return breakdown_check(best.inliers, problem.observed, redundancy, judge_sources=False)
 
 
-def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> tuple[Status, str]:
+def calibration_verdict(
+    outcome: SearchOutcome, problem: CalibrationProblem, judged: CalibrationJudgement | None
+) -> tuple[Status, str]:
     """Status and message of the best candidate: NOT_IDENTIFIABLE without redundancy, OUTLIERS
     when robust dropped over half the redundant ranges or half of a receiver's
-    (:func:`calibration_breakdown`), NO_AGREEMENT when a robust answer was
-    reached by one start only, INCONSISTENT / NO_AGREEMENT when no start passed the residual test
-    / the vote, SOLVER_FAILED when least squares failed."""
+    (:func:`calibration_breakdown`), INCONSISTENT when no start passed the residual test against
+    ``noise_std``, NO_AGREEMENT without it when the RMS residual explains nothing (over
+    RELATIVE_RMS of the scene), SOLVER_FAILED when least squares failed, NOT_IDENTIFIABLE when
+    the judge found a rival minimum (``judged``: :func:`judge_calibration`); then the checks of
+    :func:`unfolding_check` (information, consistency, flatness)."""
     best, noise_std = outcome.best, problem.noise_std
     unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
     n_in = int(best.inliers.sum())
@@ -406,24 +388,14 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
     elif problem.robust and not (breakdown := calibration_breakdown(best, problem)).passed:
         status = breakdown.status
         message += breakdown.reason
-    elif problem.robust and spread(best) > SPREAD_RATIO * outcome.noise_floor:
-        status = Status.NO_AGREEMENT
-        message += (
-            f"its kept ranges fit to {spread(best):.3g} m where another start's fit to "
-            f"{outcome.noise_floor:.3g} m: a wrong configuration that drops few ranges fits the "
-            "rest this loosely (pass noise_std, or raise max_attempts); "
-        )
-    elif problem.robust and not outcome.confirmed:
-        status = Status.NO_AGREEMENT
-        message += (
-            f"no other start of {n_starts} reached the lowest robust configuration: dropping "
-            "ranges lets a wrong configuration fit them, so a robust answer must be reached "
-            "twice (raise max_attempts); "
-        )
     elif (
         rms <= problem.exact_rms
         or _accepted(best, problem)
-        or (noise_std is None and outcome.confirmed and rms <= RELATIVE_RMS * problem.scale)
+        or (
+            noise_std is None
+            and (judged is not None or outcome.confirmed)
+            and rms <= RELATIVE_RMS * problem.scale
+        )
     ):
         pass
     elif noise_std is not None:
@@ -435,12 +407,14 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
     else:
         status = Status.NO_AGREEMENT
         message += (
-            f"no configuration was reached twice from {n_starts} starts (best RMS residual "
-            f"{rms:.3g} m); pass noise_std to test the residual instead; "
+            f"no configuration of {n_starts} starts fits: best RMS residual {rms:.3g} m, over "
+            f"{RELATIVE_RMS:g} of the scene (or, without refine, none was reached twice); "
         )
     if (problem.refine or problem.robust) and not best.fit.converged:
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
         message += f"least squares failed: {best.fit.message}; "
+    if status is Status.CONVERGED and judged is not None:
+        status, message = judged.judgement.status, message + judged.judgement.reason
     if status is Status.CONVERGED:
         check = unfolding_check(
             best.fit.receivers,
@@ -452,13 +426,18 @@ def calibration_verdict(outcome: SearchOutcome, problem: CalibrationProblem) -> 
             what="the calibration",
             judge_sources="none",
             tail=not problem.robust,
+            rivals_judged=judged is not None,
         )
         status, message = check.status, message + check.reason
     return status, message.rstrip("; ")
 
 
 def calibration_result(
-    outcome: SearchOutcome, problem: CalibrationProblem, status: Status, message: str
+    outcome: SearchOutcome,
+    problem: CalibrationProblem,
+    status: Status,
+    message: str,
+    judged: CalibrationJudgement | None = None,
 ) -> Calibration:
     """The :class:`Calibration` of the best candidate, in the canonical frame."""
     best, observed, n_in = outcome.best, problem.observed, int(outcome.best.inliers.sum())
@@ -471,6 +450,16 @@ def calibration_result(
     )
     mirrors = landmark_mirrors(receivers, sources, problem.ranges, best.inliers, sigma,
                                problem.exact_rms)  # fmt: skip
+    checks, n_judged, reached = (), 0, 0
+    if judged is not None:
+        j = judged.judgement
+        checks = (
+            j.check,
+            judged.record(),
+            CheckRecord("verdict", float("nan"), float("nan"), status is Status.CONVERGED, message),
+        )
+        n_judged, reached = len(j.comparisons), j.reached
+        message = "; ".join(filter(None, (message, judged.words(), _ambiguity_words(j))))
     return Calibration(
         receivers=frozen(receivers),
         sources=frozen(sources),
@@ -491,7 +480,16 @@ def calibration_result(
         solver="" if comp is None else comp.solver,
         ambiguous_sources=frozen(mirrors.ambiguous),
         source_mirrors=frozen(mirrors.mirrors),
+        checks=checks,
+        judged=n_judged,
+        reached=reached,
     )
+
+
+def _ambiguity_words(judgement) -> str:
+    """The named ambiguities the judge found, in words ("" if none)."""
+    named = sorted({c.alternative.ambiguity for c in judgement.ambiguities})
+    return "; ".join(f"ambiguous: {w}" for w in named)
 
 
 @single_blas_thread
@@ -657,8 +655,9 @@ AUTO_ROBUST_STATUSES = (Status.INCONSISTENT, Status.OUTLIERS, Status.NO_AGREEMEN
 
 
 def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> Calibration:
-    """One calibration of a parsed problem: the search over starts, the verdict, the result.
-    Raises SolverError when no start gives a usable answer."""
+    """One calibration of a parsed problem: the search over starts, the judge of every
+    alternative (with ``refine``), the verdict, the result. Raises SolverError when no start gives
+    a usable answer."""
     outcome = search(problem, rng)
     if outcome.best is None:
         failures = outcome.solver_failures
@@ -668,55 +667,42 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
             else "calibration found no usable solution: every fit diverged",
             status="; ".join(dict.fromkeys(failures)) or None,
         )
-    if problem.refine and not problem.robust:
-        outcome = probed(outcome, problem, rng)
-    status, message = calibration_verdict(outcome, problem)
-    if status is Status.CONVERGED and problem.refine and not problem.robust:
-        rival, lower = rival_configuration(problem, outcome.best, rng)
-        if lower is not None:  # a lower minimum elsewhere: the answer, judged again, and the
-            before = outcome.best  # answer it displaced is its rival if it fits as well
-            outcome = replaced(outcome, problem, lower, rng, "a random start")
-            status, message = calibration_verdict(outcome, problem)
-            rival = displaced_rival(problem, before, outcome.best)
-        if rival and status is Status.CONVERGED:
-            status, message = Status.NOT_IDENTIFIABLE, "; ".join(filter(None, (message, rival)))
-    return calibration_result(outcome, problem, status, message)
+    judged = None
+    if problem.refine:
+        outcome, judged = judged_outcome(outcome, problem, rng)
+    status, message = calibration_verdict(outcome, problem, judged)
+    return calibration_result(outcome, problem, status, message, judged)
 
 
-def probed(outcome: SearchOutcome, problem: CalibrationProblem, rng) -> SearchOutcome:
-    """The search's answer, or the lower minimum a probe along its weakest directions reached
-    (:func:`rangeslam.mdu.basin_probe.lower_minimum_nearby`, moves scaled by noise_std or the
-    answer's own spread; none for exact data)."""
+def judged_outcome(
+    outcome: SearchOutcome, problem: CalibrationProblem, rng
+) -> tuple[SearchOutcome, CalibrationJudgement]:
+    """The search's answer judged against every alternative (:func:`judge_calibration`); a
+    lower one replaces it (fitted as the search fits a start), the message saying where it came
+    from."""
     best = outcome.best
-    sigma = problem.noise_std or spread(best)
-    if sigma <= problem.exact_rms:
-        return outcome
-    r, observed = problem.ranges, problem.observed
-    lower = lower_minimum_nearby(best.fit.receivers, best.fit.sources, r, observed, sigma)
-    if lower is None:
-        return outcome
-    where = f"a probe {PROBE_SPREADS:g} standard deviations along one of its weakest directions"
-    points = np.vstack([lower.receivers, lower.sources])
-    return replaced(outcome, problem, points, rng, where)
-
-
-def replaced(
-    outcome: SearchOutcome, problem: CalibrationProblem, points: np.ndarray, rng, where: str
-) -> SearchOutcome:
-    """``outcome`` with the least-squares fit from ``points`` (M + K, d) as its answer when that
-    costs less, the message saying ``where`` it came from. A lower minimum was reached once:
-    without noise_std it is not "confirmed" (the vote of two starts is not claimed for it)."""
-    best = outcome.best
-    cand = fit_start(Start(points, None), problem, None, rng)
-    if cand is None or cand.ssr >= best.ssr * (1.0 - LOWER_RTOL):
-        return outcome
+    n_fit = int(best.inliers.sum())
+    sigma = objective_scale(problem, best.ssr, n_fit, outcome.noise_floor)
+    answer = np.vstack([best.fit.receivers, best.fit.sources])
+    inliers = best.inliers if problem.robust else None
+    starts = [np.vstack([c.fit.receivers, c.fit.sources]) for c in outcome.candidates]
+    starts = [p for c, p in zip(outcome.candidates, starts, strict=True) if c is not best]
+    judged = judge_calibration(problem, answer, sigma, rng, inliers=inliers, starts=starts)
+    lowest, displaced = judged.judgement.answer, judged.judgement.comparisons
+    if lowest.points is answer:
+        return outcome, judged
+    cand = fit_start(Start(lowest.points, None), problem, sigma if problem.robust else None, rng)
+    if cand is None:
+        return outcome, judged
+    first = displaced[0]  # the search's answer, against the lower one
     note = (
-        f"{where} reached a lower minimum than the search's answer (residual sum of squares "
-        f"{cand.ssr:.3g} against {best.ssr:.3g} m^2), which replaced it; "
+        ""
+        if first.kind == SAME
+        else f"{lowest.origin} reached a lower minimum than the search's answer (by "
+        f"{first.delta_cost:.3g} noise variances), which replaced it; "
     )
     cand = dataclasses.replace(cand, message=best.message + note)
-    confirmed = outcome.confirmed and problem.noise_std is not None
-    return dataclasses.replace(outcome, best=cand, confirmed=confirmed)
+    return dataclasses.replace(outcome, best=cand), judged
 
 
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
@@ -743,3 +729,10 @@ def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:
         c.ssr, int(c.inliers.sum()), problem.n_points, problem.dim, problem.noise_std,
         problem.exact_rms,
     )  # fmt: skip
+
+
+def spread(cand: Candidate) -> float:
+    """The noise level a candidate's inlier residuals imply, metres (0 without redundancy)."""
+    n_in = int(cand.inliers.sum())
+    dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
+    return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0

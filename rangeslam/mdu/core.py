@@ -392,6 +392,7 @@ def unfolding_check(
     what: str = "the configuration",
     judge_sources: str = "all",
     tail: bool = True,
+    rivals_judged: bool = False,
 ) -> Check:
     """The verdict of :mod:`rangeslam.verdict` on an unfolding's answer (eq. 9 model).
 
@@ -410,6 +411,7 @@ def unfolding_check(
             array or SLAM's trajectory fit the same either side of a source's mirror, and a
             planar walk or array gives every source one; the result reports them).
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
+        rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
     information's rank beyond the rigid motions and the receivers' precision (in the receiver
@@ -451,11 +453,9 @@ def unfolding_check(
     if information.passed:
         model = (covariance[0], projection, prior_jac, offset_columns)
         information = region_check(receivers, sources, pairs, model, sigma, scale, what)
-    flat_rival, receivers_check = (PASSED, PASSED)
-    if prior_jac is None:
-        flat_rival, receivers_check = priorless_checks(
-            receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale
-        )
+    flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
+        receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
+        rivals_judged=rivals_judged)  # fmt: skip
     check = first_failure(dimension, flatness_check(points, sigma, scale, what), flat_rival,
                           information, source_check, receivers_check)  # fmt: skip
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
@@ -470,14 +470,19 @@ def priorless_checks(
     sigma: float | None,
     exact_rms: float,
     scale: float,
+    *,
+    rivals_judged: bool = False,
 ) -> tuple[Check, Check]:
     """The checks of :func:`unfolding_check` made only without step priors: (the flat rival,
     :func:`flat_rival_check`, which compares range residuals alone and so cannot judge a flat
     scene a prior holds; each receiver against its sources, :func:`points_check`: priors tie
     the receivers to each other, so they are not judged one by one). ``scale``: the median
-    observed range, metres, as :func:`unfolding_check` computed it."""
+    observed range, metres, as :func:`unfolding_check` computed it. ``rivals_judged``: the judge
+    compared the fold already (the flat rival passes)."""
     return (
-        flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
+        PASSED
+        if rivals_judged
+        else flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
         points_check(receivers, sources, ranges, observed, sigma, exact_rms, "receiver"),
     )
 

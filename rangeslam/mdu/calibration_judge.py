@@ -1,0 +1,204 @@
+"""The judge of a calibration: every alternative the generators propose, fitted and compared with
+the search's answer on one objective over all ranges (:func:`rangeslam.verdict.judge.judge`).
+
+The objective is the estimator's own: the sum of squared residuals over sigma^2 (least squares),
+or for a robust calibration the Cauchy deviance 2 sum log(1 + (r / s)^2) over every observed
+range at one scale s (``noise_std``, else the least inlier spread the search reached), not over
+the ranges each candidate kept. Alternatives: random starts until the stopping rule
+(:func:`rangeslam.verdict.judge.search_complete`) or the ``random_starts`` budget; the answer
+refitted without each source and without each receiver (:func:`block_proposals`); each point
+mirrored in the plane of the points it is ranged to (:func:`mirror_proposals`); the answer folded
+(:func:`fold_proposal`).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rangeslam.mdu.alternatives import (
+    Proposal,
+    block_proposals,
+    fold_proposal,
+    mirror_proposals,
+    random_proposals,
+)
+from rangeslam.mdu.core import unknowns_up_to_rigid_motion
+from rangeslam.solvers.least_squares import (
+    refine_unfolding,
+    unfolding_jacobian,
+    unfolding_residuals,
+)
+from rangeslam.verdict.judge import (
+    Alternative,
+    CheckRecord,
+    Judgement,
+    information_distance,
+    judge,
+    search_complete,
+    unseen_minima,
+)
+from rangeslam.verdict.thresholds import SEARCH_BUDGET
+
+if TYPE_CHECKING:
+    from rangeslam.mdu.calibration import CalibrationProblem
+
+__all__ = ["CalibrationJudgement", "judge_calibration", "objective_scale"]
+
+
+@dataclass(frozen=True)
+class CalibrationJudgement:
+    """The judgement and what the search of alternatives made: ``starts`` (the search's and the
+    random ones, the answer's own included), ``complete`` whether the stopping rule ended them
+    (else the budget did), ``expected`` minima by the rule."""
+
+    judgement: Judgement
+    starts: int
+    complete: bool
+    expected: float
+
+    def record(self) -> CheckRecord:
+        """The stopping rule as a check: the expected number of minima against those seen plus
+        a half (passed when the rule, not the budget, ended the random starts)."""
+        seen = self.judgement.minima
+        return CheckRecord("search complete", self.expected, seen + 0.5, self.complete,
+                           "" if self.complete else self.words())  # fmt: skip
+
+    def words(self) -> str:
+        """The search in words, for the message."""
+        j = self.judgement
+        rule = "the stopping rule" if self.complete else "the budget (SEARCH_BUDGET)"
+        return (
+            f"{len(j.comparisons)} alternatives judged; {self.starts} starts reached "
+            f"{j.minima} distinct minima ({j.reached} the answer; expected {self.expected:.3g} "
+            f"minima in all), stopped by {rule}"
+        )
+
+
+def objective_scale(problem: CalibrationProblem, ssr: float, n_fit: int, floor=None) -> float:
+    """The sigma (metres) of the judge's objective: ``noise_std``; for a robust calibration
+    without it the search's least inlier spread ``floor``; else the answer's residual sum of
+    squares ``ssr`` over its redundancy; never below the exact-data RMS."""
+    if problem.noise_std:
+        return max(problem.noise_std, problem.exact_rms)
+    if problem.robust and floor:
+        return max(floor, problem.exact_rms)
+    dof = n_fit - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    return max(float(np.sqrt(ssr / dof)) if dof > 0 else 0.0, problem.exact_rms)
+
+
+def _deviance(points: np.ndarray, problem: CalibrationProblem, sigma: float) -> float:
+    """-2 log likelihood of ``points`` (M + K, d) over every observed range at ``sigma``."""
+    m, observed = problem.ranges.shape[0], problem.observed
+    res = unfolding_residuals(points, m, problem.ranges[observed], np.argwhere(observed)) / sigma
+    if problem.robust:
+        return float(2.0 * np.sum(np.log1p(res**2)))
+    return float(np.sum(res**2))
+
+
+def _information_jacobian(points: np.ndarray, problem: CalibrationProblem, sigma: float):
+    """(P, (M + K) d) the objective's Jacobian at ``points``, whitened: J^T J is the information
+    (the Gauss-Newton Hessian of the deviance over 2). Least squares: the range rows over sigma;
+    the Cauchy deviance 2 log(1 + u^2), u = r / sigma: each row times sqrt(2 / (1 + u^2)) /
+    sigma, its iteratively reweighted weight, so that a range the kernel discounts adds no
+    information."""
+    m, observed = problem.ranges.shape[0], problem.observed
+    pairs = np.argwhere(observed)
+    jac = unfolding_jacobian(points, m, pairs) / sigma
+    if not problem.robust:
+        return jac
+    u = unfolding_residuals(points, m, problem.ranges[observed], pairs) / sigma
+    return jac * np.sqrt(2.0 / (1.0 + u**2))[:, None]
+
+
+def _fitted(proposal: Proposal, problem: CalibrationProblem, sigma: float) -> np.ndarray | None:
+    """The estimator's fit from a proposal: first without its block, then on every range (Cauchy
+    loss at ``sigma`` when robust); None when a fit diverged."""
+    m, r, observed = problem.ranges.shape[0], problem.ranges, problem.observed
+    loss = {"loss": "cauchy", "loss_scale": sigma} if problem.robust else {}
+    pts = proposal.points
+    if proposal.fitted:
+        return pts if np.all(np.isfinite(pts)) else None
+    try:
+        if proposal.without is not None:
+            fit = refine_unfolding(pts[:m], pts[m:], r, observed & ~proposal.without, **loss)
+            pts = np.vstack([fit.receivers, fit.sources])
+        fit = refine_unfolding(pts[:m], pts[m:], r, observed, **loss)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    points = np.vstack([fit.receivers, fit.sources])
+    return points if np.all(np.isfinite(points)) else None
+
+
+def _alternative(proposal, problem, sigma) -> Alternative | None:
+    """A proposal fitted and scored."""
+    points = _fitted(proposal, problem, sigma)
+    if points is None:
+        return None
+    return Alternative(
+        points,
+        _deviance(points, problem, sigma),
+        proposal.origin,
+        ambiguous=proposal.ambiguous,
+        ambiguity=proposal.ambiguity,
+        payload=proposal.counted,
+    )
+
+
+def judge_calibration(
+    problem: CalibrationProblem,
+    answer: np.ndarray,
+    sigma: float,
+    rng,
+    *,
+    inliers=None,
+    starts=(),
+) -> CalibrationJudgement:
+    """The answer (M + K, d) against every alternative, at the objective's ``sigma`` (metres).
+
+    ``starts``: the search's other fitted starts (M + K, d) (the SDP's runs), counted by the
+    stopping rule with the answer; random starts follow until the rule ends them or SEARCH_BUDGET
+    starts are made in all (at most ``random_starts``). ``inliers``: a robust answer's kept ranges, where random starts make their
+    first fit."""
+    m, observed = problem.ranges.shape[0], problem.observed
+    main = Alternative(answer, _deviance(answer, problem, sigma), "the answer", payload=True)
+    jac = _information_jacobian(answer, problem, sigma)
+
+    def metric(lowest: Alternative):
+        if lowest is main:
+            return information_distance(jac)
+        return information_distance(_information_jacobian(lowest.points, problem, sigma))
+
+    dof = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+
+    def run(alternatives):
+        return judge(main, alternatives, metric=metric, dof=dof, counted=lambda a: bool(a.payload))
+
+    fixed = itertools.chain(
+        block_proposals(answer, observed),
+        mirror_proposals(answer, m, problem.ranges, observed),
+        [fold_proposal(answer)],
+    )
+    alternatives = [a for p in fixed if (a := _alternative(p, problem, sigma)) is not None]
+    without = None if inliers is None else observed & ~inliers
+    counted = [
+        Alternative(p, _deviance(p, problem, sigma), f"search start {i}", payload=True)
+        for i, p in enumerate(starts)
+    ]
+    n_random = 0
+    randoms = random_proposals(problem.n_points, problem.dim, problem.scale, rng)
+    # the answer is a start too: len(counted) + 1 starts in all
+    budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
+    while n_random < budget and not search_complete(len(counted) + 1, run(counted).minima):
+        proposal = next(randoms)
+        n_random += 1
+        proposal = Proposal(proposal.points, proposal.origin, without, counted=True)
+        alt = _alternative(proposal, problem, sigma)
+        counted += [] if alt is None else [alt]
+    judgement = run(alternatives + counted)
+    n = len(counted) + 1
+    complete = search_complete(n, judgement.minima)
+    return CalibrationJudgement(judgement, n, complete, unseen_minima(n, judgement.minima))

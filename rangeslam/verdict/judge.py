@@ -1,0 +1,265 @@
+"""One judge for every alternative answer: is there another answer that fits as well?
+
+An estimator's search makes candidates (its own starts and the alternatives of
+:mod:`rangeslam.verdict.alternatives`' generators); the judge compares each with the answer on
+the SAME objective over ALL the data, in the units of the likelihood:
+
+- ``Delta = deviance(theta') - deviance(theta)``: the cost gap, -2 log likelihood ratio (for
+  Gaussian ranges the sum of squared residuals over sigma^2; for a robust kernel, twice its cost
+  over every range, not over the ranges each one kept);
+- ``delta^2 = (theta' - theta)^T F (theta' - theta)``: how far theta' lies from theta in the
+  metric of the answer's information F = J^T J (J whitened: rows divided by their sigma), theta'
+  first brought to theta by the model's gauge (a rigid motion, with reflection for ranges alone).
+
+One level decides both (:data:`rangeslam.verdict.thresholds.CHI2_LEVEL`): two answers cannot be
+told apart by the data when ``Delta`` is within the chi-square(1) quantile (a likelihood ratio
+test of two point hypotheses), and theta' is another answer when ``delta^2`` is beyond the
+chi-square(dof) quantile (outside the answer's confidence region). Hence, with the answer the
+lowest candidate (a lower one replaces it):
+
+| delta^2 <= q(dof) | the same answer: it confirms it (a start that reached it) |
+| Delta <= q(1), far | a rival: NOT_IDENTIFIABLE; or, when the alternative is a named discrete
+  gauge of the geometry (a source's side of coplanar receivers), an ambiguity of those points |
+| Delta > q(1), far | a worse minimum: ruled out by the data |
+
+How long to search is a separate rule (:func:`unseen_minima`, Boender and Rinnooy Kan 1987):
+from how many random starts reached how many distinct minima, the posterior expected number of
+minima; the search of random starts stops once it does not exceed those seen by a half.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from rangeslam.geometry.alignment import align
+from rangeslam.status import Status
+from rangeslam.verdict.thresholds import CHI2_LEVEL
+
+__all__ = [
+    "AMBIGUITY",
+    "LOWER",
+    "RIVAL",
+    "SAME",
+    "WORSE",
+    "Alternative",
+    "CheckRecord",
+    "Comparison",
+    "Judgement",
+    "cost_level",
+    "distance_level",
+    "information_distance",
+    "judge",
+    "search_complete",
+    "unseen_minima",
+]
+
+SAME, LOWER, RIVAL, AMBIGUITY, WORSE = "same", "lower", "rival", "ambiguity", "worse"
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A candidate answer of the model: ``points`` (N, d) (receivers above sources, or the
+    model's rows), ``extra`` (q,) further unknowns (offsets; empty when none), ``deviance``
+    (-2 log likelihood over all data, dimensionless: sum of squared whitened residuals, or the
+    robust kernel's equivalent), ``origin`` (the generator that made it: "answer", "random
+    start 3", "without source 5", "mirror", ...). ``ambiguous`` (row indices) and ``ambiguity``
+    (words) name a discrete gauge of the geometry the alternative differs by: those rows' places
+    are then an ambiguity of those points, not a rival of the whole answer."""
+
+    points: np.ndarray
+    deviance: float
+    origin: str
+    extra: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ambiguous: tuple[int, ...] = ()
+    ambiguity: str = ""
+    payload: object = None  # the estimator's own record of this candidate (its fit)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One alternative against the answer: the cost gap ``delta_cost`` (Delta, in deviance
+    units, >= 0 against the lowest), the information distance ``distance2`` (delta^2), and the
+    ``kind`` the one test gives it (SAME, RIVAL, AMBIGUITY, WORSE; LOWER for a replaced answer)."""
+
+    alternative: Alternative
+    delta_cost: float
+    distance2: float
+    kind: str
+
+
+@dataclass(frozen=True)
+class CheckRecord:
+    """One check a verdict ran: its ``name``, the ``statistic``, the ``level`` it was held
+    against, whether it ``passed``, and the ``reason`` in words when it did not."""
+
+    name: str
+    statistic: float
+    level: float
+    passed: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """The judge's outcome: the ``answer`` (the lowest candidate), every ``comparisons`` made, its
+    ``check`` record, the ``status`` it implies (CONVERGED, or NOT_IDENTIFIABLE for a rival), the
+    ``reason`` in words, and counts: ``reached`` (candidates of ``counted`` origins that reached
+    the answer, itself included) and ``minima`` (distinct minima among those)."""
+
+    answer: Alternative
+    comparisons: tuple[Comparison, ...]
+    check: CheckRecord
+    status: Status
+    reason: str
+    reached: int
+    minima: int
+    replaced: Alternative | None = None
+
+    @property
+    def rivals(self) -> tuple[Comparison, ...]:
+        """The comparisons that found a rival minimum."""
+        return tuple(c for c in self.comparisons if c.kind == RIVAL)
+
+    @property
+    def ambiguities(self) -> tuple[Comparison, ...]:
+        """The comparisons that found a named ambiguity of some points."""
+        return tuple(c for c in self.comparisons if c.kind == AMBIGUITY)
+
+
+def cost_level(level: float = CHI2_LEVEL) -> float:
+    """The cost gap (deviance units) within which two answers cannot be told apart: the
+    ``level`` quantile of chi-square with one degree of freedom."""
+    return float(chi2.ppf(level, 1))
+
+
+def distance_level(dof: int, level: float = CHI2_LEVEL) -> float:
+    """The information distance delta^2 beyond which an alternative lies outside the answer's
+    confidence region of ``dof`` unknowns (beyond the gauge): the ``level`` quantile of
+    chi-square with ``dof`` degrees of freedom."""
+    return float(chi2.ppf(level, max(int(dof), 1)))
+
+
+def information_distance(
+    jacobian: np.ndarray, *, reflection: bool = True
+) -> Callable[[Alternative, Alternative, Sequence[int]], float]:
+    """delta^2 between two candidates in the metric of ``jacobian`` (R, N d + q), the whitened
+    Jacobian of the model at the answer (points row-major, then the extra unknowns):
+    ``distance2(a, b, skip)`` moves b's points onto a's by the best rigid motion (with
+    reflection when ``reflection``: the gauge of ranges alone) and measures the step. Rows in
+    ``skip`` (a named ambiguity's points) are left out of the alignment and of the step."""
+
+    def distance2(a: Alternative, b: Alternative, skip: Sequence[int] = ()) -> float:
+        ref, pts = np.asarray(a.points, dtype=float), np.asarray(b.points, dtype=float)
+        keep = np.setdiff1d(np.arange(len(ref)), np.asarray(skip, dtype=int))
+        moved = align(pts[keep], ref[keep], reflection=reflection)
+        aligned = ref.copy()
+        aligned[keep] = moved.aligned
+        step = np.concatenate([(aligned - ref).ravel(), np.asarray(b.extra) - np.asarray(a.extra)])
+        return float(np.sum((jacobian @ step) ** 2))
+
+    return distance2
+
+
+def judge(
+    answer: Alternative,
+    alternatives: Sequence[Alternative],
+    *,
+    metric: Callable[[Alternative], Callable[[Alternative, Alternative, Sequence[int]], float]],
+    dof: int,
+    counted: Callable[[Alternative], bool] = lambda alt: True,
+    level: float = CHI2_LEVEL,
+) -> Judgement:
+    """Every alternative against the lowest candidate, by the one test (module docstring).
+
+    Args:
+        answer: the estimator's answer.
+        alternatives: the candidates the search and the generators made (scored on the same
+            objective over all data as ``answer``).
+        metric: ``metric(lowest)`` gives the delta^2 function of :func:`information_distance`
+            in the information at ``lowest`` (called once, for the lowest candidate).
+        dof: unknowns beyond the gauge (the distance level's degrees of freedom).
+        counted: which candidates count as starts for ``reached`` and ``minima`` (random starts;
+            refits of part of the data do not sample the basins).
+        level: the chi-square level (default CHI2_LEVEL).
+    """
+    pool = [answer, *alternatives]
+    q_cost, q_far = cost_level(level), distance_level(dof, level)
+    lowest = min(pool, key=lambda a: a.deviance)  # the answer judged: the most likely
+    distance2 = metric(lowest)
+    comparisons = []
+    for alt in pool:
+        if alt is lowest:
+            continue
+        gap = float(alt.deviance - lowest.deviance)
+        far = distance2(lowest, alt, ())
+        kind = SAME if far <= q_far else (WORSE if gap > q_cost else RIVAL)
+        if kind == RIVAL and alt.ambiguous and distance2(lowest, alt, alt.ambiguous) <= q_far:
+            kind = AMBIGUITY
+        if alt is answer and kind != SAME:
+            kind = LOWER if kind == WORSE else kind
+        comparisons.append(Comparison(alt, gap, far, kind))
+    minima = _distinct_minima(lowest, comparisons, counted, distance2, q_far)
+    return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
+
+
+def _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far) -> Judgement:
+    """The :class:`Judgement` of the comparisons against ``lowest``."""
+    rivals = [c for c in comparisons if c.kind == RIVAL]
+    starts = [c for c in comparisons if counted(c.alternative)]
+    reached = int(counted(lowest)) + sum(c.kind == SAME for c in starts)
+    replaced = answer if lowest is not answer else None
+    if rivals:
+        worst = min(rivals, key=lambda c: c.delta_cost)
+        reason = (
+            f"{worst.alternative.origin} fits the data as well (cost gap {worst.delta_cost:.3g} "
+            f"<= {q_cost:.3g} noise variances) {_distance_words(worst.distance2, q_far)}: the "
+            "data do not decide between them"
+        )
+        check = CheckRecord("rival minima", worst.delta_cost, q_cost, False, reason)
+        status = Status.NOT_IDENTIFIABLE
+    else:
+        gaps = [c.delta_cost for c in comparisons if c.kind == WORSE]
+        least = min(gaps, default=float("inf"))
+        check = CheckRecord("rival minima", least, q_cost, True)
+        status, reason = Status.CONVERGED, ""
+    return Judgement(lowest, tuple(comparisons), check, status, reason, reached, minima, replaced)
+
+
+def _distance_words(distance2: float, q_far: float) -> str:
+    """How far a rival lies, in words."""
+    return f"at information distance {distance2:.3g} (confidence region {q_far:.3g})"
+
+
+def _distinct_minima(lowest, comparisons, counted, distance2, q_far) -> int:
+    """Distinct minima among the counted candidates (the lowest's own when it is counted or
+    one counted candidate reached it): each other a minimum of its own unless within the
+    confidence region (``q_far``) of one already counted."""
+    at_lowest = counted(lowest) or any(
+        c.kind == SAME and counted(c.alternative) for c in comparisons
+    )
+    others: list[Alternative] = []
+    for c in comparisons:
+        if not counted(c.alternative) or c.kind == SAME:
+            continue
+        if not any(distance2(rep, c.alternative, ()) <= q_far for rep in others):
+            others.append(c.alternative)
+    return int(at_lowest) + len(others)
+
+
+def unseen_minima(starts: int, minima: int) -> float:
+    """Boender and Rinnooy Kan's (1987) posterior expected number of local minima, given that
+    ``starts`` uniform random starts of a local search reached ``minima`` distinct ones:
+    ``minima (starts - 1) / (starts - minima - 2)``; infinite while ``starts <= minima + 2``."""
+    if starts <= minima + 2:
+        return float("inf")
+    return minima * (starts - 1) / (starts - minima - 2)
+
+
+def search_complete(starts: int, minima: int) -> bool:
+    """The stopping rule of the random starts: the expected number of minima
+    (:func:`unseen_minima`) is within half a minimum of those seen."""
+    return unseen_minima(starts, minima) <= minima + 0.5

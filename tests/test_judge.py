@@ -1,0 +1,222 @@
+"""The one judge (rangeslam.verdict.judge): one test for every alternative answer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
+from rangeslam.status import Status
+from rangeslam.verdict.judge import (
+    AMBIGUITY,
+    LOWER,
+    RIVAL,
+    SAME,
+    WORSE,
+    Alternative,
+    cost_level,
+    distance_level,
+    information_distance,
+    judge,
+    search_complete,
+    unseen_minima,
+)
+
+SIGMA = 1e-3
+
+
+def scene(rng, m=6, k=5):
+    """Receivers and sources (M + K, 3) in a 3 m box, all ranges observed."""
+    return rng.uniform(0, 3, (m + k, 3)), m, k
+
+
+def scored(points, m, k, ranges, origin, **kw):
+    """An Alternative scored by its sum of squared residuals over SIGMA^2."""
+    pairs = np.argwhere(np.ones((m, k), dtype=bool))
+    res = unfolding_residuals(points, m, ranges[pairs[:, 0], pairs[:, 1]], pairs) / SIGMA
+    return Alternative(points, float(res @ res), origin, **kw)
+
+
+def metric_for(m, k):
+    """The judge's metric factory: the whitened range Jacobian at the reference."""
+    pairs = np.argwhere(np.ones((m, k), dtype=bool))
+    return lambda ref: information_distance(unfolding_jacobian(ref.points, m, pairs) / SIGMA)
+
+
+def ranges_of(points, m):
+    return np.linalg.norm(points[:m, None] - points[None, m:], axis=2)
+
+
+def test_levels_are_chi_square_quantiles():
+    """One level: the cost gap is chi-square(1), the distance chi-square(dof)."""
+    assert cost_level(0.999) == pytest.approx(10.828, abs=1e-3)
+    assert distance_level(10, 0.999) == pytest.approx(29.588, abs=1e-3)
+    assert distance_level(30) > distance_level(10)
+
+
+def test_same_answer_moved_by_the_gauge_confirms(rng):
+    """The answer under a rigid motion with reflection is the same answer: SAME, CONVERGED."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m)
+    answer = scored(pts, m, k, ranges, "answer")
+    moved = pts @ Rotation.random(random_state=1).as_matrix().T * np.array([1, 1, -1]) + 2.0
+    alt = scored(moved, m, k, ranges, "random start 0")
+    out = judge(answer, [alt], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.comparisons[0].kind == SAME
+    assert out.comparisons[0].distance2 == pytest.approx(0.0, abs=1e-12)
+    assert out.status is Status.CONVERGED and out.check.passed
+    assert out.reached == 2 and out.minima == 1
+
+
+def test_equal_cost_far_alternative_is_a_rival(rng):
+    """An alternative as cheap as the answer but far in the information metric: NOT_IDENTIFIABLE,
+    its origin named in the reason."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m)
+    far = pts.copy()
+    far[0] += 0.2  # a different configuration ...
+    answer = scored(pts, m, k, ranges, "answer")
+    rival = Alternative(far, answer.deviance + 1.0, "the refit without source 2")  # ... as cheap
+    out = judge(answer, [rival], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.comparisons[0].kind == RIVAL
+    assert out.status is Status.NOT_IDENTIFIABLE and not out.check.passed
+    assert "the refit without source 2" in out.reason
+
+
+def test_costlier_far_alternative_is_worse(rng):
+    """A minimum whose cost exceeds the answer's by more than the level is ruled out."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m)
+    far = pts.copy()
+    far[0] += 0.2
+    answer = scored(pts, m, k, ranges, "answer")
+    alt = Alternative(far, answer.deviance + 1.01 * cost_level(), "random start 1", payload=True)
+    out = judge(answer, [alt], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.comparisons[0].kind == WORSE
+    assert out.status is Status.CONVERGED
+    assert out.check.statistic == pytest.approx(1.01 * cost_level())
+
+
+def test_lower_alternative_replaces_the_answer(rng):
+    """An alternative lower by more than the level replaces the answer, which is LOWER then (or
+    a rival, were it within the level)."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m)
+    wrong = pts.copy()
+    wrong[1] += 0.1
+    answer = scored(wrong, m, k, ranges, "answer")
+    right = scored(pts, m, k, ranges, "the refit without receiver 1")
+    out = judge(answer, [right], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.answer is right and out.replaced is answer
+    assert out.comparisons[0].kind == LOWER
+    assert out.status is Status.CONVERGED
+
+
+def test_lower_within_the_level_near_is_the_same_answer(rng):
+    """Lower by less than the level and near: the lowest is taken (the most likely point) and the
+    search's answer is the SAME minimum (LM's tolerance), not a rival."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m) + rng.normal(0, SIGMA, (6, 5))
+    answer = scored(pts, m, k, ranges, "answer")
+    near = Alternative(pts + 1e-9, answer.deviance - 0.5 * cost_level(), "random start 0")
+    out = judge(answer, [near], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.answer is near and out.comparisons[0].kind == SAME
+    assert out.status is Status.CONVERGED
+
+
+def test_lower_within_the_level_far_is_a_rival(rng):
+    """Lower by less than the level and far (Fig. 3's S2 scene: 5.8 noise variances apart): the
+    lower one is the answer and the one it displaced its rival."""
+    pts, m, k = scene(rng)
+    far = pts.copy()
+    far[2] += 0.2
+    answer = Alternative(far, 6.0, "answer")
+    lower = Alternative(pts, 0.2, "the refit without source 0")
+    out = judge(answer, [lower], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.answer is lower and out.comparisons[0].kind == RIVAL
+    assert out.status is Status.NOT_IDENTIFIABLE
+
+
+def test_named_ambiguity_is_not_a_rival(rng):
+    """Coplanar receivers: a source's mirror fits exactly and the receivers stay; the judge names
+    the ambiguity of that source and the rest converges."""
+    m, k = 6, 4
+    receivers = np.c_[rng.uniform(0, 1, (m, 2)), np.zeros(m)]
+    sources = np.c_[rng.uniform(0, 3, (k, 2)), rng.uniform(0.5, 2, k)]
+    pts = np.vstack([receivers, sources])
+    ranges = ranges_of(pts, m)
+    mirrored = pts.copy()
+    mirrored[m + 2, 2] *= -1
+    answer = scored(pts, m, k, ranges, "answer")
+    alt = scored(mirrored, m, k, ranges, "source 2 mirrored", ambiguous=(m + 2,), ambiguity="x")
+    out = judge(answer, [alt], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+    assert out.comparisons[0].kind == AMBIGUITY
+    assert out.status is Status.CONVERGED
+    assert out.ambiguities and not out.rivals
+
+
+def test_distinct_minima_counted_once(rng):
+    """Two starts at one wrong minimum and one at the answer: two distinct minima, two starts
+    (the answer's own included) reached the answer."""
+    pts, m, k = scene(rng)
+    ranges = ranges_of(pts, m)
+    wrong = pts.copy()
+    wrong[0] += 0.3
+    answer = scored(pts, m, k, ranges, "answer", payload=True)
+    alts = [
+        scored(wrong, m, k, ranges, "random start 0", payload=True),
+        scored(wrong + 1e-12, m, k, ranges, "random start 1", payload=True),
+        scored(pts, m, k, ranges, "random start 2", payload=True),
+    ]
+    out = judge(
+        answer, alts, metric=metric_for(m, k), dof=3 * (m + k) - 6, counted=lambda a: a.payload
+    )
+    assert out.minima == 2 and out.reached == 2
+
+
+def test_unseen_minima_formula():
+    """Boender and Rinnooy Kan: w (n - 1) / (n - w - 2), infinite while n <= w + 2."""
+    assert unseen_minima(3, 1) == float("inf")
+    assert unseen_minima(7, 1) == pytest.approx(1.5)
+    assert unseen_minima(10, 2) == pytest.approx(18 / 6)
+    assert not search_complete(6, 1) and search_complete(7, 1)
+    assert not search_complete(15, 2) and search_complete(16, 2)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.floats(-100.0, 100.0),
+)
+def test_distance_gauge_invariant(seed, shift):
+    """delta^2 is invariant to a rigid motion of the alternative (the gauge) and symmetric
+    between two candidates to first order."""
+    rng = np.random.default_rng(seed)
+    pts, m, k = scene(rng)
+    pairs = np.argwhere(np.ones((m, k), dtype=bool))
+    d2 = information_distance(unfolding_jacobian(pts, m, pairs))
+    other = pts + rng.normal(0, 1e-3, pts.shape)
+    a, b = Alternative(pts, 0.0, "a"), Alternative(other, 0.0, "b")
+    rot = Rotation.random(random_state=seed % 1000).as_matrix()
+    moved = Alternative(other @ rot.T + shift, 0.0, "b moved")
+    assert d2(a, moved, ()) == pytest.approx(d2(a, b, ()), rel=1e-6, abs=1e-12)
+
+
+def test_calibrate_reports_the_judge(rng):
+    """calibrate's result lists the judge's checks (name, statistic, level, passed), how many
+    alternatives it judged and how many starts reached the answer; exact data stay exact."""
+    from rangeslam import align, calibrate
+
+    pts, m, k = scene(rng, m=8, k=5)
+    out = calibrate(ranges_of(pts, m), noise_std=0.0, rng=rng)
+    assert out.converged, out.message
+    assert align(out.receivers, pts[:m], reflection=True).rmse < 1e-6
+    names = [c.name for c in out.checks]
+    assert names[:2] == ["rival minima", "search complete"]
+    assert out.checks[0].passed and out.checks[0].level == pytest.approx(cost_level())
+    # every source and receiver left out once, each point mirrored, the fold, the starts
+    assert out.judged >= 2 * (m + k) + 1
+    assert 1 <= out.reached <= 8 and "alternatives judged" in out.message
