@@ -136,9 +136,12 @@ def test_every_loudspeaker_in_every_output(session, tmp_path, monkeypatch, capsy
         assert len(est.get_offsets()) == 2 and len(true.get_offsets()) == 2
 
 
-def test_a_loudspeaker_not_located_is_listed_with_no_error(session, tmp_path, monkeypatch):
-    """Loudspeaker 1 not located: its row says so, its JSON entry has no position and error
-    null (not left out), loudspeaker 0 keeps its error."""
+def test_a_loudspeaker_not_located_is_listed_with_no_error(
+    session, tmp_path, monkeypatch, keep_figure
+):
+    """Loudspeaker 1 not located: the table's heading counts it and the worst error is over
+    those located; its row says so, its JSON entry has no position and error null (not left
+    out), loudspeaker 0 keeps its error; the room plot names it at its true position."""
     run = _stand_in(session.room)
 
     def lost(*a, **k):
@@ -155,10 +158,15 @@ def test_a_loudspeaker_not_located_is_listed_with_no_error(session, tmp_path, mo
     assert first["error_m"] == pytest.approx(1e-3) and first["located"]
     assert not second["located"] and second["position"] is None and second["error_m"] is None
     assert record["sources"][1] is None
-    assert (
-        f"| 1 | {session.paths[1]} | not located | - | - | - | none |"
-        in (out / "run_summary.md").read_text()
-    )
+    summary = (out / "run_summary.md").read_text()
+    heading = "2 loudspeakers (fitted jointly with the walls; 1 of 2 located; worst error 1.0 mm)"
+    assert heading in summary
+    assert f"| 1 | {session.paths[1]} | not located | - | - | - | - |" in summary
+    for ax in keep_figure[-1].axes:  # the room: named at its true position
+        assert sorted(t.get_text() for t in ax.texts) == [
+            "loudspeaker 0",
+            "loudspeaker 1 (not located)",
+        ]
 
 
 @pytest.mark.slow

@@ -516,7 +516,7 @@ def plot_room_estimate(
             _wall_traces(ax, wall_normals, wall_offsets, axes, centre, (lo, hi), found=found)
         _scatter_room_points(ax, axes, mics, image_sources, true_source, source, box=(lo, hi))
         if source is not None and np.ndim(source) == 2 and len(source) > 1:
-            _number_loudspeakers(ax, axes, np.asarray(source, dtype=float), (lo, hi))
+            _number_loudspeakers(ax, axes, np.asarray(source, dtype=float), (lo, hi), true_source)
         _view_axes(ax, axes, labels, name, (lo, hi))
         if room is None:
             ax.set_title(name + " (walls cut through the loudspeaker)", fontsize=10)
@@ -526,20 +526,24 @@ def plot_room_estimate(
     return save_figure(fig, path, legend_space=True)
 
 
-def _number_loudspeakers(ax, axes, sources: np.ndarray, box) -> None:
-    """Each located loudspeaker of ``sources`` (J, d; NaN rows not located) numbered by its
-    row beside its marker (above it and below it in turn, so that neighbours do not overlap),
-    within ``box``."""
+def _number_loudspeakers(ax, axes, sources: np.ndarray, box, truths=None) -> None:
+    """Each loudspeaker of ``sources`` (J, d; NaN rows not located) numbered by its row beside
+    its marker (above it and below it in turn, so that neighbours do not overlap), within
+    ``box``; one not located is named at its true position (``truths`` (J, d)) when known."""
     lo, hi = box
-    for j, p in enumerate(sources):
+    truths = np.full_like(sources, np.nan) if truths is None else np.reshape(truths, sources.shape)
+    for j, (p, t) in enumerate(zip(sources, truths, strict=True)):
+        name, colour = f"loudspeaker {j}", "tab:red"
+        if not np.all(np.isfinite(p)):
+            p, name, colour = t, f"loudspeaker {j} (not located)", "k"
         if np.all(np.isfinite(p)) and np.all((p >= lo) & (p <= hi)):
             ax.annotate(
-                f"loudspeaker {j}",
+                name,
                 (p[axes[0]], p[axes[1]]),
                 xytext=(6, 6 if j % 2 == 0 else -14),
                 textcoords="offset points",
                 fontsize=8,
-                color="tab:red",
+                color=colour,
             )
 
 

@@ -175,8 +175,11 @@ def loudspeaker_lines(speakers: list[Loudspeaker], record: dict) -> list[str]:
     """Every loudspeaker as Markdown lines (estimate, truth, error) and in ``record``: one entry
     per loudspeaker under "loudspeakers" (and the estimates alone under "sources", null where
     not located)."""
-    errors = [s.error for s in speakers if s.error is not None]
+    errors = [s.error for s in speakers if s.error is not None and math.isfinite(s.error)]
+    located = sum(s.estimate is not None for s in speakers)
     worst = f"; worst error {fmt(max(errors), 1e3, 1)} mm" if errors else ""
+    if located < len(speakers):
+        worst = f"; {located} of {len(speakers)} located{worst}"
     lines = [
         f"{len(speakers)} loudspeakers (fitted jointly with the walls{worst}):",
         "",
@@ -184,12 +187,11 @@ def loudspeaker_lines(speakers: list[Loudspeaker], record: dict) -> list[str]:
         "|---|---|---|---|---|---|---|",
     ]
     for s in speakers:
-        where = " | ".join(fmt(float(v)) for v in s.estimate) if s.estimate is not None else None
-        lines.append(
-            f"| {s.index} | {s.file} | "
-            + (f"estimated | {where}" if where else "not located | - | - | -")
-            + f" | {fmt(s.error, 1e3, 1)} |"
-        )
+        cells = "not located | - | - | - | -"
+        if s.estimate is not None:
+            where = " | ".join(fmt(float(v)) for v in s.estimate)
+            cells = f"estimated | {where} | {fmt(s.error, 1e3, 1)}"
+        lines.append(f"| {s.index} | {s.file} | {cells} |")
         if s.truth is not None:
             lines.append(
                 f"| {s.index} | | true | " + " | ".join(fmt(float(v)) for v in s.truth) + " | |"
