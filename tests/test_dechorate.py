@@ -90,6 +90,7 @@ def test_single_loudspeakers_locate_themselves(data, seed):
             assert res.message.startswith("wall 3:"), res.message
 
 
+@pytest.mark.slow
 def test_zero_knowledge_calibration_of_the_30_microphones(data, rng):
     """Issue 3: the 30 microphones and the 14 virtual sources of loudspeakers 0 and 1 (direct path
     and six echoes each), all unknown to the solver. The measured picks include whole arrays
@@ -112,6 +113,7 @@ def test_zero_knowledge_calibration_of_the_30_microphones(data, rng):
         assert 0 < out.n_outliers < 0.25 * ranges.size
 
 
+@pytest.mark.slow
 def test_calibrate_defaults_on_a_held_out_simulated_pair_of_loudspeakers(data):
     """Held out: two new loudspeakers in the dEchorate room, their picks drawn from the error
     kinds of the real ones (rangeslam.sim.echo_picks: array-correlated phantoms, biases, gross

@@ -20,6 +20,7 @@ def bounded_1cm(request):
     return {m: [slam_experiment(m, 0.01, True, rng) for _ in range(TRIALS)] for m in STEPS}
 
 
+@pytest.mark.slow
 def test_mean_error_near_the_oracle_and_gtsam_no_worse_than_edm(bounded_1cm):
     """Per M, the mean trajectory error within 1.75x the oracle's (the same graph minimised from
     the truth, on the same ranges) and no larger than the EDM answer's alone."""
@@ -34,6 +35,7 @@ def test_mean_error_near_the_oracle_and_gtsam_no_worse_than_edm(bounded_1cm):
         assert error <= edm, f"M = {m}: EDM + GTSAM {error:.4f} m, EDM alone {edm:.4f} m"
 
 
+@pytest.mark.slow
 def test_success_and_convergence_from_six_steps(bounded_1cm):
     """From M = 6: at least 95% of the trials within 10 cm, and those that are not say so."""
     runs = [r for m, rs in bounded_1cm.items() if m >= 6 for r in rs]
@@ -41,6 +43,7 @@ def test_success_and_convergence_from_six_steps(bounded_1cm):
     assert not any(r.converged for r in runs if r.error >= 0.10)
 
 
+@pytest.mark.slow
 def test_covariances_are_honest_from_ten_steps(bounded_1cm):
     """NEES of the whole trajectory against its covariance, M >= 10: the mean over the trials
     (divided by its dof) inside the two-sided 99% chi-square band (the 95% band is the
@@ -51,6 +54,7 @@ def test_covariances_are_honest_from_ten_steps(bounded_1cm):
     assert lo <= mean <= hi, f"mean NEES / dof {mean:.3f} outside [{lo:.3f}, {hi:.3f}]"
 
 
+@pytest.mark.slow
 def test_1mm_twenty_steps_at_the_oracle_and_the_bound(rng):
     """sigma = 1 mm, M = 20, bounds placed at random around the true steps, 30 walks: the RMS
     trajectory error within 1.6x the oracle's (the same graph minimised from the truth), the

@@ -43,6 +43,7 @@ def _error(out, x):
     return align(out.receivers, x, reflection=True).errors.max()
 
 
+@pytest.mark.slow
 def test_finds_injected_outliers():
     """Two whole wrong events and four wrong arrivals among 12 x 24: every one of them dropped,
     at most 5% of the clean arrivals dropped with them (a 3-sigma threshold drops 0.3% of
@@ -100,6 +101,7 @@ def test_robust_must_be_a_bool(value):
         calibrate_unknown_emission(t, np.arange(12), receiver_offsets=True, robust=value)
 
 
+@pytest.mark.slow
 def test_ranking_puts_wrong_events_last(rng):
     """rank_events on scenes with 4 whole wrong events among 24 (and 4 wrong arrivals): the rough
     fit is not the answer, but its largest residual per event ranks the wrong events in the worse

@@ -66,6 +66,7 @@ def test_loader_bad_input(tmp_path):
     assert ok.receivers.shape == (4, 3)
 
 
+@pytest.mark.slow
 def test_authors_protocol_reduced(data):
     """10 random subsets of K = 8 and of K = 11 clean events (the authors' protocol, each event
     its own offset, microphone offsets unknown). The global search reaches the least-squares fit
@@ -92,6 +93,7 @@ def _columns(row: dict) -> np.ndarray:
     return np.array([int(c) for c in row["columns"].split()])
 
 
+@pytest.mark.slow
 def test_robust_run_without_the_mask(data):
     """All 65 events, the authors' mask W not given (issue 16): the robust run drops every event W
     marks wrong at all 12 microphones, keeps at most 10% of W's outlier arrivals, and puts the
