@@ -14,6 +14,7 @@ def _fig3_runs(sigma, rng, n=100):
     return [calibration_experiment(sigma, rng) for _ in range(n)]
 
 
+@pytest.mark.slow
 def test_fig3_exact_recovery_and_honest_convergence(rng):
     """sigma = 0, 100 Fig. 3 configurations: at least 97 recover the microphones to < 1 mm up to a
     rigid motion (measured 100/100 on several seeds), and `converged` is True exactly for those."""
@@ -27,6 +28,7 @@ def test_fig3_exact_recovery_and_honest_convergence(rng):
             assert r.result.message
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sigma", [1e-3, 5e-3])
 def test_fig3_converged_answers_are_at_the_oracle(rng, sigma):
     """sigma = 1 mm and 5 mm, 100 configurations each: of the configurations that converge, at
