@@ -10,6 +10,7 @@ import pytest
 from rangeslam.app.cli import main
 
 
+@pytest.mark.slow
 def test_demo_end_to_end(tmp_path, monkeypatch, capsys, opened_heartbeats):
     """`rangeslam demo`, as the README's first line runs it (no --out, in an empty folder), prints
     the wall table, a small Fig. 3 and Fig. 5 comparison, writes every plot (rooms, Fig. 3, Fig. 5,
@@ -160,6 +161,7 @@ def test_bench_in_an_empty_folder_writes_its_default_folder(tmp_path, monkeypatc
     assert {"fig3_trials.csv", "fig3_summary.json", "fig3_summary.md", "fig3.png"} <= written
 
 
+@pytest.mark.slow
 def test_progress_off_a_terminal_comes_before_the_end(tmp_path):
     """Piped (no terminal), a bench prints a progress line per finished cell, with the count and
     the time left, on standard error, and the first one arrives before the run's last line."""

@@ -168,6 +168,7 @@ def fig5_walk(rng, frames_per_step: int, m: int = 15, fs: int = 16000):
     return rirs, traj[keys], keys, (0.8 * steps, 1.2 * steps), landmarks
 
 
+@pytest.mark.slow
 def test_walk_from_rirs_end_to_end(rng):
     """The Fig. 5 walk as RIRs (8 a step), end to end: converged, the ranges used timed to a
     quarter of a sample, the trajectory within 1 cm RMS (after rigid alignment with reflection).
@@ -203,6 +204,7 @@ def test_walk_from_rirs_with_too_few_echoes_is_not_converged(rng):
     assert w.slam is None and w.ranges is None and w.mask is None and w.columns == ()
 
 
+@pytest.mark.slow
 def test_walk_with_wrong_step_bounds_is_not_converged(rng):
     """Bounds 1.17-1.43x the true steps (10 steps): not converged (the answer sits on the bounds,
     or LM does not settle), never an answer off by decimetres presented as converged."""

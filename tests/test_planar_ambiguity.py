@@ -116,7 +116,14 @@ def _planar_walk(rng: np.random.Generator, m: int, sigma: float, *, flat_landmar
     return ranges, (0.8 * steps, 1.2 * steps)
 
 
-@pytest.mark.parametrize(("m", "noise_std"), [(3, None), (4, None), (3, 1e-3)])
+@pytest.mark.parametrize(
+    ("m", "noise_std"),
+    [
+        (3, None),
+        pytest.param(4, None, marks=pytest.mark.slow),
+        pytest.param(3, 1e-3, marks=pytest.mark.slow),
+    ],
+)
 def test_slam_dim_2_under_3d_landmarks_is_not_converged(rng, m, noise_std):
     """A planar walk of 2 or 3 steps under 3-D landmarks, fitted with dim=2, is not CONVERGED
     (6 fresh walks with bounds each, before: 6 of 6 converged without noise_std at 2 and 3

@@ -519,6 +519,7 @@ def test_walk_mode_plumbing_with_a_stand_in_tracker(monkeypatch, tmp_path, capsy
 # stated standard deviation of 9.2 mm a position (a short planar walk of 10 steps is weakly
 # determined: exact ranges to the loudspeaker and its first-order images with 0.3 mm noise give
 # 3.7 mm); an earlier tracker gave 2.3 mm. The test holds the answer to what it says of itself.
+@pytest.mark.slow
 def test_walk_from_simulated_rirs():
     """The real tracker (rangeslam.acoustics.tracking) on RIRs along a walk, 10 keyframes of 30 RIRs:
     converged, and the trajectory error (RMS after rigid alignment, with reflection) within 3

@@ -93,6 +93,7 @@ def test_simulate_cut_corner_room_reports_every_true_wall(rng, tmp_path, capsys)
     assert "Against the true room" in text
 
 
+@pytest.mark.slow
 def test_simulate_walk_then_run_converges_with_the_trajectory_within_tolerance(
     rng, tmp_path, monkeypatch, capsys
 ):

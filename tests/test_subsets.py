@@ -168,6 +168,7 @@ def test_long_walk_exact_recovery():
     assert align(res.receivers, traj, reflection=True).rmse < 1e-6
 
 
+@pytest.mark.slow
 def test_long_walk_at_the_oracle_and_the_bound():
     """80-step walks, 1 cm, noise not given, +-20% bounds placed at random around the true steps:
     every one converged; the RMS error within 1.1x the oracle's (the same graph minimised from
@@ -191,6 +192,7 @@ def test_long_walk_at_the_oracle_and_the_bound():
     assert c.search <= 1.1 and c.attained, c
 
 
+@pytest.mark.slow
 def test_large_array_exact_and_at_the_bound():
     """30 receivers x 20 sources (a core in the SDP): exact ranges recovered to round-off; at
     1 cm, noise not given, converged, within 1.1x the oracle's RMS error (least squares from the
