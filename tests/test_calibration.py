@@ -129,16 +129,19 @@ def test_failure_is_reported_not_hidden(rng):
     assert out.residual_rms > 1e-4
 
 
-def test_unknown_noise_needs_a_second_start_to_agree(rng):
-    """Without noise_std a noisy answer is only accepted when two starts reach it: one start
-    alone is reported as not converged; exact data are accepted at once."""
+def test_unknown_noise_one_start_says_the_budget_ended_its_search(rng):
+    """Without noise_std and with one start and no random ones, the stopping rule cannot end the
+    search (it needs minima + 3 starts): the result says the budget did ("search complete" not
+    passed, named in the message), and the answer is right or not converged; exact data are
+    accepted at once."""
     x, s = rng.uniform(0, 2, (10, 3)), rng.uniform(-2, 4, (8, 3))
     exact = calibrate(range_matrix(x, s), max_attempts=1, random_starts=0, rng=rng)
     assert exact.converged and align(exact.receivers, x, reflection=True).rmse < 1e-6
     noisy = add_range_noise(range_matrix(x, s), 1e-3, rng=rng)
     once = calibrate(noisy, max_attempts=1, random_starts=0, rng=rng)
-    assert not once.converged and "reached twice" in once.message
-    assert once.status is Status.NO_AGREEMENT
+    search = {c.name: c for c in once.checks}["search complete"]
+    assert not search.passed and "stopped by the budget" in once.message
+    assert not once.converged or align(once.receivers, x, reflection=True).rmse < 3e-3
 
 
 def test_unknown_noise_vote_on_a_well_posed_array(rng):
@@ -190,20 +193,18 @@ def test_robust_calibration_drops_wrong_picks(rng):
     assert out.n_outliers <= wrong.sum() + 3
 
 
-def test_robust_answer_of_one_start_is_not_converged(rng):
-    """Issue 17: dropping ranges lets a wrong configuration pass the residual test, so a robust
-    answer no second start reached is NO_AGREEMENT, however well its inliers fit; with four runs
-    the same data converge right or say they did not (measured: converged at 5 of 6 suite seeds,
-    NO_AGREEMENT at the sixth)."""
+def test_robust_answer_of_one_start_is_right_or_not_converged(rng):
+    """Issue 17: dropping ranges lets a wrong configuration pass the residual test on the ranges
+    it kept; judged on the Cauchy cost over every range against the judge's alternatives (the
+    refits without each source and each receiver among them), one start's robust answer is
+    right or not converged, and with four runs the same data converge right or say they did
+    not."""
     x, s = rng.uniform(0, 2, (20, 3)), rng.uniform(-2, 4, (12, 3))
     clean = add_range_noise(range_matrix(x, s), 0.002, rng=rng)
     ranges, _ = add_outliers(clean, 0.05, min_error=0.05, max_error=0.5, rng=rng)
     options = {"noise_std": 0.002, "robust": True, "max_iterations": 20, "rng": rng}
     one = calibrate(ranges, max_attempts=1, random_starts=0, **options)
-    # (a single start that lands in a wrong minimum drops over half the redundant ranges first)
-    assert one.status in (Status.NO_AGREEMENT, Status.OUTLIERS), one.message
-    if one.status is Status.NO_AGREEMENT:
-        assert "no other start of 1 reached" in one.message
+    assert not one.converged or align(one.receivers, x, reflection=True).rmse < 0.006
     more = calibrate(ranges, max_attempts=4, **options)
     assert not more.converged or align(more.receivers, x, reflection=True).rmse < 0.006
 

@@ -36,6 +36,7 @@ from rangeslam.mdu.core import (
     canonical_frame,
     checked_options,
     passes_residual_test,
+    sources_verdict,
     unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
@@ -413,8 +414,9 @@ def calibration_verdict(
     if (problem.refine or problem.robust) and not best.fit.converged:
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
         message += f"least squares failed: {best.fit.message}; "
-    if status is Status.CONVERGED and judged is not None:
-        status, message = judged.judgement.status, message + judged.judgement.reason
+    if status is Status.CONVERGED and judged is not None and not judged.judgement.check.passed:
+        status = judged.judgement.status
+        message += "; ".join(filter(None, (judged.judgement.reason, _sources_note(best, problem))))
     if status is Status.CONVERGED:
         check = unfolding_check(
             best.fit.receivers,
@@ -736,3 +738,17 @@ def spread(cand: Candidate) -> float:
     n_in = int(cand.inliers.sum())
     dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
     return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0
+
+
+def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
+    """The note on the sources the receivers leave undetermined (their mirror images,
+    :func:`rangeslam.mdu.core.sources_verdict`), for a verdict that ends before the checks make
+    it."""
+    n_in = int(best.inliers.sum())
+    redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    sigma = verdict_noise(
+        problem.noise_std, noise_upper_bound(best.ssr, redundancy), problem.exact_rms
+    )
+    fit = best.fit
+    return sources_verdict(fit.receivers, fit.sources, problem.ranges, best.inliers, sigma,
+                           problem.exact_rms, "none")[1]  # fmt: skip

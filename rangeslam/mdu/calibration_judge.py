@@ -167,12 +167,14 @@ def judge_calibration(
     main = Alternative(answer, _deviance(answer, problem, sigma), "the answer", payload=True)
     jac = _information_jacobian(answer, problem, sigma)
 
-    def metric(lowest: Alternative):
-        if lowest is main:
-            return information_distance(jac)
-        return information_distance(_information_jacobian(lowest.points, problem, sigma))
+    # the receivers are what is calibrated: the sources are nuisance, profiled out
+    receivers = np.arange(m)
 
-    dof = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    def metric(lowest: Alternative):
+        at = jac if lowest is main else _information_jacobian(lowest.points, problem, sigma)
+        return information_distance(at, interest=receivers)
+
+    dof = unknowns_up_to_rigid_motion(m, problem.dim)
 
     def run(alternatives):
         return judge(main, alternatives, metric=metric, dof=dof, counted=lambda a: bool(a.payload))

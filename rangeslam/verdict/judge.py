@@ -144,22 +144,41 @@ def distance_level(dof: int, level: float = CHI2_LEVEL) -> float:
 
 
 def information_distance(
-    jacobian: np.ndarray, *, reflection: bool = True
+    jacobian: np.ndarray, *, reflection: bool = True, interest: Sequence[int] | None = None
 ) -> Callable[[Alternative, Alternative, Sequence[int]], float]:
     """delta^2 between two candidates in the metric of ``jacobian`` (R, N d + q), the whitened
     Jacobian of the model at the answer (points row-major, then the extra unknowns):
     ``distance2(a, b, skip)`` moves b's points onto a's by the best rigid motion (with
     reflection when ``reflection``: the gauge of ranges alone) and measures the step. Rows in
-    ``skip`` (a named ambiguity's points) are left out of the alignment and of the step."""
+    ``skip`` (a named ambiguity's points) are left out of the alignment and of the step.
+
+    ``interest``: the rows (points) the estimate is of (a calibration's receivers, a walk's
+    steps); the others and the extra unknowns are then nuisance, profiled out: the step of the
+    points of interest is measured in their marginal information (the Schur complement of the
+    nuisance block, J_i^T (I - P_n) J_i with P_n the projection on the nuisance columns), after
+    the rigid motion that best aligns those points alone."""
+    n_cols = jacobian.shape[1]
+
+    def columns(rows: np.ndarray, d: int) -> np.ndarray:
+        return (rows[:, None] * d + np.arange(d)[None, :]).ravel()
 
     def distance2(a: Alternative, b: Alternative, skip: Sequence[int] = ()) -> float:
         ref, pts = np.asarray(a.points, dtype=float), np.asarray(b.points, dtype=float)
-        keep = np.setdiff1d(np.arange(len(ref)), np.asarray(skip, dtype=int))
+        d = ref.shape[1]
+        rows = np.arange(len(ref)) if interest is None else np.asarray(interest, dtype=int)
+        keep = np.setdiff1d(rows, np.asarray(skip, dtype=int))
         moved = align(pts[keep], ref[keep], reflection=reflection)
-        aligned = ref.copy()
-        aligned[keep] = moved.aligned
-        step = np.concatenate([(aligned - ref).ravel(), np.asarray(b.extra) - np.asarray(a.extra)])
-        return float(np.sum((jacobian @ step) ** 2))
+        step = np.zeros(n_cols)
+        step[columns(keep, d)] = (moved.aligned - ref[keep]).ravel()
+        if interest is None:
+            step[ref.size :] = np.asarray(b.extra) - np.asarray(a.extra)
+            return float(np.sum((jacobian @ step) ** 2))
+        nuisance = np.setdiff1d(np.arange(n_cols), columns(rows, d))
+        moved_rows = jacobian @ step
+        fitted = jacobian[:, nuisance] @ np.linalg.lstsq(
+            jacobian[:, nuisance], moved_rows, rcond=None
+        )[0]
+        return float(np.sum((moved_rows - fitted) ** 2))
 
     return distance2
 
