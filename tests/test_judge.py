@@ -220,3 +220,23 @@ def test_calibrate_reports_the_judge(rng):
     # every source and receiver left out once, each point mirrored, the fold, the starts
     assert out.judged >= 2 * (m + k) + 1
     assert 1 <= out.reached <= 8 and "alternatives judged" in out.message
+
+
+def test_nuisance_points_are_profiled_out(rng):
+    """With the receivers as the points of interest, an alternative that moves only a source
+    is at distance 0 (the source's columns absorb it: a source's mirror is no rival of the
+    receivers), while moving a receiver is measured in their marginal information, never more
+    than in the joint one."""
+    pts, m, k = scene(rng, m=8, k=6)
+    pairs = np.argwhere(np.ones((m, k), dtype=bool))
+    jac = unfolding_jacobian(pts, m, pairs) / SIGMA
+    joint = information_distance(jac)
+    marginal = information_distance(jac, interest=np.arange(m))
+    source_moved, receiver_moved = pts.copy(), pts.copy()
+    source_moved[m + 1] += 0.01
+    receiver_moved[2] += 0.01
+    a = Alternative(pts, 0.0, "a")
+    assert marginal(a, Alternative(source_moved, 0.0, "s"), ()) == pytest.approx(0.0, abs=1e-9)
+    assert joint(a, Alternative(source_moved, 0.0, "s"), ()) > 1.0
+    moved = Alternative(receiver_moved, 0.0, "r")
+    assert 0.0 < marginal(a, moved, ()) <= joint(a, moved, ()) * (1 + 1e-9)
