@@ -136,6 +136,7 @@ def test_easy_scene_accuracy(rng):
     assert np.median(errors) < 0.01, errors
 
 
+@pytest.mark.slow
 def test_smoothing_does_not_hurt(rng):
     """RTS smoothing does not make the easy scenes' median trajectory error worse (measured over
     40 seeds: median 0.9 mm smoothed against 2.4 mm filtered). The median, not the mean: a
@@ -147,6 +148,7 @@ def test_smoothing_does_not_hurt(rng):
     assert np.median(smoothed) <= np.median(filtered), (smoothed, filtered)
 
 
+@pytest.mark.slow
 def test_fig5_setting_is_finite(rng):
     """On the Fig. 5 setting (M = 20, 1 cm noise, bounds) the EKF's default start-up window takes
     every step (the planar walk never passes its linearisation test): a batch fit, finite."""
@@ -157,6 +159,7 @@ def test_fig5_setting_is_finite(rng):
     assert align(res.receivers, traj, reflection=True).rmse < 1.0
 
 
+@pytest.mark.slow
 def test_filter_runs_in_3d_on_fig5(rng):
     """A 5-step window and 7 filtered steps in 3-D (Fig. 5, 1 cm, bounds) over 8 walks: the
     filter and its smoother track the walk (measured medians about 5 and 3 cm), the smoother is

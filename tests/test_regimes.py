@@ -111,6 +111,7 @@ def test_wrong_picks_are_a_share_of_the_ranges():
     assert 1 <= off.sum() <= 0.15 * off.size
 
 
+@pytest.mark.slow
 def test_a_trial_runs_every_method_on_a_reproducible_scene():
     cell = RegimeCell("random", 6, True, 1e-3)
     row = run_regime_trial(cell, 0, 11, max_starts=3)
@@ -192,6 +193,7 @@ def test_the_criterion_names_what_fails_in_each_cell():
     assert table[1][4] == f"{100 * np.quantile([0.01, 0.02, 0.3], 0.9):.2f}"
 
 
+@pytest.mark.slow
 def test_the_map_runs_over_processes_in_order():
     cells = [RegimeCell("random", 5, True, 1e-3)]
     seen = []
@@ -204,6 +206,7 @@ def test_the_map_runs_over_processes_in_order():
         regime_map(cells, trials=1, seed=0, jobs=0)
 
 
+@pytest.mark.slow
 def test_cli_writes_the_tables_and_figures(tmp_path, monkeypatch, capsys):
     import rangeslam.app.calibration_regimes as calibration
     import rangeslam.app.regimes as regimes

@@ -54,7 +54,7 @@ def test_exact_at_zero_noise(rng, dim, n_sources, robust):
         assert res.n_outliers == 0
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_one_mm_noise_walls_within_one_cm(rng, dim):
     """At 1 mm range noise, 8 random microphones and one loudspeaker, over 24 rooms (shoebox and
     non-box): every wall offset (at the wall's centroid) is within 1 cm wherever the Cramer-Rao bound
@@ -96,6 +96,7 @@ def test_one_mm_noise_walls_within_one_cm(rng, dim):
     assert qualified >= 0.5 * n_draws  # not vacuous: measured 96-100% (2-D), 75-89% (3-D)
 
 
+@pytest.mark.slow
 def test_wall_crlb_matches_monte_carlo(rng):
     """The wall CRLB agrees with the spread of the maximum-likelihood walls over 200 noisy draws
     (within 20%: the Monte-Carlo standard error of a standard deviation is 5% here)."""
@@ -113,7 +114,7 @@ def test_wall_crlb_matches_monte_carlo(rng):
     np.testing.assert_allclose(np.sqrt(np.mean(np.square(ang), axis=0)), ang_std, rtol=0.2)
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_wrong_picks_are_rejected(rng, dim):
     """With 10% wrong picks (0.2-2 m off) and 1 mm noise, 12 microphones and 2 loudspeakers, in 9
     rooms: when fewer than half the picks of every column are wrong (the breakdown point of the

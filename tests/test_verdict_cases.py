@@ -211,10 +211,10 @@ def _reduced(estimator: str, rng) -> list:
     "estimator",
     [
         "multilaterate",
-        "calibrate",
-        "slam",
+        pytest.param("calibrate", marks=pytest.mark.slow),
+        pytest.param("slam", marks=pytest.mark.slow),
         "reconstruct_room",
-        "calibrate_unknown_emission",
+        pytest.param("calibrate_unknown_emission", marks=pytest.mark.slow),
     ],
 )
 def test_reduced_benchmark(estimator, rng):

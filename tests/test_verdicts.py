@@ -95,6 +95,7 @@ def test_weak_moves_follow_the_largest_spread_and_carry_the_rest(rng):
     assert len(weak_moves(flat, 1.0, np.arange(3), 3, 2.0)) == 4
 
 
+@pytest.mark.slow
 def test_slam_precision_must_hold_beyond_the_answer(rng):
     """Six lemniscate steps without step bounds (1 mm or 1 cm): an answer whose precision holds
     at the answer but whose truth is weakly determined (RMS bound at the truth over 5% of the
@@ -210,6 +211,7 @@ def test_flat_rival_tells_a_folded_flat_scene_from_a_flat_array(rng):
     assert flat_2d.passed
 
 
+@pytest.mark.slow
 def test_calibrate_never_converges_on_a_flat_scene_at_dim_3(rng):
     """The verdict benchmark's "planar at dim=3" (the Fig. 3 scene's 8 microphones and 7 sources
     in one plane, 1 mm noise): 25 fresh draws, none converged (2 of 25 converged, folded, before
@@ -246,6 +248,7 @@ def test_calibrate_reports_a_source_heard_by_three_receivers_as_ambiguous(rng):
         assert np.linalg.norm(both - s[3], axis=1).min() <= 1e-6 + 5 * bound + 5 * sigma
 
 
+@pytest.mark.slow
 def test_slam_without_bounds_on_four_steps_is_not_identifiable(rng):
     """Four steps, seven landmarks, no step bounds: the information is singular (it said
     converged in 12 of 15 walks, one 1.22 m off)."""
@@ -258,6 +261,7 @@ def test_slam_without_bounds_on_four_steps_is_not_identifiable(rng):
         assert not rangeslam.slam(ranges, rng=rng).converged
 
 
+@pytest.mark.slow
 def test_slam_in_2d_on_a_3d_walk_is_refused(rng):
     """A walk that leaves its plane by 0.3 m, fitted with dim=2 (converged at 6 cm RMS before)."""
     from rangeslam.sim.trajectories import lemniscate
@@ -300,6 +304,7 @@ def test_beacon_calibration_out_of_range():
     assert calibration_check(scale, np.zeros(4), ranges, beacon).status is Status.OUT_OF_RANGE
 
 
+@pytest.mark.slow
 def test_calibrate_auto_robust_on_wrong_picks(rng):
     """10% wrong picks (+0.2 to 1 m) on 16 x 10 ranges, defaults: robust="auto" notices the tail
     and refits robustly; a converged answer is within 3x the bound of the clean ranges. With
