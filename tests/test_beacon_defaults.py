@@ -87,8 +87,14 @@ def _best_of_3_peer(run, stated: dict, seed: int):
     return min(runs, key=lambda r: r.cost)
 
 
-@pytest.mark.parametrize("estimator", [beacon_slam, beacon_slam_incremental])
-@pytest.mark.parametrize("seed", HELD_OUT_SEEDS)
+# one seed and the batch estimator in the default run, the others slow
+@pytest.mark.parametrize(
+    "estimator", [beacon_slam, pytest.param(beacon_slam_incremental, marks=pytest.mark.slow)]
+)
+@pytest.mark.parametrize(
+    "seed",
+    [HELD_OUT_SEEDS[0], *(pytest.param(s, marks=pytest.mark.slow) for s in HELD_OUT_SEEDS[1:])],
+)
 @pytest.mark.parametrize("scene", SCENES, ids=list(SCENES))
 def test_defaults_serve_a_room_and_a_field(scene, seed, estimator):
     """Defaults plus the stated noise, batch and incremental: converged, APE at or below a plain

@@ -21,6 +21,7 @@ def _csv(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_bench_compare_end_to_end(tmp_path, capsys):
     """2 trials of `bench compare`: CSV rows, JSON summary with seed and versions, Markdown table
     with every method, the plot and TUM files evo can read."""
@@ -76,6 +77,7 @@ def test_bench_compare_end_to_end(tmp_path, capsys):
     np.testing.assert_array_equal(data[:, 7], 1.0)
 
 
+@pytest.mark.slow
 def test_bench_fig3_end_to_end(tmp_path):
     code = main(
         ["bench", "fig3", "--trials", "2", "--sigmas", "0", "0.001", "--out", str(tmp_path)]
@@ -98,6 +100,7 @@ def test_bench_fig3_end_to_end(tmp_path):
     assert (tmp_path / "fig3.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_jobs_do_not_change_the_numbers(tmp_path):
     """The same seed gives the same CSV serially and over 2 processes."""
     one, two = tmp_path / "one", tmp_path / "two"
@@ -106,6 +109,7 @@ def test_jobs_do_not_change_the_numbers(tmp_path):
     assert (one / "fig5_trials.csv").read_bytes() == (two / "fig5_trials.csv").read_bytes()
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_the_same_rows():
     """Trials submitted to a (local, in-process) Dask cluster come back in order with the serial
     run's values. Within a test session they were seen to differ by 1e-6 relative (the solvers'

@@ -112,6 +112,7 @@ def detection(times, amps, direct, fs):
 # 48 kHz compact 99.8% and 99.9%, spread 99.75% and 99.65%. This test passed for seeds 1-30.
 # Misses come in whole columns (a first-order image too few microphones hear cleanly), so a few
 # rooms pooled over both rates keep the 95% bound away from the noise of one bad room.
+@pytest.mark.slow
 def test_labels_direct_paths_and_first_order_echoes_in_simulated_rooms(rng):
     present = correct = 0
     for fs, compact in [(16000, True), (16000, False), (48000, True), (48000, False)] * 2:
@@ -196,6 +197,7 @@ def wrong_walls(rec, size, *, degrees=5.0, metres=0.10):
 # 12-16). Other layouts, 100 rooms each: 16 kHz spread 7 -> 1 wrong, converged 100% -> 94%;
 # 48 kHz compact 1 -> 0, 100% -> 99%; 48 kHz spread 0 -> 0, 100% -> 100%.
 # 8 of 20 leaves a margin: at 65% fewer than 8 occur with probability 0.6%. Passed for seeds 1-5.
+@pytest.mark.slow
 def test_no_wrong_wall_is_presented_as_converged(rng):
     n_rooms, converged = 20, 0
     for _ in range(n_rooms):

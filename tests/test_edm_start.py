@@ -20,6 +20,7 @@ from rangeslam.sim.trajectories import lemniscate, step_lengths
 slam_module = importlib.import_module("rangeslam.mdu.slam")
 
 
+@pytest.mark.slow
 def test_cheap_start_matches_gtsam_best_of_three(rng):
     """Random non-planar walks, M = 8, 1 cm, +-20% bounds, noise not given to slam (the issue's
     first criterion, reduced to 8 walks): slam's success (< 10 cm) at least that of GTSAM best of
@@ -38,7 +39,7 @@ def test_cheap_start_matches_gtsam_best_of_three(rng):
     assert np.mean(ours < 0.1) >= np.mean(peer < 0.1), (ours, peer)
 
 
-@pytest.mark.parametrize("edm_start", ["cheap", "full"])
+@pytest.mark.parametrize("edm_start", ["cheap", pytest.param("full", marks=pytest.mark.slow)])
 def test_exact_recovery_with_either_start(rng, edm_start):
     """Exact ranges of a non-planar walk without bounds: both schedules recover it to round-off."""
     cell = RegimeCell("random", 8, False, 1e-9)

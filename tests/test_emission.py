@@ -279,8 +279,15 @@ def _noisy_trials(rng, dim, n, noise, *, with_known=False):
         yield trial
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("noise", [1e-3, 1e-2, "16kHz"])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "noise",
+    [
+        1e-3,
+        pytest.param(1e-2, marks=pytest.mark.slow),
+        pytest.param("16kHz", marks=pytest.mark.slow),
+    ],
+)
 def test_room_offset_within_a_tenth_of_a_millisecond(rng, dim, noise):
     """Range noise of 1 mm, 1 cm, or arrival times on a 16 kHz grid (6.2 mm RMS): the emission
     time error is found within 0.1 ms (3.43 cm) in every draw at 1 mm, and in at least 75% of
@@ -307,7 +314,7 @@ def test_room_offset_within_a_tenth_of_a_millisecond(rng, dim, noise):
     assert within == n if noise == 1e-3 else within >= 0.75 * n
 
 
-@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
 def test_room_attains_the_bound_at_one_cm(rng, dim):
     """At 1 cm range noise the unknown-time estimates of the offset, the source and the wall
     offsets attain the Cramer-Rao bound of the model with an unknown offset: the Mahalanobis

@@ -48,6 +48,7 @@ def test_marginals_are_the_crlb_in_the_receiver_gauge(rng, dim):
     np.testing.assert_allclose(fit.source_cov, bound.source_cov, rtol=1e-5, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_covariances_are_honest_over_trials(rng):
     """200 noisy trials from the truth: RMSE matches the marginals within 10% and the mean NEES of
     the receivers (M d - 6 degrees of freedom after the receiver gauge) is inside the 95% band."""

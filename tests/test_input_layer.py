@@ -392,6 +392,7 @@ def test_ekf_noise_far_beyond_the_scene_is_a_solver_error():
         ekf_slam(r, dim=2, noise_std=1e8, rng=0)
 
 
+@pytest.mark.slow
 def test_ekf_answer_collapsed_below_a_nanometre_is_not_an_input_error():
     """An EKF answer that collapses towards the origin (noise_std of 1e6 m on a 3 m scene) is
     judged, not refused as if the caller had passed it: range_matrix takes any finite points."""

@@ -74,8 +74,8 @@ def test_global_minimiser_of_squared_range_cost(rng, dim, weights):
         assert cost(res.position) <= local.fun * (1 + 1e-9) + 1e-12
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-@pytest.mark.parametrize("sigma", [1e-3, 1e-2])
+@pytest.mark.parametrize("dim", [2, pytest.param(3, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("sigma", [1e-3, pytest.param(1e-2, marks=pytest.mark.slow)])
 def test_rmse_within_ten_percent_of_crlb(rng, dim, sigma):
     """Over 1000 noisy trials the RMSE of SR-LS is within 10% of the Cramer-Rao bound (both sides).
 

@@ -154,6 +154,7 @@ def _joint_cost(data, result, cfg):
     return graph.error(values)
 
 
+@pytest.mark.slow
 def test_incremental_reaches_the_batch_optimum(rng):
     """Twenty beacons around a looping robot, range scale 1.05 and offset 0.3 m: the native
     incremental run ends at the batch's optimum (cost and mean APE within 1 %; a run of this

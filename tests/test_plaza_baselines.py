@@ -179,6 +179,7 @@ def test_gtsam_example_plaza1(p1, gtsam_p1):
     assert np.all(np.abs(np.diff(res.poses[:, 2])) < np.pi)  # headings unwrapped
 
 
+@pytest.mark.slow
 def test_gtsam_example_wrong_basin_is_inconsistent(p1, gtsam_p1):
     """Seed 0's start falls in the wrong basin (19.7 m mean error): the studentised tail of its
     range residuals (7.7 robust standard deviations against a limit of 5.3) says INCONSISTENT,
@@ -191,6 +192,7 @@ def test_gtsam_example_wrong_basin_is_inconsistent(p1, gtsam_p1):
     assert gtsam_p1.status is Status.CONVERGED, gtsam_p1.message
 
 
+@pytest.mark.slow
 def test_gtsam_example_is_deterministic(p1, gtsam_p1):
     """The same rng seed gives the same answer, bit for bit."""
     again = gtsam_range_example(p1, rng=np.random.default_rng(GTSAM_SEED))

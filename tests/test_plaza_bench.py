@@ -26,6 +26,7 @@ def p1():
     return plaza("Plaza1")
 
 
+@pytest.mark.slow
 def test_bench_plaza_end_to_end(tmp_path, capsys):
     code = main(
         [

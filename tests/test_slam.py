@@ -216,6 +216,7 @@ def test_bad_options_refused_at_the_door(rng, kwargs, match):
         slam(range_matrix(traj, landmarks), **kwargs)
 
 
+@pytest.mark.slow
 def test_exact_ranges_with_a_wrong_pick_are_exact_to_the_robust_verdict(rng):
     """noise_std=0 means exact data to the kernel's kept ranges as to the residual test: exact
     ranges with one wrong pick (0.7 m), robust="cauchy": converged, the trajectory to 1e-6 m,
