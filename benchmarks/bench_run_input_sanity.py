@@ -3,7 +3,7 @@ delayed by its fractional-delay filter, ``frac_delay_length // 2`` = 40 samples)
 with a wrong ``fs`` or microphones in millimetres: the exit code, the cause the input check named
 (``rangeslam.acoustics.input_sanity``) and the worst wall found against the truth.
 
-    python benchmarks/bench_run_input_sanity.py [--order N] [--mics M] [SEED ...]
+    python benchmarks/bench_run_input_sanity.py [--order N] [--mics M] [--only NAME] [SEED ...]
 
 Each seed draws M microphones and a loudspeaker 0.5 m from the walls of the demo's shoebox
 (5.1 x 3.7 x 2.6 m) and of its cut-corner room (a slanted wall and a sloping ceiling), simulates
@@ -13,7 +13,9 @@ absorption 0.2, 48 kHz) and writes the RIRs as they come, with the truth, to an 
 - ``as they come``: the file as written; ``--unknown-emission``: the same run with the flag;
 - ``fs / 3``: the same RIRs labelled 16 kHz; ``fs / 3, no delay``: the 40 samples cut first;
 - ``mm``: the microphones (and the truth's source) in millimetres;
-- ``no delay``: the 40 samples cut (the RIRs ``rangeslam simulate room`` writes).
+- ``no delay``: the 40 samples cut (the RIRs ``rangeslam simulate room`` writes);
+- ``as they come, unchecked``: ``run_rirs(check_input=False)`` with the options ``rangeslam run``
+  passes (``estimate_c``, seed 0): what the pipeline alone makes of them (exit: 0 converged).
 
 Prints one Markdown table: exit code, converged, the cause named (the message's first clause),
 the worst wall found (mm) and how many of the true walls were found.
@@ -88,11 +90,39 @@ def variants(rirs, mics, src, room) -> dict[str, tuple[dict, list[str]]]:
         "fs / 3, no delay": ({**base, "rirs": cut, "fs": FS / 3.0}, []),
         "mm": ({**base, "mics": 1e3 * mics, "source": 1e3 * src}, []),
         "no delay": ({**base, "rirs": cut}, []),
+        "as they come, unchecked": (base, [UNCHECKED]),
     }
+
+
+UNCHECKED = "(library, check_input=False)"
+
+
+def run_unchecked(data: dict) -> list[str]:
+    """``run_rirs`` without the input check: (exit as run's, converged, message, worst, found)."""
+    import warnings
+
+    from rangeslam.acoustics.pipeline import run_rirs
+    from rangeslam.evaluation.truth import matched_wall_errors
+    from rangeslam.geometry.room import Room
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        res = run_rirs(data["rirs"], data["fs"], mics=data["mics"], estimate_c=True, rng=0,
+                       check_input=False)  # fmt: skip
+    room = Room(data["wall_normals"], data["wall_offsets"])
+    walls = np.full(room.n_walls, np.inf)
+    if res.wall_normals is not None and len(res.wall_normals):
+        walls = matched_wall_errors(res.wall_normals, res.wall_offsets, room)
+    found = np.isfinite(walls)
+    worst = f"{1e3 * walls[found].max():.1f}" if found.any() else "-"
+    return [str(int(not res.converged)), str(res.converged), res.status.name, worst,
+            f"{int(found.sum())}/{len(walls)}"]  # fmt: skip
 
 
 def run_one(folder: Path, name: str, data: dict, flags: list[str]) -> list[str]:
     """``rangeslam run`` on one variant: (exit, converged, cause, worst wall mm, found)."""
+    if flags == [UNCHECKED]:
+        return run_unchecked(data)
     path = folder / f"{name.replace(' ', '_').replace('/', '')}.npz"
     np.savez(path, **data)
     out = folder / "out"
@@ -103,7 +133,8 @@ def run_one(folder: Path, name: str, data: dict, flags: list[str]) -> list[str]:
     walls = np.array(list(summary.get("wall_errors_m", {}).values()) or [np.inf], dtype=float)
     found = np.isfinite(walls)
     worst = f"{1e3 * walls[found].max():.1f}" if found.any() else "-"
-    cause = summary.get("message", err.getvalue().strip()).split(";")[0].split(":")[0]
+    cause = "-" if code == 0 else summary.get("message", err.getvalue()).split(";")[0]
+    cause = cause.split(":")[0].strip()
     return [str(code), str(summary.get("converged", "-")), cause, worst,
             f"{int(found.sum())}/{len(walls)}"]  # fmt: skip
 
@@ -113,6 +144,7 @@ def main() -> None:
     parser.add_argument("seeds", nargs="*", type=int, default=[257065, 875883, 906975, 324436])
     parser.add_argument("--order", type=int, default=2, help="reflection order (default 2)")
     parser.add_argument("--mics", type=int, default=8, help="microphones (default 8)")
+    parser.add_argument("--only", action="append", help="run only this file variant (repeat)")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -120,6 +152,8 @@ def main() -> None:
             for seed in args.seeds:
                 scene = pra_rirs(kind, seed, order=args.order, n_mics=args.mics)
                 for name, (data, flags) in variants(*scene).items():
+                    if args.only and name not in args.only:
+                        continue
                     rows.append([kind, str(seed), name, *run_one(Path(tmp), name, data, flags)])
                     print(" | ".join(rows[-1]), flush=True)
     header = ["room", "seed", "file", "exit", "converged", "cause named", "worst wall [mm]",
