@@ -109,6 +109,7 @@ def test_bad_excitation_settings_are_refused_naming_the_argument(make, match):
         make()
 
 
+@pytest.mark.slow
 def test_two_loudspeakers_from_sweep_recordings_give_every_wall(tmp_path):
     """A shoebox session of two loudspeakers written as recordings of a sweep (npz
     ``recordings`` and ``excitation``, no RIRs) and run as they are: converged, every wall and
@@ -124,6 +125,7 @@ def test_two_loudspeakers_from_sweep_recordings_give_every_wall(tmp_path):
     assert np.allclose(record["sources"], true, atol=WALL_TOL)
 
 
+@pytest.mark.slow
 def test_non_box_room_from_recordings_finds_what_its_rirs_find(tmp_path):
     """The cut-corner room's session from MLS recordings: converged, at least 6 walls, each
     found within 1 cm, and the same walls found as from the session's RIRs themselves (the cut
@@ -145,6 +147,7 @@ def test_non_box_room_from_recordings_finds_what_its_rirs_find(tmp_path):
     assert np.array_equal(np.isfinite(direct), np.isfinite(errors))
 
 
+@pytest.mark.slow
 def test_unknown_emission_recovers_the_delays_and_the_walls(tmp_path):
     """Two loudspeakers' MLS recordings each started an unknown delay (up to 50 ms) before the
     emission, run with --unknown-emission: converged, every wall and both loudspeakers within
@@ -350,7 +353,7 @@ def _delayed_shoebox(seed: int, n_mics: int = 8):
 
 # Drawn after the change (secrets.randbelow(10**6)); before it, the second pass moved these two
 # 0.32 and 0.15 sample off the truth (3.5 and 26 reported stds), still converged.
-@pytest.mark.parametrize("seed", [276383, 33388])
+@pytest.mark.parametrize("seed", [276383, pytest.param(33388, marks=pytest.mark.slow)])
 def test_measured_unknown_emission_is_not_moved_by_the_templates_peak(seed):
     """With MEASURED_RIR_OPTIONS the direct template is cut at whole samples, so every
     matched-filtered arrival is up to half a sample off, the direct path as much as the echoes;
@@ -382,7 +385,7 @@ def _clip(x: np.ndarray, rows) -> np.ndarray:
     return y
 
 
-@pytest.mark.parametrize("mode", ["mask", "use"])
+@pytest.mark.parametrize("mode", ["mask", pytest.param("use", marks=pytest.mark.slow)])
 def test_unknown_emission_flags_clipped_rirs_and_fits_the_offset_without_them(mode):
     """Clipped RIRs are found on the RIRs as given (the advance smooths their flat top away):
     a ClippedRirWarning each, flagged, masked unless clipped='use', and left out of the offset
@@ -403,6 +406,7 @@ def test_unknown_emission_flags_clipped_rirs_and_fits_the_offset_without_them(mo
     assert abs(res.emission_offsets[0] * rec.fs - delay) <= OFFSET_TOL * rec.fs
 
 
+@pytest.mark.slow
 def test_unknown_emission_of_several_loudspeakers_keeps_each_sets_flags():
     """run_loudspeakers with unknown emission: a clipped RIR of loudspeaker 1 and a silent one of
     loudspeaker 0 are flagged at their rows of the J * M flags (loudspeaker by loudspeaker)."""
