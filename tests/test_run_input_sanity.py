@@ -118,18 +118,18 @@ def detections(times, fs=FS):
 
 
 def test_few_direct_paths_or_a_delay_within_the_noise_name_nothing(rng):
-    """Five direct paths are not checked (``note`` says why); a 1 mm delay under 1 cm of timing
-    noise is not beyond its own noise and names nothing; the same delay exact is named."""
+    """Five direct paths are not checked (``note`` says why); a 2 mm delay under 1 cm of timing
+    noise names nothing; the same delay exact is named (DELAY_FLOOR is 1 mm)."""
     mics = rng.uniform(0.5, 4.5, (8, 3))
     d = np.linalg.norm(mics - [2.0, 1.5, 1.2], axis=1)
-    t = (d + 1e-3) / 343.0
+    t = (d + 2e-3) / 343.0
     few = check_direct_paths(detections(np.where(np.arange(8) < 5, t, np.nan)), mics, FS, c=343.0)
     assert few.ok and few.n_used == 5 and "6 needed" in few.note
     noisy = t + rng.normal(0, 0.01, 8) / 343.0
     assert check_direct_paths(detections(noisy), mics, FS, c=343.0).ok
     exact = check_direct_paths(detections(t), mics, FS, c=343.0)
     assert exact.causes == (InputCause.DELAY,) and exact.status is Status.INCONSISTENT
-    assert exact.delay * 343.0 == pytest.approx(1e-3, rel=1e-6)
+    assert exact.delay * 343.0 == pytest.approx(2e-3, rel=1e-6)
 
 
 def test_a_wrong_pick_is_left_out_and_noise_names_nothing(rng):
@@ -142,8 +142,10 @@ def test_a_wrong_pick_is_left_out_and_noise_names_nothing(rng):
     check = check_direct_paths(detections(t, 16000), mics, 16000, c=343.0)
     assert check.causes == (InputCause.DELAY,) and check.n_used == 7
     assert check.delay * 16000 == pytest.approx(PRA_DELAY, abs=1e-6)
-    junk = check_direct_paths(detections(rng.uniform(0, 0.02, 8)), mics, FS, c=343.0)
-    assert junk.ok and junk.note.startswith("input not checked: no 7 of the 8 direct paths")
+    fixed = np.random.default_rng(0)  # draw 0 of the 400 that set FIT_RTOL
+    junk_mics, junk = fixed.uniform(0.5, 4.5, (8, 3)), fixed.uniform(0, 0.02, 8)
+    check = check_direct_paths(detections(junk, 16000), junk_mics, 16000, c=343.0)
+    assert check.ok and check.note.startswith("input not checked: no 7 of the 8 direct paths")
 
 
 # ---- pyroomacoustics RIRs as they come -------------------------------------------------------

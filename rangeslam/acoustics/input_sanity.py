@@ -78,7 +78,7 @@ UNIT_FACTORS = (("millimetres", 1000.0), ("centimetres", 100.0), ("inches", 1 / 
 #: within 3.4 % of 343); beyond it, a ratio of rates or units is looked for.
 C_TOLERANCE = 0.05
 #: How close (relative) c / c_given must come to a ratio of rates or a unit factor to be named:
-#: the air's own spread about 343 m/s between 5 and 40 degrees C.
+#: about the air's own spread around 343 m/s (10 to 30 degrees C is 337-349 m/s, 1.7 %).
 MATCH_RTOL = 0.02
 #: Beyond this fraction from the given c, a c that no rate or unit explains is still named (the
 #: limit of ``estimate_sound_speed``, which refuses such a c).
