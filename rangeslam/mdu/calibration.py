@@ -414,9 +414,8 @@ def calibration_verdict(
     if (problem.refine or problem.robust) and not best.fit.converged:
         status = Status.SOLVER_FAILED if status is Status.CONVERGED else status
         message += f"least squares failed: {best.fit.message}; "
-    if status is Status.CONVERGED and judged is not None and not judged.judgement.check.passed:
-        status = judged.judgement.status
-        message += "; ".join(filter(None, (judged.judgement.reason, _sources_note(best, problem))))
+    if status is Status.CONVERGED and judged is not None:
+        status, message = judged_status(judged, best, problem, message)
     if status is Status.CONVERGED:
         check = unfolding_check(
             best.fit.receivers,
@@ -752,3 +751,24 @@ def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
     fit = best.fit
     return sources_verdict(fit.receivers, fit.sources, problem.ranges, best.inliers, sigma,
                            problem.exact_rms, "none")[1]  # fmt: skip
+
+
+def judged_status(
+    judged: CalibrationJudgement, best: Candidate, problem: CalibrationProblem, message: str
+) -> tuple[Status, str]:
+    """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT for
+    a robust calibration without a noise level whose search the budget, not the stopping rule,
+    ended (its inlier residuals pass against their own spread wherever it dropped the ranges a
+    wrong minimum misses, as a robust answer once had to be reached twice); else CONVERGED."""
+    if not judged.judgement.check.passed:
+        note = _sources_note(best, problem)
+        return judged.judgement.status, message + "; ".join(
+            filter(None, (judged.judgement.reason, note))
+        )
+    if problem.robust and not problem.noise_std and not judged.complete:
+        return Status.NO_AGREEMENT, message + (
+            "the search ended before its stopping rule, minima no start reached still expected: "
+            "a robust fit without noise_std may drop the ranges a wrong minimum misses (pass "
+            f"noise_std, or raise max_attempts); {_sources_note(best, problem)}"
+        )
+    return Status.CONVERGED, message
