@@ -256,9 +256,8 @@ def plaza1():
     return plaza("Plaza1")
 
 
-@pytest.mark.parametrize(
-    "estimator", [beacon_slam, pytest.param(beacon_slam_incremental, marks=pytest.mark.slow)]
-)
+@pytest.mark.slow
+@pytest.mark.parametrize("estimator", ESTIMATORS)
 def test_plaza1_accuracy(plaza1, estimator, rng):
     """Mean error <= 1.5 m, every beacon within 1.5 m, and at least 40 % below GTSAM's example
     approach (random beacons, iSAM2) run in the same session from a fresh random start."""

@@ -193,6 +193,7 @@ def test_robust_calibration_drops_wrong_picks(rng):
     assert out.n_outliers <= wrong.sum() + 3
 
 
+@pytest.mark.slow
 def test_robust_answer_of_one_start_is_right_or_not_converged(rng):
     """Issue 17: dropping ranges lets a wrong configuration pass the residual test on the ranges
     it kept; judged on the Cauchy cost over every range against the judge's alternatives (the

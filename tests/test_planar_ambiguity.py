@@ -71,6 +71,7 @@ def test_flat_array_flags_every_source_mirror_issue_case():
     _check_every_mirror_flagged(res)
 
 
+@pytest.mark.slow
 def test_flat_array_flags_every_source_mirror(rng):
     """Fresh flat arrays (1 mm noise): at an answer whose microphones are right (within 2.5 cm
     RMS), every source off the plane is flagged with its mirror image and named (12 fresh

@@ -44,6 +44,7 @@ def run_json(path, out, flag, capsys) -> tuple[int, dict, str]:
     return code, json.loads((out / "run_summary.json").read_text()), text
 
 
+@pytest.mark.slow
 def test_simulate_room_then_run_converges_with_walls_and_source_within_tolerance(
     rng, tmp_path, monkeypatch, capsys
 ):

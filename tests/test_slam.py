@@ -81,6 +81,7 @@ def test_bounds_that_contradict_the_ranges_are_reported(rng):
         slam(r, step_bounds=(np.zeros(7), hi), max_attempts=1)
 
 
+@pytest.mark.slow
 def test_a_wrong_pick_against_the_bounds_is_left_to_the_robust_kernel(rng):
     """One wrong echo (1 m) that the triangle inequality puts at odds with the step bounds: the
     bounds are refused without a robust kernel (naming 1 of 7 landmarks), and with one the
