@@ -126,3 +126,17 @@ def test_noise_std_is_checked(bad):
     with pytest.raises(Exception, match="noise_std") as info:
         multilaterate_with_offset(anchors, ranges, noise_std=bad)
     assert type(info.value).__name__ == "InvalidInputError"
+
+
+def test_repeated_anchors_do_not_make_the_offset_identifiable():
+    """Hypothesis (test_entry_points, CI of issue 42's stop): six exact pseudoranges from four
+    distinct anchors in 3-D (one anchor three times) converged 2 m from the truth; four distinct
+    anchors leave the point and the offset finitely many exact solutions, so NOT_IDENTIFIABLE."""
+    anchors = np.array(
+        [[2.0, 1.375, 1.0], [1.25, 2, 2], [2, 2, 2], [2, 2, 0], [2, 2, 2], [2, 2, 2]]
+    )
+    truth = np.array([1.0, 1.0, 1.0])
+    ranges = np.linalg.norm(anchors - truth, axis=1) + 0.37
+    out = multilaterate_with_offset(anchors, ranges)
+    assert out.status is Status.NOT_IDENTIFIABLE, out.message
+    assert "distinct anchor positions" in out.message
