@@ -27,7 +27,7 @@ from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.mdu.calibration_judge import CalibrationJudgement, judge_calibration, objective_scale
+from rangeslam.mdu.calibration_judge import judge_calibration, objective_scale
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -56,7 +56,7 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.judge import SAME, CheckRecord
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
 from rangeslam.verdict.thresholds import (
     EXACT_RTOL,
     PROBE_OUTLIER_K,
@@ -360,7 +360,7 @@ def calibration_breakdown(best: Candidate, problem: CalibrationProblem):
 
 
 def calibration_verdict(
-    outcome: SearchOutcome, problem: CalibrationProblem, judged: CalibrationJudgement | None
+    outcome: SearchOutcome, problem: CalibrationProblem, judged: JudgedSearch | None
 ) -> tuple[Status, str]:
     """Status and message of the best candidate: NOT_IDENTIFIABLE without redundancy, OUTLIERS
     when robust dropped over half the redundant ranges or half of a receiver's
@@ -438,7 +438,7 @@ def calibration_result(
     problem: CalibrationProblem,
     status: Status,
     message: str,
-    judged: CalibrationJudgement | None = None,
+    judged: JudgedSearch | None = None,
 ) -> Calibration:
     """The :class:`Calibration` of the best candidate, in the canonical frame."""
     best, observed, n_in = outcome.best, problem.observed, int(outcome.best.inliers.sum())
@@ -677,7 +677,7 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
 
 def judged_outcome(
     outcome: SearchOutcome, problem: CalibrationProblem, rng
-) -> tuple[SearchOutcome, CalibrationJudgement]:
+) -> tuple[SearchOutcome, JudgedSearch]:
     """The search's answer judged against every alternative (:func:`judge_calibration`); a
     lower one replaces it (fitted as the search fits a start), the message saying where it came
     from."""
@@ -754,7 +754,7 @@ def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
 
 
 def judged_status(
-    judged: CalibrationJudgement, best: Candidate, problem: CalibrationProblem, message: str
+    judged: JudgedSearch, best: Candidate, problem: CalibrationProblem, message: str
 ) -> tuple[Status, str]:
     """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT for
     a robust calibration without a noise level whose search the budget, not the stopping rule,

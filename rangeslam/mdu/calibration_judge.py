@@ -14,7 +14,6 @@ mirrored in the plane of the points it is ranged to (:func:`mirror_proposals`); 
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -34,48 +33,17 @@ from rangeslam.solvers.least_squares import (
 )
 from rangeslam.verdict.judge import (
     Alternative,
-    CheckRecord,
-    Judgement,
+    JudgedSearch,
     information_distance,
     judge,
     search_complete,
-    unseen_minima,
 )
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 if TYPE_CHECKING:
     from rangeslam.mdu.calibration import CalibrationProblem
 
-__all__ = ["CalibrationJudgement", "judge_calibration", "objective_scale"]
-
-
-@dataclass(frozen=True)
-class CalibrationJudgement:
-    """The judgement and what the search of alternatives made: ``starts`` (the search's and the
-    random ones, the answer's own included), ``complete`` whether the stopping rule ended them
-    (else the budget did), ``expected`` minima by the rule."""
-
-    judgement: Judgement
-    starts: int
-    complete: bool
-    expected: float
-
-    def record(self) -> CheckRecord:
-        """The stopping rule as a check: the expected number of minima against those seen plus
-        a half (passed when the rule, not the budget, ended the random starts)."""
-        seen = self.judgement.minima
-        return CheckRecord("search complete", self.expected, seen + 0.5, self.complete,
-                           "" if self.complete else self.words())  # fmt: skip
-
-    def words(self) -> str:
-        """The search in words, for the message."""
-        j = self.judgement
-        rule = "the stopping rule" if self.complete else "the budget (SEARCH_BUDGET)"
-        return (
-            f"{len(j.comparisons)} alternatives judged; {self.starts} starts reached "
-            f"{j.minima} distinct minima ({j.reached} the answer; expected {self.expected:.3g} "
-            f"minima in all), stopped by {rule}"
-        )
+__all__ = ["judge_calibration", "objective_scale"]
 
 
 def objective_scale(problem: CalibrationProblem, ssr: float, n_fit: int, floor=None) -> float:
@@ -156,7 +124,7 @@ def judge_calibration(
     *,
     inliers=None,
     starts=(),
-) -> CalibrationJudgement:
+) -> JudgedSearch:
     """The answer (M + K, d) against every alternative, at the objective's ``sigma`` (metres).
 
     ``starts``: the search's other fitted starts (M + K, d) (the SDP's runs), counted by the
@@ -200,7 +168,4 @@ def judge_calibration(
         proposal = Proposal(proposal.points, proposal.origin, without, counted=True)
         alt = _alternative(proposal, problem, sigma)
         counted += [] if alt is None else [alt]
-    judgement = run(alternatives + counted)
-    n = len(counted) + 1
-    complete = search_complete(n, judgement.minima)
-    return CalibrationJudgement(judgement, n, complete, unseen_minima(n, judgement.minima))
+    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1)

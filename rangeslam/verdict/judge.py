@@ -48,6 +48,7 @@ __all__ = [
     "Alternative",
     "CheckRecord",
     "Comparison",
+    "JudgedSearch",
     "Judgement",
     "cost_level",
     "distance_level",
@@ -130,6 +131,44 @@ class Judgement:
         return tuple(c for c in self.comparisons if c.kind == AMBIGUITY)
 
 
+@dataclass(frozen=True)
+class JudgedSearch:
+    """A judgement and the search behind it: ``starts`` (the search's own and random ones, the
+    answer's included), ``complete`` whether the stopping rule ended them (else the budget did),
+    ``expected`` minima by the rule (:func:`unseen_minima`), ``failures`` the fits that failed
+    (in words)."""
+
+    judgement: Judgement
+    starts: int
+    complete: bool
+    expected: float
+    failures: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, judgement: Judgement, starts: int, failures=()) -> JudgedSearch:
+        """The record of ``judgement`` after ``starts`` starts, the rule asked once more."""
+        complete = search_complete(starts, judgement.minima)
+        expected = unseen_minima(starts, judgement.minima)
+        return cls(judgement, starts, complete, expected, tuple(failures))
+
+    def record(self) -> CheckRecord:
+        """The stopping rule as a check: the expected number of minima against those seen plus
+        a half (passed when the rule, not the budget, ended the random starts)."""
+        seen = self.judgement.minima
+        return CheckRecord("search complete", self.expected, seen + 0.5, self.complete,
+                           "" if self.complete else self.words())  # fmt: skip
+
+    def words(self) -> str:
+        """The search in words, for the message."""
+        j = self.judgement
+        rule = "the stopping rule" if self.complete else "the budget (SEARCH_BUDGET)"
+        return (
+            f"{len(j.comparisons)} alternatives judged; {self.starts} starts reached "
+            f"{j.minima} distinct minima ({j.reached} the answer; expected {self.expected:.3g} "
+            f"minima in all), stopped by {rule}"
+        )
+
+
 def cost_level(level: float = CHI2_LEVEL) -> float:
     """The cost gap (deviance units) within which two answers cannot be told apart: the
     ``level`` quantile of chi-square with one degree of freedom."""
@@ -175,9 +214,10 @@ def information_distance(
             return float(np.sum((jacobian @ step) ** 2))
         nuisance = np.setdiff1d(np.arange(n_cols), columns(rows, d))
         moved_rows = jacobian @ step
-        fitted = jacobian[:, nuisance] @ np.linalg.lstsq(
-            jacobian[:, nuisance], moved_rows, rcond=None
-        )[0]
+        fitted = (
+            jacobian[:, nuisance]
+            @ np.linalg.lstsq(jacobian[:, nuisance], moved_rows, rcond=None)[0]
+        )
         return float(np.sum((moved_rows - fitted) ** 2))
 
     return distance2
