@@ -100,14 +100,16 @@ def test_zero_knowledge_calibration_of_the_30_microphones(data, rng):
     ranges dropped); an answer no second start reached is NO_AGREEMENT, and one that drops half
     of a microphone's ranges OUTLIERS (two of four starts once reached one 37 cm off). Measured
     with 4 runs: 4-6 in 10 starts reach the right minimum (1.1-3.5 cm), the wrong ones 6-80 cm;
-    before the agreement rule, 5 of 15 draws converged 10-38 cm off."""
+    before the agreement rule, 5 of 15 draws converged 10-38 cm off. Issue 42: the judge may
+    find a rival minimum within the cost level (NOT_IDENTIFIABLE, the rival named)."""
     ranges = np.hstack([data.ranges(0), data.ranges(1)])
     for _ in range(3):
         out = calibrate(ranges, noise_std=0.01, robust=True, max_attempts=4, max_iterations=3,
                         rng=rng)  # fmt: skip
         errors = align(out.receivers, data.mics, reflection=True).errors
         if not out.converged:
-            assert out.status in (Status.NO_AGREEMENT, Status.OUTLIERS), out.message
+            not_right = (Status.NO_AGREEMENT, Status.OUTLIERS, Status.NOT_IDENTIFIABLE)
+            assert out.status in not_right, out.message
             continue
         assert np.median(errors) <= 0.03 and errors.max() <= 0.10, out.message
         assert 0 < out.n_outliers < 0.25 * ranges.size
