@@ -1,5 +1,6 @@
 """The cheap EDM start and the honestly chosen start of the graph (issue 18, items 1 and 2)."""
 
+import dataclasses
 import importlib
 import re
 
@@ -16,6 +17,7 @@ from rangeslam.mdu import slam
 from rangeslam.mdu.landmark_mirrors import landmark_mirrors
 from rangeslam.sim.scenes import random_points_in_room
 from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.status import Status
 
 slam_module = importlib.import_module("rangeslam.mdu.slam")
 
@@ -50,9 +52,10 @@ def test_exact_recovery_with_either_start(rng, edm_start):
     assert align(out.receivers, scene.trajectory, reflection=True).rmse < 1e-6
 
 
-def test_a_lower_random_start_replaces_the_answer(rng):
-    """The graph's cost ranks the EDM answer and the random starts alike: an answer whose cost
-    is far above the minimum is replaced by the random start that reached it, named as such."""
+def test_a_lower_alternative_replaces_the_answer(rng):
+    """The judge ranks the answer and its alternatives on one graph: an answer far above the
+    minimum (the search's with one landmark moved 0.5 m) is replaced by the lowest alternative,
+    named as such, refined again with covariances, back at the search's trajectory."""
     cell = RegimeCell("random", 8, True, 0.01)
     scene = draw_scene(cell, rng)
     problem = slam_module.parse_slam(
@@ -61,14 +64,15 @@ def test_a_lower_random_start_replaces_the_answer(rng):
     )  # fmt: skip
     search = slam_module.search_edm_runs(problem, rng)
     answer = search.best
-    worse = slam_module.SlamRun(
-        answer.ssr, answer.receivers, answer.sources, answer.fit, answer.completion,
-        answer.residuals, answer.key + 1e6,
-    )  # fmt: skip
-    found = slam_module.rival_search(problem, worse, search.sigma_ref, rng)
-    assert found.best is not worse and found.best.start.startswith("random start")
-    assert found.best.key < worse.key - 1e5
-    assert found.best.fit.receiver_cov is not None  # refined again, with covariances
+    moved = answer.sources.copy()
+    moved[0] += 0.5
+    worse = dataclasses.replace(answer, sources=moved)
+    found = dataclasses.replace(search, best=worse, runs=(worse,))
+    best, _, _, judged = slam_module.judged_answer(problem, found, rng)
+    assert judged.judgement.replaced is not None
+    assert best is not worse and best.start != "edm"
+    assert best.fit.receiver_cov is not None  # refined again, with covariances
+    assert align(best.receivers, answer.receivers, reflection=True).rmse < 0.01
 
 
 def test_landmarks_of_a_planar_walk_are_reported_with_their_mirror_images(rng):
@@ -91,7 +95,8 @@ def test_landmarks_of_a_planar_walk_are_reported_with_their_mirror_images(rng):
 def test_the_message_notes_every_ambiguous_landmark(rng):
     """A noisy planar walk in the Fig. 5 room (the loudspeaker and its 6 images): the message's
     note names every landmark that ``ambiguous_landmarks`` reports (it named only the first),
-    judged on the same ranges at the same noise."""
+    judged on the same ranges at the same noise (converged, or not identifiable when the judge
+    of issue 42 finds a rival trajectory)."""
     room = Room.shoebox([5.0, 4.0, 2.6])
     traj = lemniscate(8, step=0.3, phase=rng.uniform(0, 2 * np.pi))
     source = random_points_in_room(room, 1, rng=rng)[0]
@@ -100,7 +105,9 @@ def test_the_message_notes_every_ambiguous_landmark(rng):
     for noise_std in (0.01, None):
         ranges = range_matrix(traj, landmarks) + 0.01 * rng.standard_normal((8, 7))
         out = slam(ranges, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=noise_std, rng=rng)
-        assert out.converged, out.message  # the note is the converged verdict's
+        # the note is the verdict's on the answer; the judge may then find that a landmark's
+        # other side moves the trajectory beyond its confidence region: NOT_IDENTIFIABLE
+        assert out.status in (Status.CONVERGED, Status.NOT_IDENTIFIABLE), out.message
         first = re.findall(r"noted: source (\d+) ", out.message)
         also = re.findall(r"also noted: sources ([0-9, ]+)", out.message)
         noted = {int(i) for i in first} | {int(i) for g in also for i in g.split(",")}

@@ -313,7 +313,7 @@ def gtsam_style_start(
     """The start GTSAM's range-only examples use when nothing better is known: a random walk of
     the nominal steps (the bounds' midpoints, else what the ranges imply) and landmarks uniform in
     a box of the largest range; the same draw as :func:`rangeslam.mdu.slam`'s extra starts."""
-    from rangeslam.mdu.slam import nominal_steps, random_start
+    from rangeslam.mdu.slam_graph import nominal_steps, random_start
 
     observed = np.isfinite(ranges)
     bounds = None if step_bounds is None else tuple(np.asarray(b) for b in step_bounds)

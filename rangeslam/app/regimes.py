@@ -287,7 +287,7 @@ def graph_from(scene: RegimeScene, cell: RegimeCell, x0: np.ndarray, s0: np.ndar
 
 def graph_from_random_start(scene: RegimeScene, cell: RegimeCell, rng):
     """:func:`graph_from` one GTSAM-style random start."""
-    from rangeslam.mdu.slam import nominal_steps, random_start
+    from rangeslam.mdu.slam_graph import nominal_steps, random_start
 
     observed = scene.mask
     steps = nominal_steps(scene.step_bounds, np.nan_to_num(scene.ranges), observed)

@@ -132,7 +132,7 @@ def rival_check(
     """
     from rangeslam.errors import SolverError
     from rangeslam.geometry.alignment import align
-    from rangeslam.mdu.slam import nominal_steps, random_start
+    from rangeslam.mdu.slam_graph import nominal_steps, random_start
     from rangeslam.solvers.gtsam_graph import refine_graph
 
     def fit_from(x0, s0, covariances=False):

@@ -19,10 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._blas import single_blas_thread
-from rangeslam._robust import MAD_TO_STD, ROBUST_KERNELS, robust_mode
+from rangeslam._robust import ROBUST_KERNELS, robust_mode
 from rangeslam._validation import as_flag, as_rng, as_scalar, frozen
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
-from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.localization.multilateration import multilaterate
 from rangeslam.logsteps import logged_step
@@ -30,28 +29,28 @@ from rangeslam.mdu.core import (
     ConvexIterationOptions,
     canonical_frame,
     checked_options,
-    least_steps,
     rotated_covariances,
     validated_ranges,
 )
 from rangeslam.mdu.robust_unfolding import agreeing
+from rangeslam.mdu.slam_graph import graph_deviance, refine_run, stacked
+from rangeslam.mdu.slam_judge import judge_slam
 from rangeslam.mdu.slam_verdict import (
-    EXACT_POLISH,
     SlamProblem,
     SlamRun,
     judged_ranges,
     landmark_ambiguity,
     passes,
     slam_verdict,
-    trajectory_spread,
 )
 from rangeslam.mdu.subsets import keyframe_runs
-from rangeslam.solvers.gtsam_graph import STEP_PRIORS, GraphFit, refine_graph
+from rangeslam.solvers.gtsam_graph import STEP_PRIORS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict import AMBIGUITY_CHI2, RIVAL_SPREADS, verdict_noise
+from rangeslam.verdict import verdict_noise
 from rangeslam.verdict.breakdown import outvoted_points
-from rangeslam.verdict.thresholds import AGREEMENT_STARTS, EXACT_RTOL, KEPT_SIGMAS
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, cost_level
+from rangeslam.verdict.thresholds import EXACT_RTOL, KEPT_SIGMAS
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -60,14 +59,10 @@ __all__ = ["SlamResult", "slam"]
 
 log = logging.getLogger(__name__)
 
-# Unknown noise: at most this many re-estimates of sigma from the refined fit.
-_NOISE_ROUNDS = 5
 # Why "uniform" is the default step prior: in the Fig. 5 setting at 1 cm, the dead zone's MAP
 # runs to the bounds and has 2.1-3.0x the mean error at M = 5 to 10; with the true steps anywhere
 # in the bounds, not at their centres, "uniform" is still 1.7-2.1x below the dead zone's error
-# with centred bounds. Why extra_starts defaults to 0: on Fig. 5 the minima reached are of equal
-# cost, and picking the lowest picks the one that fits the noise best (measured: no smaller
-# error, NEES 1.1-1.2).
+# with centred bounds.
 
 
 @dataclass(frozen=True)
@@ -93,9 +88,10 @@ class SlamResult(HasStatus):
             ``noise_std``), else why not (``converged`` is derived from it).
         message: why not, when not converged.
         attempts: convex-iteration runs made.
-        start: where the answer's GTSAM run started: "edm", "random start j" (one of the
-            random starts that check the answer ended clearly lower and replaced it) or "extra
-            start j" (of ``extra_starts``); "filter" for the EKF baseline.
+        start: where the answer's GTSAM run started: "edm", or the alternative of the judge
+            that ended lower than the search's answer and replaced it ("random start j",
+            "convex-iteration run j", "the refit without landmark k", "the refit without steps
+            i-j"); "filter" for the EKF baseline.
         eigen_gap: eigen-gap of the SDP answer used.
         ambiguous_landmarks: (K,) bool, the landmarks whose mirror image through the walk fits
             as well (a near-planar walk cannot tell the two sides apart: see
@@ -105,6 +101,12 @@ class SlamResult(HasStatus):
         inliers: (M, K) bool, the ranges the verdict judged: every observed one, or with a
             robust kernel those it kept (residual within KEPT_SIGMAS noise standard deviations,
             :data:`rangeslam.verdict.thresholds.KEPT_SIGMAS`); None for methods without it.
+        checks: every check of the judge (:func:`rangeslam.mdu.slam_judge.judge_slam`: rival
+            minima, search complete) and the verdict, each with its statistic and level; empty
+            without refinement.
+        judged: alternatives the judge compared with the answer (other convex-iteration runs,
+            random starts, refits without one landmark or one window of steps); ``reached``:
+            the starts (the answer counted) that reached the answer.
     """
 
     receivers: np.ndarray
@@ -124,6 +126,9 @@ class SlamResult(HasStatus):
     ambiguous_landmarks: np.ndarray | None = None
     landmark_mirrors: np.ndarray | None = None
     inliers: np.ndarray | None = None
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
     @property
     def outliers(self) -> np.ndarray | None:
@@ -161,63 +166,17 @@ def _check_bounds_against_ranges(bounds, r, observed, noise_std, robust=None) ->
             )
 
 
-def nominal_steps(bounds, r: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """(M - 1,) step lengths for a start: the bounds' midpoints, or without bounds the least
-    each step must be by the triangle inequality, max_k |r_(i+1)k - r_ik| (its median where no
-    landmark is heard at both steps)."""
-    if bounds is not None:
-        lower, upper = bounds
-        return 0.5 * (lower + upper)
-    least = least_steps(r, observed)
-    heard = (observed[:-1] & observed[1:]).any(axis=1)
-    fill = float(np.median(least[heard])) if heard.any() else 1.0
-    return np.where(heard & (least > 0), least, fill)
-
-
-def random_start(
-    steps: np.ndarray, k: int, dim: int, size: float, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """The start GTSAM's range-only examples use when nothing better is known: a random walk with
-    the given step lengths, landmarks uniform in [-size, size]^d."""
-    directions = rng.standard_normal((len(steps), dim))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    walk = np.vstack([np.zeros(dim), np.cumsum(directions * steps[:, None], axis=0)])
-    return walk, rng.uniform(-size, size, size=(k, dim))
-
-
 @dataclass(frozen=True)
 class EdmSearch:
-    """The best run (of the convex-iteration runs and the random starts that replaced them),
-    runs made, SDP failures, the sigma runs are ranked on, the run :func:`rival_search` already
-    cleared (None if none)."""
+    """What the convex-iteration runs made: the ``best`` run (lowest key), runs made, SDP
+    failures, the sigma runs are ranked on, and every refined run (the judge's first
+    alternatives)."""
 
     best: SlamRun | None
     attempts: int
     failures: tuple[str, ...]
     sigma_ref: float | None
-    rival_checked: SlamRun | None = None
-
-
-@dataclass(frozen=True)
-class RivalSearch:
-    """What GTSAM from AGREEMENT_STARTS random starts found beside an answer: ``reason`` when one
-    ends as low with a trajectory far off ("" if none), whether one ``confirmed`` the best
-    trajectory, and the ``best`` run after them (a start that ends clearly lower replaces the
-    answer)."""
-
-    reason: str
-    confirmed: bool
-    best: SlamRun
-
-
-@dataclass(frozen=True)
-class Acceptance:
-    """:func:`accepted`'s decision: ``ok`` to stop, the ``rivals`` searched (None if not), and
-    the ``run`` to keep."""
-
-    ok: bool
-    rivals: RivalSearch | None
-    run: SlamRun
+    runs: tuple[SlamRun, ...] = ()
 
 
 def parse_slam(
@@ -251,94 +210,6 @@ def parse_slam(
     )  # fmt: skip
 
 
-def graph_fit(
-    problem: SlamProblem,
-    pts: np.ndarray,
-    sigma: float,
-    *,
-    covariances: bool = False,
-    max_iterations: int = 5000,
-) -> GraphFit:
-    """GTSAM on the problem's ranges and step priors from ``pts`` (M + K, d), range sigma
-    ``sigma`` metres."""
-    m = problem.ranges.shape[0]
-    return refine_graph(
-        pts[:m],
-        pts[m:],
-        problem.ranges,
-        noise_std=sigma,
-        mask=problem.observed,
-        step_bounds=problem.bounds,
-        step_sigma=problem.step_sigma,
-        step_prior=problem.step_prior,
-        robust=problem.robust,
-        covariances=covariances,
-        # a planar trajectory leaves landmarks near its plane in a flat valley (their mirror
-        # images meet there), and few steps leave the shape itself in one: at M = 5 and
-        # 1 mm, 1000 LM iterations are typical
-        max_iterations=max_iterations,
-    )
-
-
-def noise_from(problem: SlamProblem, pts: np.ndarray, dof: int) -> float:
-    """Range sigma (metres) from the residuals of ``pts`` (M + K, d) over ``dof`` degrees of
-    freedom; with a robust kernel MAD_TO_STD times their median |residual| (wrong echoes must not
-    set the scale)."""
-    m = problem.ranges.shape[0]
-    res = (range_matrix(pts[:m], pts[m:]) - problem.ranges)[problem.observed]
-    if problem.robust is not None:
-        return float(MAD_TO_STD * np.median(np.abs(res)) * np.sqrt(problem.n_obs / dof))
-    return float(np.sqrt(np.sum(res**2) / dof))
-
-
-def _stacked(fit: GraphFit) -> np.ndarray:
-    """(M + K, d) the fit's receivers above its sources."""
-    return np.vstack([fit.receivers, fit.sources])
-
-
-def settle_noise(problem: SlamProblem, pts: np.ndarray) -> tuple[np.ndarray, float]:
-    """Unknown noise: the range sigma from the EDM answer's RMS residual (biased by the SDP's
-    penalty), then from the refined fit's (sum of squares over the redundancy) until it settles.
-    Returns (refined points (M + K, d), sigma; 0 for exact data)."""
-    floor = problem.floor
-    sigma = max(noise_from(problem, pts, problem.n_obs), floor)
-    fit = graph_fit(problem, pts, sigma)
-    for _ in range(_NOISE_ROUNDS if problem.redundancy > 0 else 0):
-        new = max(noise_from(problem, _stacked(fit), problem.redundancy), floor)
-        settled = abs(new - sigma) <= 0.1 * sigma
-        # the latest estimate is kept: at the floor it says exact data (an earlier one, a few
-        # % above it, weighed the step prior against mm of noise that is not there: 4.3 mm off)
-        sigma = new
-        if settled:
-            break
-        fit = graph_fit(problem, _stacked(fit), sigma)
-    if sigma <= floor:  # no noise to be seen: exact data
-        sigma = 0.0
-    return _stacked(fit), sigma
-
-
-def refine_run(
-    problem: SlamProblem, pts: np.ndarray, sigma: float | None = None, *, covariances: bool = True
-) -> tuple[GraphFit, float]:
-    """GTSAM from ``pts`` (with covariances unless ``covariances=False``); the range sigma of its
-    final graph. ``sigma``: that of the graph (default: ``noise_std``, or found from the
-    residuals when unknown)."""
-    if sigma is None and problem.noise_std is None:
-        # The weight of the step prior against the ranges depends on the sigma.
-        pts, sigma = settle_noise(problem, pts)
-    elif sigma is None:
-        sigma = problem.noise_std
-    floor = problem.floor
-    if sigma >= floor:
-        return graph_fit(problem, pts, sigma, covariances=covariances), sigma
-    # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
-    # step at all): first at the floor, then at sigma itself, or for exact data (where the
-    # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
-    target = sigma if sigma > 0 else EXACT_POLISH * floor
-    fit = graph_fit(problem, pts, floor)
-    return graph_fit(problem, _stacked(fit), target, covariances=covariances), target
-
-
 def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | None, pts=None):
     """One convex-iteration answer, refined by GTSAM when ``refine``, from the SDP's points or
     from ``pts`` (M + K, d) when given. Returns (SlamRun, the sigma of its graph or None).
@@ -366,75 +237,46 @@ def rekeyed(problem: SlamProblem, run: SlamRun | None, sigma: float) -> SlamRun 
     runs without GTSAM keep their sum of squares)."""
     if run is None or run.fit is None:
         return run
-    key = graph_fit(problem, _stacked(run.fit), sigma, max_iterations=0).error
+    key = 0.5 * graph_deviance(problem, stacked(run.fit), sigma)  # GTSAM's error, as a key
     return dataclasses.replace(run, key=key)
 
 
-def accepted(problem: SlamProblem, run: SlamRun, others, sigma_ref, rng) -> Acceptance:
-    """Whether the search may stop at ``run`` (or at a lower minimum a random start found).
-
-    It may when the run passes the residual test (:func:`passes`), or, with
-    ``edm_start="cheap"`` and GTSAM's refinement, when the verdict accepts it: :func:`slam_verdict`
-    (the residuals against the noise or, without ``noise_std``, against the scene and their own
-    tail; the trajectory's information and flatness) passes, GTSAM from random starts
-    (:func:`rival_search`) ends at no other trajectory of equal cost, and a second start reached
-    the same trajectory (one of those random starts, or one of the earlier runs ``others``):
-    without a noise level a wrong minimum's residual can pass, so it must be reached twice, as
-    calibrate's vote asks. A random start that ends clearly lower replaces the run (the graph's
-    cost ranks the EDM answer and the random starts alike), but the search stops there only once
-    a convex-iteration run reached it too."""
+def stops(problem: SlamProblem, run: SlamRun) -> bool:
+    """Whether the search may stop at ``run``: it passes the residual test (:func:`passes`), or,
+    with ``edm_start="cheap"``, GTSAM's refinement and no noise level to test against, the
+    verdict on the answer alone (:func:`slam_verdict`: the residuals against the scene and
+    their tail, the trajectory's information) accepts it. Whether another answer fits as well
+    is the judge's, once after the search (:func:`rangeslam.mdu.slam_judge.judge_slam`)."""
     if passes(problem, run):
-        return Acceptance(True, None, run)
-    if problem.options.start != "cheap" or run.fit is None:
-        return Acceptance(False, None, run)
-    rivals = rival_search(problem, run, sigma_ref, rng)
-    best = rivals.best
-    if rivals.reason or slam_verdict(problem, best, (), ())[0] is not Status.CONVERGED:
-        return Acceptance(False, rivals, best)
-    noise = verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)
-    far = max(RIVAL_SPREADS * trajectory_spread(best, noise), 1e-6 * problem.scale)
-
-    def near(other: SlamRun) -> bool:
-        return align(other.receivers, best.receivers, reflection=True).rmse <= far
-
-    confirmed = rivals.confirmed or any(near(o) for o in others if o is not best)
-    # a random start's minimum that no convex-iteration run reached waits for the next run: two
-    # random starts can agree on a wrong minimum that the EDM start avoids (measured: 24 cm off)
-    edm_agrees = any(near(o) for o in (run, *others) if o.start == "edm")
-    return Acceptance(confirmed and edm_agrees, rivals, best)
+        return True
+    if problem.options.start != "cheap" or run.fit is None or problem.noise_std is not None:
+        return False
+    return slam_verdict(problem, run, (), ())[0] is Status.CONVERGED
 
 
 @logged_step(log, "slam: EDM starts (convex iteration), each refined with GTSAM")
 def search_edm_runs(problem: SlamProblem, rng) -> EdmSearch:
-    """Convex-iteration runs (eq. 10, with eq. 11 step bounds) until one is :func:`accepted`;
-    the best by its key otherwise."""
+    """Convex-iteration runs (eq. 10, with eq. 11 step bounds), each refined, until the lowest
+    so far :func:`stops` the search; every run is kept for the judge."""
     failures: list[str] = []
-    best, attempts, sigma_ref, runs, verdict = None, 0, None, [], None
+    best, attempts, sigma_ref, runs = None, 0, None, []
     for completion in keyframe_runs(problem.ranges, problem.observed, problem.dim,
                                     problem.bounds, problem.options, rng, failures):  # fmt: skip
         attempts += 1
         run, sigma = edm_run(problem, completion, sigma_ref)
         if sigma is not None and sigma_ref is not None and sigma < sigma_ref:
             # a wrong minimum inflates the noise it settles at: rank on the best-fitting graph
-            sigma_ref, run, best = (
-                sigma,
-                rekeyed(problem, run, sigma),
-                rekeyed(problem, best, sigma),
-            )
+            sigma_ref = sigma
+            run, runs = rekeyed(problem, run, sigma), [rekeyed(problem, r, sigma) for r in runs]
         if sigma_ref is None:
             sigma_ref = sigma
         if problem.robust:
             run = resected(problem, run, sigma_ref, rng)
-        # the lowest answer so far is the one checked (random starts may confirm or beat it)
-        candidate = run if best is None or run.key < best.key else best
-        verdict = accepted(problem, candidate, runs, sigma_ref, rng)
-        runs.extend(r for r in (run, verdict.run) if all(r is not o for o in runs))
-        if best is None or verdict.run.key < best.key or verdict.ok:  # one that passes is taken
-            best = verdict.run
-        if verdict.ok:
+        runs.append(run)
+        best = min(runs, key=lambda r: r.key)
+        if stops(problem, best):
             break
-    cleared = best if verdict is not None and verdict.ok and verdict.rivals else None
-    return EdmSearch(best, attempts, tuple(failures), sigma_ref, cleared)
+    return EdmSearch(best, attempts, tuple(failures), sigma_ref, tuple(runs))
 
 
 def resected(problem: SlamProblem, run: SlamRun, sigma_ref, rng) -> SlamRun:
@@ -479,32 +321,16 @@ def resected(problem: SlamProblem, run: SlamRun, sigma_ref, rng) -> SlamRun:
     return new if new.key < run.key else run
 
 
-def try_random_starts(problem: SlamProblem, best: SlamRun, sigma_ref, rng):
-    """GTSAM also from ``extra_starts`` GTSAM-style starts (a random walk of the nominal step,
-    landmarks uniform in a box of the largest range); the graph's cost decides. Where the ranges
-    leave the shape nearly free (few steps, no bounds, a planar path) LM from the EDM answer can
-    stop in a valley another start avoids. Returns (best run, failures)."""
-    r, observed = problem.ranges, problem.observed
-    start_failures = []
-    nominal = nominal_steps(problem.bounds, r, observed)
-    for j in range(problem.extra_starts):
-        x0, s0 = random_start(nominal, r.shape[1], problem.dim, float(np.max(r[observed])), rng)
-        try:
-            fit_j, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref, covariances=False)
-        except SolverError as exc:  # LM diverged
-            start_failures.append(f"extra start {j}: {exc}")
-            continue
-        if fit_j.error < best.key:
-            lower = lower_minimum(problem, fit_j, best, sigma_ref, f"extra start {j}")
-            if lower is None:
-                start_failures.append(f"extra start {j}: covariances undefined")
-                continue
-            best = lower
-    return best, start_failures
-
-
-def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, message) -> SlamResult:
-    """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated)."""
+def slam_result(
+    problem: SlamProblem,
+    best: SlamRun,
+    attempts: int,
+    status: Status,
+    message: str,
+    judged: JudgedSearch | None = None,
+) -> SlamResult:
+    """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated),
+    with the judge's checks and counts (``judged``; none without refinement)."""
     m = problem.ranges.shape[0]
     rec_f, src_f, rot = canonical_frame(best.receivers, best.sources)
     cov_r = cov_s = cov_traj = None
@@ -514,6 +340,17 @@ def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, mess
     edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
     mirrors = landmark_ambiguity(problem, best, rec_f, src_f)
     kept = judged_ranges(problem, best)[0]
+    checks, n_judged, reached = (), 0, 0
+    if judged is not None:
+        j = judged.judgement
+        verdict = CheckRecord("verdict", float("nan"), float("nan"), status is Status.CONVERGED,
+                              message)  # fmt: skip
+        checks, n_judged, reached = (
+            (j.check, judged.record(), verdict),
+            len(j.comparisons),
+            j.reached,
+        )
+        message = "; ".join(filter(None, (message, judged.words())))
     return SlamResult(
         receivers=frozen(rec_f),
         sources=frozen(src_f),
@@ -532,6 +369,9 @@ def slam_result(problem: SlamProblem, best: SlamRun, attempts: int, status, mess
         ambiguous_landmarks=frozen(mirrors.ambiguous),
         landmark_mirrors=frozen(mirrors.mirrors),
         inliers=frozen(kept.copy()),
+        checks=checks,
+        judged=n_judged,
+        reached=reached,
     )
 
 
@@ -580,16 +420,17 @@ def slam(
             free).
         max_attempts: convex-iteration runs at most (fit weights x1, x10, x0.1, x100 from Z = I,
             then random Z), until one passes the residual test.
-        extra_starts: GTSAM runs from GTSAM-style random starts besides the EDM answer's; the
-            lowest graph cost wins (``SlamResult.start`` says which). Default 0, the EDM answer
-            only.
+        extra_starts: random GTSAM starts the judge makes at least (default 0: as many as its
+            stopping rule asks, at most SEARCH_BUDGET).
         fit_weight, max_iterations: as for :func:`rangeslam.calibrate`.
         edm_start: "cheap" (default): stop at the first convex-iteration run whose refined
-            answer the verdict accepts, once GTSAM from AGREEMENT_STARTS random starts found no
-            rival and confirmed it (a start that ends clearly lower replaces it), each run also
-            stopped once its rank-d embedding settled; "full": every run to the eigen-gap
-            tolerance until one passes the residual test (the older schedule).
+            answer passes the residual test or, without ``noise_std``, the verdict on it alone,
+            each run also stopped once its rank-d embedding settled; "full": every run to the
+            eigen-gap tolerance until one passes the residual test (the older schedule).
         rng: Generator or seed for the random restarts.
+
+    The answer is judged once (with ``refine``) against every alternative on one graph
+    (:mod:`rangeslam.mdu.slam_judge`): the lowest is the answer, an equal one far off a rival.
 
     Size: above :data:`rangeslam.mdu.subsets.MAX_SDP_POINTS` steps plus landmarks, the SDP holds
     keyframes spread along the walk with every landmark, and the steps between them start on
@@ -613,85 +454,50 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(found.failures)),
         )
-    best, status, message = judged_answer(problem, found, rng)
-    return slam_result(problem, best, found.attempts, status, message)
+    best, status, message, judged = judged_answer(problem, found, rng)
+    return slam_result(problem, best, found.attempts, status, message, judged)
 
 
-def judged_answer(problem: SlamProblem, found: EdmSearch, rng) -> tuple[SlamRun, Status, str]:
-    """The search's best run after the ``extra_starts``, its verdict, and "restarts agree"
-    (:func:`rival_search`, unless the search already cleared it): a random start that ends
-    clearly lower is judged in its place, a rival of equal cost makes it NOT_IDENTIFIABLE."""
-    best, start_failures = found.best, []
-    if problem.refine and problem.extra_starts:
-        best, start_failures = try_random_starts(problem, best, found.sigma_ref, rng)
-    status, message = slam_verdict(problem, best, found.failures, start_failures)
-    if status is Status.CONVERGED and problem.refine and best is not found.rival_checked:
-        rivals = rival_search(problem, best, found.sigma_ref, rng)
-        if rivals.best is not best:
-            best = rivals.best
-            status, message = slam_verdict(problem, best, found.failures, start_failures)
-        if rivals.reason and status is Status.CONVERGED:
-            status = Status.NOT_IDENTIFIABLE
-            message = "; ".join(filter(None, (message, rivals.reason)))
-    return best, status, message
+def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
+    """The search's best run judged against every alternative (with ``refine``:
+    :func:`judge_slam` on the graph of the search's reference sigma): the lowest candidate,
+    when lower by more than the level, replaces it (refined again as an EDM answer is,
+    :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
+    the judge's status (a rival: NOT_IDENTIFIABLE). Returns (run, status, message, judgement
+    or None)."""
+    best, judged, failures, unrefined = found.best, None, (), ()
+    if problem.refine and best.fit is not None:
+        others = [r for r in found.runs if r is not best]
+        judged = judge_slam(problem, best, others, found.sigma_ref, rng)
+        best, unrefined = replaced(problem, best, judged, found.sigma_ref)
+        failures = judged.failures + unrefined
+    status, message = slam_verdict(problem, best, found.failures, failures)
+    if status is Status.CONVERGED and unrefined:
+        # the lowest candidate could not be refined: the answer kept is not the most likely
+        status = Status.SOLVER_FAILED
+    if judged is not None and status is Status.CONVERGED:
+        status = judged.judgement.status
+        message = "; ".join(filter(None, (message, judged.judgement.reason)))
+    return best, status, message, judged
 
 
-@logged_step(log, "slam: looking for rival minima (verdict)")
-def rival_search(problem: SlamProblem, best: SlamRun, sigma_ref, rng) -> RivalSearch:
-    """GTSAM from AGREEMENT_STARTS GTSAM-style random starts (:func:`random_start`), on the graph
-    of ``sigma_ref``, beside the answer ``best``; the graph's cost ranks them all alike.
-
-    A start that ends lower than the answer by more than AMBIGUITY_CHI2 / 2 replaces it (a
-    smaller gain on a trajectory near it is LM's stopping tolerance in the same valley: swapping
-    for it raised the lemniscate's mean NEES / dof from inside its 99% band to 1.15) (refined again from there as an EDM answer is,
-    :func:`edm_run`); one that ends within AMBIGUITY_CHI2 / 2 of it with a trajectory more than
-    RIVAL_SPREADS times its RMS standard deviation off (RMS after the best rigid motion with
-    reflection) is a rival: the data cannot tell them apart; one that ends near it confirms it."""
-    r, observed = problem.ranges, problem.observed
-    nominal = nominal_steps(problem.bounds, r, observed)
-    size, margin = float(np.max(r[observed])), 0.5 * AMBIGUITY_CHI2
-    confirmed = False
-    for j in range(AGREEMENT_STARTS):
-        x0, s0 = random_start(nominal, r.shape[1], problem.dim, size, rng)
-        try:
-            fit, _ = refine_run(problem, np.vstack([x0, s0]), sigma_ref, covariances=False)
-        except SolverError:
-            continue
-        if not fit.converged or fit.error > best.key + margin:
-            continue
-        apart = align(fit.receivers, best.receivers, reflection=True).rmse
-        near = apart <= max(
-            RIVAL_SPREADS
-            * trajectory_spread(
-                best, verdict_noise(problem.noise_std, sigma_ref or 0.0, EXACT_RTOL * problem.scale)
-            ),
-            1e-6 * problem.scale,  # exact data: round-off apart
-        )
-        if fit.error < best.key - margin:
-            lower = lower_minimum(problem, fit, best, sigma_ref, f"random start {j}")
-            if lower is not None and lower.key < best.key:
-                best, confirmed = lower, near
-            continue
-        if not near:
-            reason = (
-                f"another start fits the data as well (graph cost {fit.error:.4g} against "
-                f"{best.key:.4g}) with a trajectory {apart:.3g} m RMS away: the ranges do not "
-                "decide between them"
-            )
-            return RivalSearch(reason, confirmed, best)
-        confirmed = True
-    return RivalSearch("", confirmed, best)
-
-
-def lower_minimum(problem: SlamProblem, fit: GraphFit, replaced: SlamRun, sigma_ref, start: str):
-    """The :class:`SlamRun` of a random start's ``fit`` that ended lower than ``replaced``:
-    refined from there as an EDM answer is (:func:`edm_run`: the noise settled, covariances,
-    ranked on the graph of ``sigma_ref``), named ``start``; None when its covariances are
-    undefined."""
+def replaced(
+    problem: SlamProblem, best: SlamRun, judged: JudgedSearch, sigma_ref
+) -> tuple[SlamRun, tuple[str, ...]]:
+    """``best``, or the judge's lowest candidate when it replaced the answer and either lies
+    outside its confidence region or fits better by more than the level (within both it is the
+    same answer; the landmarks may differ where the trajectory does not): refined from its
+    points as an EDM answer is (the noise settled, covariances), ``start`` its origin. Returns
+    (run, failures): when that refinement fails, ``best`` and the failure in words (the caller
+    reports it: the answer kept is then not the most likely one)."""
+    j = judged.judgement
+    own = next((c for c in j.comparisons if c.alternative is j.replaced), None)
+    if own is None or (own.kind == SAME and own.delta_cost <= cost_level()):
+        return best, ()  # the same trajectory, and as likely: the same answer
+    lowest = j.answer
     try:
-        run = edm_run(problem, replaced.completion, sigma_ref, pts=_stacked(fit))[0]
-    except SolverError:
-        return None
-    # its key: the lower of the two costs on the ranking graph (the refinement settles its own
-    # noise, so its point is optimal on another graph; the basin is ranked by its lowest cost)
-    return dataclasses.replace(run, key=min(run.key, fit.error), start=start)
+        run = edm_run(problem, best.completion, sigma_ref, pts=lowest.points)[0]
+    except SolverError as exc:
+        return best, (f"the refinement of the lower minimum of {lowest.origin}: {exc}",)
+    log.info("slam: %s reached a lower minimum, which replaced the answer", lowest.origin)
+    return dataclasses.replace(run, start=lowest.origin), ()

@@ -48,7 +48,6 @@ __all__ = [
     "robust_breakdown",
     "slam_verdict",
     "trajectory_check",
-    "trajectory_spread",
 ]
 
 #: The exact-data graph is finished at this fraction of the sigma floor (see
@@ -241,12 +240,3 @@ def landmark_ambiguity(problem: SlamProblem, best: SlamRun, receivers, sources):
     return landmark_mirrors(
         receivers, sources, problem.ranges, observed, sigma, EXACT_RTOL * problem.scale
     )
-
-
-def trajectory_spread(best: SlamRun, sigma: float) -> float:
-    """The trajectory's RMS standard deviation per point from GTSAM's marginal covariances
-    (receiver gauge), metres; ``sigma`` when there are none."""
-    cov = None if best.fit is None else best.fit.receiver_cov
-    if cov is None:
-        return sigma
-    return float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2))))

@@ -71,6 +71,9 @@ STATIONARY_CHI2 = 1.0
 # coordinates of the gauge points get no prior information at all (zero rows of the square-root
 # information), so nothing observable is pulled.
 _GAUGE_TIGHT = 1e-2
+# The least damping of Levenberg-Marquardt (see run_levenberg_marquardt): round-off against the
+# whitened information, whose diagonal is at least of order 1 (ranges over their sigma).
+_LAMBDA_FLOOR = 1e-16
 
 
 @dataclass(frozen=True)
@@ -403,6 +406,12 @@ def run_levenberg_marquardt(
     # valleys of few-step SLAM (sigma = 1 mm, M = 5) that stopped it 5-8 cm from the minimum,
     # which a bound of 1e12 reaches (measured: mean trajectory error 7 -> 1.7 cm).
     params.setlambdaUpperBound(float(lm.lambda_upper_bound))
+    # GTSAM's lower bound on the damping is 0: after some 320 accepted steps in a row (LM creeping
+    # along a flat valley, as a planar walk's refit without one landmark does) the damping
+    # underflows to 0, and the next rejected step multiplies 0 by the factor forever: LM never
+    # returns. A floor at the round-off of whitened (unit) information leaves every step as it
+    # was and lets the damping grow again.
+    params.setlambdaLowerBound(_LAMBDA_FLOOR)
     initial_error = float(graph.error(initial))
     result, iterations = initial, 0
     if lm.max_iterations > 0:

@@ -1,0 +1,276 @@
+"""The judge of a SLAM answer: every alternative the search and the generators made, compared
+with the answer on one objective over all the data (:func:`rangeslam.verdict.judge.judge`).
+
+The objective is the estimator's own graph at one range sigma (the search's reference): -2 log
+likelihood, twice GTSAM's error over every observed range and every step prior, with the robust
+kernel's cost over EVERY range for a robust answer (not over the ranges each candidate kept):
+:func:`rangeslam.mdu.slam_graph.graph_deviance`. The answer is the trajectory (the landmarks are
+nuisance parameters, as in the verdict's precision test): the information distance is the
+trajectory's, in its information with the landmarks profiled out
+(:func:`trajectory_information`, from the whitened Jacobian at the lowest candidate: range rows
+over sigma, step priors' rows whitened), after the rigid motion (with reflection) that best
+brings one trajectory onto the other, against chi-square with M d - d (d + 1) / 2 degrees of
+freedom. A landmark of a planar walk fits as well on either side of it (its mirror image,
+reported as ``ambiguous_landmarks``) and moves the trajectory by less than its precision: the
+same answer, not a rival (over all unknowns, each side flip of a 1 cm lemniscate walk was
+another answer, 10^5-10^6 information units away). Alternatives:
+
+- the search's other convex-iteration runs and GTSAM from random starts
+  (:func:`rangeslam.mdu.slam_graph.random_start`; a robust graph from the least-squares fit
+  there, :func:`_start_fit`), counted by the stopping rule
+  (:func:`rangeslam.verdict.judge.search_complete`) or ended by the budget SEARCH_BUDGET
+  (``extra_starts`` when larger);
+- leave-one-block-out refits from the answer (:func:`block_proposals` by landmark,
+  :func:`window_proposals` by windows of max(2, M // 4) steps): GTSAM without the block's ranges
+  (the graph of the other points, :func:`subgraph_fit`), then on the full graph from there.
+
+The landmarks' mirror images (:func:`rangeslam.mdu.alternatives.mirror_proposals`) are not
+judged here: they do not move the trajectory on a planar walk and are reported as
+``ambiguous_landmarks`` (:mod:`rangeslam.mdu.landmark_mirrors`); off the plane, the random
+starts reach either side.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Sequence
+
+import numpy as np
+
+from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.alignment import align
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.mdu.alternatives import (
+    Proposal,
+    block_proposals,
+    window_proposals,
+)
+from rangeslam.mdu.core import step_prior_rows, unknowns_up_to_rigid_motion
+from rangeslam.mdu.slam_graph import (
+    graph_deviance,
+    graph_fit,
+    nominal_steps,
+    random_start,
+    refine_run,
+    stacked,
+)
+from rangeslam.mdu.slam_verdict import SlamProblem, SlamRun
+from rangeslam.solvers.gtsam_graph import refine_graph
+from rangeslam.solvers.least_squares import unfolding_jacobian
+from rangeslam.verdict.judge import (
+    Alternative,
+    JudgedSearch,
+    judge,
+    search_complete,
+)
+from rangeslam.verdict.thresholds import KEPT_SIGMAS, RANK_RTOL, SEARCH_BUDGET
+
+__all__ = [
+    "judge_slam",
+    "subgraph_fit",
+    "trajectory_distance",
+    "trajectory_information",
+]
+
+# what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
+# gtsam's indeterminant linear system (a RuntimeError)
+_FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
+# LM iteration limits of a refit from the answer: first a short run; only when it stopped short of
+# its minimum (a Gauss-Newton step still predicting more than STATIONARY_CHI2 of decrease: GraphFit
+# not converged) the search's limit from there. A refit that has reached the answer's flat valley
+# creeps along it inside the answer's uncertainty (an exact planar walk: 900-1300 iterations a
+# refit, 24 refits 25 times the cost of the fit judged) and is judged where it stands.
+_REFIT_ITERATIONS = (200, 5000)
+
+
+def subgraph_fit(
+    problem: SlamProblem, pts: np.ndarray, sigma: float, kept: np.ndarray
+) -> np.ndarray:
+    """GTSAM from ``pts`` (M + K, d) on the ranges ``kept`` (M, K) alone: the graph of the steps
+    and landmarks that keep a range, at range sigma ``sigma`` (the problem's kernel and step
+    prior; two kept steps with left-out ones between them bounded by 0 and the sum of the upper
+    bounds between), its iterations as :data:`_REFIT_ITERATIONS` says. Returns the points with
+    those refitted; a left-out landmark stays where it was, a left-out step moves with the
+    nearest kept step before it (after it at the start)."""
+    m = problem.ranges.shape[0]
+    rows, cols = np.flatnonzero(kept.any(axis=1)), np.flatnonzero(kept.any(axis=0))
+    bounds = None
+    if problem.bounds is not None:
+        lower, upper = problem.bounds.lower, problem.bounds.upper
+        gaps = np.diff(rows)
+        bounds = (
+            np.where(gaps == 1, lower[rows[:-1]], 0.0),
+            np.array([upper[a:b].sum() for a, b in itertools.pairwise(rows)]),
+        )
+    rec, src = pts[rows], pts[m + cols]
+    for limit in _REFIT_ITERATIONS:
+        fit = refine_graph(
+            rec, src, problem.ranges[np.ix_(rows, cols)],
+            noise_std=sigma, mask=kept[np.ix_(rows, cols)], step_bounds=bounds,
+            step_sigma=problem.step_sigma, step_prior=problem.step_prior, robust=problem.robust,
+            covariances=False, max_iterations=limit,
+        )  # fmt: skip
+        if fit.converged:
+            break
+        rec, src = fit.receivers, fit.sources
+    out = pts.copy()
+    nearest = np.clip(np.searchsorted(rows, np.arange(m), side="right") - 1, 0, None)
+    out[:m] += (fit.receivers - pts[rows])[nearest]
+    out[rows], out[m + cols] = fit.receivers, fit.sources
+    return out
+
+
+def _block_refit(problem: SlamProblem, proposal: Proposal, sigma: float) -> np.ndarray | None:
+    """The refit of a leave-one-block-out proposal: first without its block (at the graph's
+    floor at least: LM does not move below it from afar), then on the full graph from there, at
+    ``sigma`` itself (near the answer, LM moves at any sigma: going through the floor first, as
+    :func:`rangeslam.mdu.slam_graph.refine_run` does from a distant start, made exact data
+    creep back 900 iterations a refit); each fit as :data:`_REFIT_ITERATIONS` says. None when a
+    GTSAM run failed."""
+    try:
+        pts = subgraph_fit(
+            problem,
+            proposal.points,
+            max(sigma, problem.floor),
+            problem.observed & ~proposal.without,
+        )
+        for limit in _REFIT_ITERATIONS:
+            fit = graph_fit(problem, pts, sigma, max_iterations=limit)
+            if fit.converged:
+                break
+            pts = stacked(fit)
+    except _FIT_ERRORS:
+        return None
+    return stacked(fit)
+
+
+def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) -> np.ndarray:
+    """(M d, M d) the information of the trajectory at ``pts`` (M + K, d), the landmarks
+    profiled out: the Schur complement F_xx - F_xl F_ll^+ F_lx of F = J^T J, J the whitened
+    Jacobian of the graph at range sigma ``sigma`` (metres): range rows over sigma (for a robust
+    graph, the ranges its kernel weighs, within KEPT_SIGMAS of sigma) and the step priors' rows
+    (:func:`rangeslam.mdu.core.step_prior_rows`, in range-noise units, over sigma). A landmark
+    direction without information (one off a planar walk, at the plane) is left out of F_ll^+
+    (singular values under RANK_RTOL of the largest)."""
+    m, n_points = problem.ranges.shape[0], sum(problem.ranges.shape)
+    used = problem.observed
+    if problem.robust:  # the ranges the kernel weighs there
+        res = range_matrix(pts[:m], pts[m:]) - problem.ranges
+        used = used & (np.abs(res) <= KEPT_SIGMAS * sigma)
+    jac = unfolding_jacobian(pts, m, np.argwhere(used)) / sigma
+    prior = step_prior_rows(
+        problem.bounds, problem.step_prior, problem.step_sigma, pts[:m], sigma, n_points
+    )
+    if prior is not None:
+        jac = np.vstack([jac, prior / sigma])
+    x = m * problem.dim
+    info = jac.T @ jac
+    f_ll = info[x:, x:]
+    return (
+        info[:x, :x]
+        - info[:x, x:] @ np.linalg.pinv(f_ll, rcond=RANK_RTOL, hermitian=True) @ info[x:, :x]
+    )
+
+
+def trajectory_distance(information: np.ndarray, m: int):
+    """``distance2(a, b, skip)`` for :func:`judge`: delta^2 of b's trajectory (the first ``m``
+    rows of its points) from a's in the trajectory's ``information`` (M d, M d), b's trajectory
+    first brought onto a's by the best rigid motion with reflection (the gauge of ranges and
+    step lengths); steps in ``skip`` are left out of the alignment and of the step."""
+
+    def distance2(a: Alternative, b: Alternative, skip=()) -> float:
+        ref, pts = np.asarray(a.points[:m], dtype=float), np.asarray(b.points[:m], dtype=float)
+        keep = np.setdiff1d(np.arange(m), [r for r in skip if r < m])
+        aligned = ref.copy()
+        aligned[keep] = align(pts[keep], ref[keep], reflection=True).aligned
+        step = (aligned - ref).ravel()
+        return float(step @ information @ step)
+
+    return distance2
+
+
+def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float):
+    """GTSAM from a random start ``pts`` (M + K, d) at range sigma ``sigma``: with a robust
+    kernel, first by least squares (the graph without the kernel), then on the problem's graph
+    from there, as the search's runs start the kernel from the SDP's least-squares answer. (The
+    kernel straight from a random start ignores most ranges: on 1 mm walks with a wrong pick,
+    LM hit 5000 iterations at 30-50 cm off, 2 s each; from least squares 4 of 6 starts reached
+    the right minimum in 0.05 s.)"""
+    if problem.robust:
+        gaussian = dataclasses.replace(problem, robust=None)
+        pts = stacked(refine_run(gaussian, pts, sigma, covariances=False)[0])
+    return refine_run(problem, pts, sigma, covariances=False)[0]
+
+
+def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list[str]):
+    """GTSAM from GTSAM-style random starts without end, each an Alternative (counted), or None
+    where GTSAM failed (the failure appended to ``failures``)."""
+    r, observed = problem.ranges, problem.observed
+    nominal = nominal_steps(problem.bounds, r, observed)
+    size = float(np.max(r[observed]))
+    for j in itertools.count():
+        x0, s0 = random_start(nominal, r.shape[1], problem.dim, size, rng)
+        try:
+            fit = _start_fit(problem, np.vstack([x0, s0]), sigma)
+        except _FIT_ERRORS as exc:
+            failures.append(f"random start {j}: {exc}")
+            yield None
+            continue
+        pts = stacked(fit)
+        yield Alternative(
+            pts, graph_deviance(problem, pts, sigma), f"random start {j}", payload=True
+        )
+
+
+def _block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
+    """The leave-one-block-out refits of the answer ``points``: without one landmark, without
+    one window of max(2, M // 4) steps (module docstring); those whose GTSAM run failed are
+    left out."""
+    m, observed = problem.ranges.shape[0], problem.observed
+    fixed = itertools.chain(
+        block_proposals(points, observed, blocks="columns", names=("step", "landmark")),
+        window_proposals(points, observed, max(2, m // 4)),
+    )
+    alternatives = []
+    for proposal in fixed:
+        refit = _block_refit(problem, proposal, sigma)
+        if refit is not None:
+            dev = graph_deviance(problem, refit, sigma)
+            alternatives.append(Alternative(refit, dev, proposal.origin, payload=False))
+    return alternatives
+
+
+def judge_slam(
+    problem: SlamProblem, answer: SlamRun, runs: Sequence[SlamRun], sigma: float, rng
+) -> JudgedSearch:
+    """The answer against every alternative (module docstring) on the graph of range sigma
+    ``sigma`` (metres; the search's reference). ``runs``: the search's other refined
+    convex-iteration runs, counted by the stopping rule with the answer."""
+    m = problem.ranges.shape[0]
+    points = np.vstack([answer.receivers, answer.sources])
+    main = Alternative(points, graph_deviance(problem, points, sigma), "the answer", payload=True)
+    dof = unknowns_up_to_rigid_motion(m, problem.dim)
+
+    def metric(lowest: Alternative):
+        return trajectory_distance(trajectory_information(problem, lowest.points, sigma), m)
+
+    def run(alternatives):
+        return judge(main, alternatives, metric=metric, dof=dof, counted=lambda a: bool(a.payload))
+
+    alternatives = _block_alternatives(problem, points, sigma)
+    counted = [
+        Alternative(p, graph_deviance(problem, p, sigma), f"convex-iteration run {i}", payload=True)
+        for i, p in enumerate(np.vstack([r.receivers, r.sources]) for r in runs)
+    ]
+    failures: list[str] = []
+    randoms = _random_alternatives(problem, sigma, rng, failures)
+    budget, made = max(SEARCH_BUDGET, problem.extra_starts), 0
+    while made < budget and (
+        made < problem.extra_starts or not search_complete(len(counted) + 1, run(counted).minima)
+    ):
+        alt = next(randoms)
+        made += 1
+        counted += [] if alt is None else [alt]
+    judgement = run(alternatives + counted)
+    return JudgedSearch.of(judgement, len(counted) + 1, failures)
