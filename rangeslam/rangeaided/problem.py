@@ -346,7 +346,8 @@ class RangeAidedProblem:
             index 12), >= 0; the poses are sorted by (robot, index), without repeats: a robot's
             poses are its trajectory in time order.
         pose_time: (P,) each pose's time [s].
-        landmark_ids: (L,) each landmark's number (landmark "L3" has id 3), increasing.
+        landmark_ids: (L,) each landmark's number (landmark "L3" has id 3), distinct (the
+            loader sorts them; a converted beacon log keeps its beacons' order).
         odometry: relative poses between poses (odometry steps and any loop closures).
         ranges: ranges pose-landmark and pose-pose.
         landmark_observations: landmark positions in a pose's frame (default: none).
@@ -376,9 +377,8 @@ class RangeAidedProblem:
         self._check_robots()
         n_poses = self._check_poses()
         ids = _indices(self.landmark_ids, "landmark_ids", None, MAX_NAME_INDEX)
-        if np.any(np.diff(ids) <= 0):
-            i = int(np.argmax(np.diff(ids) <= 0)) + 1
-            raise InvalidInputError(f"landmark_ids must increase strictly; entry {i} does not")
+        if len(np.unique(ids)) != len(ids):
+            raise InvalidInputError("landmark_ids must be distinct; some id is repeated")
         _freeze(self, landmark_ids=ids)
         for name, kind in (
             ("landmark_observations", LandmarkObservations),
