@@ -55,6 +55,7 @@ from rangeslam.rangeaided.problem import (
     RangeMeasurements,
     RelativePoses,
     pose_width,
+    positive_definite,
     tangent_width,
 )
 
@@ -267,8 +268,8 @@ def _arrays(parsed: Parsed, group: str, width: int, k: int) -> tuple[np.ndarray,
         norm = np.linalg.norm(values[:, 3:], axis=1)
         _first_bad(parsed, group, np.abs(norm - 1) > 1e-5, "the quaternion must have norm 1")
     if cov is not None and n:
-        low = np.linalg.eigvalsh(cov).min(axis=1)
-        _first_bad(parsed, group, ~(low > 0), "the covariance must be positive definite")
+        bad = ~positive_definite(cov)
+        _first_bad(parsed, group, bad, "the covariance must be positive definite")
     return values, cov, np.array(rows["time"], dtype=np.float64)
 
 

@@ -33,6 +33,7 @@ __all__ = [
     "RangeMeasurements",
     "RelativePoses",
     "pose_width",
+    "positive_definite",
     "tangent_width",
 ]
 
@@ -94,14 +95,26 @@ def _covariances(value, name: str, n: int, k: int) -> np.ndarray:
     if not np.array_equal(cov, np.swapaxes(cov, 1, 2)):
         i = int(np.argmax(np.any(cov != np.swapaxes(cov, 1, 2), axis=(1, 2))))
         raise InvalidInputError(f"{name} must be symmetric; entry {i} is not")
-    if n:
-        low = np.linalg.eigvalsh(cov).min(axis=1)
-        if np.any(low <= 0):
-            i = int(np.argmax(low <= 0))
-            raise InvalidInputError(
-                f"{name} must be positive definite; entry {i} has eigenvalue {low[i]:.3g}"
-            )
+    bad = ~positive_definite(cov)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise InvalidInputError(f"{name} must be positive definite; entry {i} is not")
     return cov
+
+
+def positive_definite(cov: np.ndarray) -> np.ndarray:
+    """(n,) True where the (n, k, k) symmetric ``cov`` is positive definite: a positive diagonal
+    and a correlation matrix D^-1/2 C D^-1/2 with eigenvalues > 0 (scaled first, so variances
+    of 1e-200 and 1e200 side by side are judged as well as unit ones)."""
+    cov = np.asarray(cov, dtype=float)
+    diag = np.diagonal(cov, axis1=1, axis2=2)
+    ok = np.all(diag > 0, axis=1)
+    if not np.any(ok):
+        return ok
+    s = 1.0 / np.sqrt(diag[ok])
+    corr = cov[ok] * s[:, :, None] * s[:, None, :]
+    ok[ok] = np.linalg.eigvalsh(corr).min(axis=1) > 0
+    return ok
 
 
 def _check_quaternions(values: np.ndarray, name: str, start: int) -> None:
