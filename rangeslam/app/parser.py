@@ -374,7 +374,8 @@ def _add_run(sub) -> None:
         nargs="+",
         type=Path,
         metavar="RIRS",
-        help=".npz, .wav or directory, one or several (see above); or a beacon log (.csv)",
+        help=".npz, .sofa, .wav or directory, one or several (see above); or a beacon log "
+        "(.csv); or a PyFG file (.pyfg)",
     )
     run.add_argument(
         "--fs",
