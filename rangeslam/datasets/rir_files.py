@@ -187,6 +187,11 @@ def load_rirs(
         if not q.is_file():
             what = "is a directory, not a file" if q.is_dir() else "does not exist"
             raise InvalidInputError(f"RIR file {q} {what}")
+    return _load_files(paths, fs)
+
+
+def _load_files(paths: list[Path], fs: float | None) -> LoadedRirs:
+    """The RIRs of existing files ``paths``: one .npz or .sofa, else WAVs."""
     suffixes = {q.suffix.lower() for q in paths}
     if suffixes & {".npz", ".sofa"}:
         if len(paths) != 1:

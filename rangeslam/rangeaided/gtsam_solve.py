@@ -43,6 +43,8 @@ GAUGE_SIGMA = 1e-6
 #: Levenberg-Marquardt's iteration limit and relative error tolerance (GTSAM's defaults are 100
 #: and 1e-5).
 MAX_ITERATIONS = 200
+#: Whitened residuals all below this are exact data fitted to round-off: no tail is judged.
+EXACT_SIGMAS = 1e-6
 RELATIVE_TOLERANCE = 1e-6
 
 
@@ -222,7 +224,7 @@ def _identifiable(problem: RangeAidedProblem) -> str:
 def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, iterations: int,
           max_iterations: int) -> tuple[Status, str, dict]:  # fmt: skip
     """(status, message, statistics) of the answer ``values``; the checks in the order solver,
-    identifiable, consistent, outliers:
+    identifiable, outliers, consistent:
 
     - SOLVER_FAILED: the cost is not finite, or Levenberg-Marquardt used all its iterations.
     - NOT_IDENTIFIABLE: a robot tied to nothing, a landmark with too few ranges.
@@ -257,10 +259,10 @@ def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, itera
         )
     elif why:
         status, reason = Status.NOT_IDENTIFIABLE, why
+    elif tail:  # a heavy tail is named before the sum of squares it inflates (as checks.py)
+        status, reason = Status.OUTLIERS, tail
     elif stats["range_chi2"] > limits[0] or stats["odometry_chi2"] > limits[1]:
         status, reason = Status.INCONSISTENT, "the residuals are larger than the stated noise"
-    elif tail:
-        status, reason = Status.OUTLIERS, tail
     else:
         status, reason = Status.CONVERGED, ""
     text = f"{reason}; {detail}" if reason else detail
@@ -271,7 +273,7 @@ def _tail(whitened: np.ndarray) -> str:
     """Why the largest of the (n,) whitened |range residuals| is an outlier against their own
     robust scale ('' when it is not, or with fewer than 5)."""
     n = len(whitened)
-    if n < 5:
+    if n < 5 or np.max(whitened) < EXACT_SIGMAS:  # round-off has no tail to judge
         return ""
     robust = mad_sigma(whitened)
     limit = float(norm.isf(TAIL_LEVEL / (2 * n))) * (1 + 2.4 / np.sqrt(n))
