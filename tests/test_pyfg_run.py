@@ -221,3 +221,26 @@ def test_cli_run_on_the_cora_files(tmp_path, name):
         traj = file_interface.read_tum_trajectory_file(str(out / tum_name("run_trajectory", r)))
         assert traj.num_poses == len(problem.robot_rows(r))
     assert summary["ape_mean_m"] <= summary["odometry_ape_mean_m"] + 1e-9
+
+
+def test_bench_pyfg_table(rng, tmp_path, capsys):
+    """`rangeslam bench pyfg`: a row per file and method; edm+gtsam runs on a one-robot 2-D
+    beacon log and says why it does not on two robots; the table, CSV and JSON are written."""
+    from rangeslam.beacons import simulate_beacon_run
+
+    run = simulate_beacon_run(rng, n_steps=400)
+    one = run.data.to_problem(truth_poses=run.poses, truth_beacons=run.beacons)
+    two = synthetic(rng, noise=1.0, n=60)
+    files = [write_pyfg(one, tmp_path / "one.pyfg"), write_pyfg(two, tmp_path / "two.pyfg")]
+    out = tmp_path / "bench"
+    assert main(["bench", "pyfg", *map(str, files), "--out", str(out)]) == 0
+    rows = json.loads((out / "pyfg_bench.json").read_text())["rows"]
+    assert [(r["file"], r["method"]) for r in rows] == [
+        (f, m) for f in ("one", "two") for m in ("odometry", "gtsam", "edm+gtsam")
+    ]
+    by = {(r["file"], r["method"]): r for r in rows}
+    assert by["two", "edm+gtsam"]["status"] == "not run"
+    assert "2 robots" in by["two", "edm+gtsam"]["message"]
+    assert by["one", "edm+gtsam"]["ape_mean_m"] >= 0
+    assert by["two", "gtsam"]["ape_rmse_m"] < by["two", "odometry"]["ape_rmse_m"]
+    assert "| two | gtsam | CONVERGED |" in (out / "pyfg_bench.md").read_text()
