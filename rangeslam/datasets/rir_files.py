@@ -196,7 +196,7 @@ def _load_files(paths: list[Path], fs: float | None) -> LoadedRirs:
     if suffixes & {".npz", ".sofa"}:
         if len(paths) != 1:
             raise InvalidInputError(
-                "path_or_paths: give one .npz or .sofa, or WAV files; got "
+                "path_or_paths: give one .npz, or WAV files (or one .sofa); got "
                 + ", ".join(str(q) for q in paths[:4])
             )
         if paths[0].suffix.lower() == ".sofa":
@@ -207,7 +207,7 @@ def _load_files(paths: list[Path], fs: float | None) -> LoadedRirs:
     for q in paths:
         if q.suffix.lower() != ".wav":
             alone = " (a beacon log is given alone)" if q.suffix.lower() in (".csv", ".txt") else ""
-            raise DataFormatError(f"{q}: not a .wav, .npz or .sofa file{alone}")
+            raise DataFormatError(f"{q}: not a .wav or .npz file (nor .sofa){alone}")
     return _load_wavs(paths, fs)
 
 
