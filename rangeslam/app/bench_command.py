@@ -24,6 +24,10 @@ def bench(args: argparse.Namespace) -> int:
         return run_plaza_bench(args)
     if args.which == "xtdoa":
         return run_xtdoa_bench(args)
+    if args.which == "pyfg":
+        from rangeslam.app.pyfg_bench import run_pyfg_bench
+
+        return run_pyfg_bench(args)
     if getattr(args, "regimes", False):
         return run_regimes_bench(args)
     slam = {}

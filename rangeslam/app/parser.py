@@ -144,7 +144,7 @@ def _add_demo(sub) -> None:
 
 
 def _add_bench(sub) -> None:
-    """``rangeslam bench fig3|fig5|compare|plaza|xtdoa``: one subcommand per experiment."""
+    """``rangeslam bench fig3|fig5|compare|plaza|xtdoa|pyfg``: one subcommand per experiment."""
     bench = sub.add_parser(
         "bench",
         help="the paper's experiments (fig3, fig5), every SLAM method side by side (compare), "
@@ -211,6 +211,32 @@ def _add_bench(sub) -> None:
     )
     _add_plaza_options(plaza)
     _add_xtdoa_bench(experiments)
+    _add_pyfg_bench(experiments)
+
+
+def _add_pyfg_bench(experiments) -> None:
+    """``rangeslam bench pyfg FILES``: range-aided SLAM methods on PyFG files."""
+    from rangeslam.app.pyfg_bench import PYFG_METHODS
+
+    pyfg = experiments.add_parser(
+        "pyfg",
+        help="range-aided SLAM on PyFG files (CORA's benchmark problems)",
+        description="Each method on each PyFG file: status, time and APE against the file's "
+        "reference values (one rigid alignment of all robots). Seconds a file.",
+        formatter_class=DefaultsHelpFormatter,
+    )
+    pyfg.add_argument("files", nargs="+", type=Path, metavar="FILE", help="PyFG files (.pyfg)")
+    pyfg.add_argument(
+        "--methods",
+        nargs="+",
+        choices=list(PYFG_METHODS),
+        default=list(PYFG_METHODS),
+        help="methods to run",
+    )
+    pyfg.add_argument(
+        "--out", type=arg_types.writable_dir, default="rangeslam-bench", help="output folder"
+    )
+    pyfg.set_defaults(func=bench_command)
 
 
 def _add_xtdoa_bench(experiments) -> None:
@@ -374,7 +400,8 @@ def _add_run(sub) -> None:
         nargs="+",
         type=Path,
         metavar="RIRS",
-        help=".npz, .wav or directory, one or several (see above); or a beacon log (.csv)",
+        help=".npz, .sofa, .wav or directory, one or several (see above); or a beacon log "
+        "(.csv); or a PyFG file (.pyfg)",
     )
     run.add_argument(
         "--fs",

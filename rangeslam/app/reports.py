@@ -39,9 +39,11 @@ def write_tum(
     step_seconds: float = 1.0,
     *,
     times: np.ndarray | None = None,
+    quaternions: np.ndarray | None = None,
 ) -> Path:
-    """A trajectory in the TUM format (``timestamp tx ty tz qx qy qz qw``; identity orientation,
-    one step per ``step_seconds`` unless ``times`` (M,) are given), which evo reads
+    """A trajectory in the TUM format (``timestamp tx ty tz qx qy qz qw``; the orientations
+    ``quaternions`` (M, 4) (qx, qy, qz, qw) when given, else the identity; one step per
+    ``step_seconds`` unless ``times`` (M,) are given), which evo reads
     (``evo_ape tum truth.tum est.tum -a``). Rows that are not finite (a method that stopped) are
     not written."""
     x = np.asarray(positions, dtype=float)
@@ -52,8 +54,13 @@ def write_tum(
     t = np.arange(len(x)) * step_seconds if times is None else np.asarray(times, dtype=float)
     if t.shape != (len(x),):
         raise InvalidInputError(f"times must have shape ({len(x)},); got {t.shape}")
-    ok = np.all(np.isfinite(x), axis=1)
-    data = np.column_stack([t, x, np.zeros((len(x), 3)), np.ones(len(x))])[ok]
+    q = np.column_stack([np.zeros((len(x), 3)), np.ones(len(x))])
+    if quaternions is not None:
+        q = np.asarray(quaternions, dtype=float)
+        if q.shape != (len(x), 4):
+            raise InvalidInputError(f"quaternions must have shape ({len(x)}, 4); got {q.shape}")
+    ok = np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(q), axis=1)
+    data = np.column_stack([t, x, q])[ok]
     path = Path(path)
     np.savetxt(path, data, fmt="%.9f", header="timestamp tx ty tz qx qy qz qw")
     return path

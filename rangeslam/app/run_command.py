@@ -50,9 +50,15 @@ RUN_FILES = (
 )
 
 
+#: Per-robot files of a PyFG run (run_trajectory.tum, run_trajectory_B.tum, ...), cleared too.
+RUN_FILE_PATTERNS = ("run_trajectory*.tum", "run_reference*.tum")
+
+
 def clear_run_files(out: Path) -> list[Path]:
-    """Delete the files of an earlier run (:data:`RUN_FILES`) from ``out``; returns them."""
+    """Delete the files of an earlier run (:data:`RUN_FILES`, :data:`RUN_FILE_PATTERNS`) from
+    ``out``; returns them."""
     gone = [out / name for name in RUN_FILES if (out / name).is_file()]
+    gone += [q for pattern in RUN_FILE_PATTERNS for q in sorted(out.glob(pattern)) if q.is_file()]
     for path in gone:
         path.unlink()
     if gone:
@@ -558,10 +564,14 @@ def run(args: argparse.Namespace) -> int:
     progress line on standard error every 10 s with the step under way."""
     from rangeslam.app.beacon_run import beacon_log_given, beacon_run
     from rangeslam.app.progress import Heartbeat
+    from rangeslam.app.pyfg_run import pyfg_given, pyfg_run
 
     if beacon_log_given(args.rirs):  # a beacon log (rangeslam.datasets.beacon_log)
         with Heartbeat("run"):
             return beacon_run(args)
+    if pyfg_given(args.rirs):  # a range-aided SLAM problem (rangeslam.datasets.pyfg)
+        with Heartbeat("run"):
+            return pyfg_run(args)
     with Heartbeat("run"):
         return _run(args)
 

@@ -16,12 +16,14 @@ Exit 0 converged, 1 not converged, 2 bad input.
 RIRS of one loudspeaker:
   room.npz                rirs (M, L), fs; optionally mics, step_bounds, c, keyframes,
                           and ground truth (source, room_size, trajectory, ...)
+  room.sofa               a SOFA file of impulse responses (AES69, read with sofar):
+                          every receiver is a microphone, at the position it carries
   array.wav               one multichannel WAV: channel m is microphone m's RIR
   mics/                   a directory of mono WAVs, one per microphone, in natural
                           order of names (mic2.wav before mic10.wav)
   m0.wav m1.wav ...       mono WAVs, one per microphone, in the order given
 RIRS of several loudspeakers at the same microphones (their walls fitted jointly):
-  src0.npz src1.npz ...   one .npz per loudspeaker
+  src0.npz src1.npz ...   one .npz (or .sofa) per loudspeaker
   src0.wav src1.wav ...   one multichannel WAV per loudspeaker (channel m: microphone m)
   src0/ src1/ ...         a directory of mono WAVs per loudspeaker
 With microphone positions (--mics, or the npz's mics): the room (walls, loudspeakers).
@@ -32,7 +34,9 @@ space-separated numbers, '#' comments, a first row of column names (a header suc
 x,y,z) skipped.
 
 Or one beacon log, a .csv or .txt given alone: odometry and ranges to radio beacons;
-the robot's path and the beacons (see below)."""
+the robot's path and the beacons (see below). Or one PyFG file (.pyfg, CORA's range-aided
+SLAM problems): every robot's trajectory (TUM) and the landmarks, scored against the
+file's reference values."""
 
 RUN_EPILOG = """\
 beacon log (rangeslam.datasets.beacon_log): one record a line, the first field says

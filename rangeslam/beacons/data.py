@@ -8,12 +8,16 @@ Journal of Field Robotics 26(9), 2009).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from rangeslam._validation import as_float_array, frozen, shape_str
 from rangeslam.errors import InvalidInputError
+
+if TYPE_CHECKING:
+    from rangeslam.rangeaided.problem import RangeAidedProblem
 
 __all__ = ["MAX_BEACONS", "RangeOdometry", "dead_reckoning", "path_length"]
 
@@ -165,6 +169,33 @@ class RangeOdometry:
             len(data.beacon_ids),
             data.beacon_ids,
         )
+
+    def to_problem(
+        self,
+        *,
+        odometry_sigma: ArrayLike | None = None,
+        range_sigma: float | None = None,
+        truth_poses: ArrayLike | None = None,
+        truth_beacons: ArrayLike | None = None,
+    ) -> RangeAidedProblem:
+        """This log as a :class:`~rangeslam.rangeaided.RangeAidedProblem` (one robot, 2-D,
+        odometry Pose2(d, 0, dtheta) with covariance diag(``odometry_sigma``^2), ranges with
+        variance ``range_sigma``^2; None: derived from the data as beacon_slam does).
+        :func:`rangeslam.rangeaided.convert.problem_from_range_odometry` has the details."""
+        from rangeslam.rangeaided.convert import problem_from_range_odometry
+
+        return problem_from_range_odometry(
+            self, odometry_sigma=odometry_sigma, range_sigma=range_sigma,
+            truth_poses=truth_poses, truth_beacons=truth_beacons,
+        )  # fmt: skip
+
+    @classmethod
+    def from_problem(cls, problem: RangeAidedProblem) -> RangeOdometry:
+        """The beacon log a one-robot 2-D :class:`~rangeslam.rangeaided.RangeAidedProblem` is
+        (:func:`rangeslam.rangeaided.convert.range_odometry_from_problem`)."""
+        from rangeslam.rangeaided.convert import range_odometry_from_problem
+
+        return range_odometry_from_problem(problem)
 
     def first(self, n_poses: int) -> RangeOdometry:
         """The first ``n_poses`` poses (n_poses - 1 odometry steps) and the ranges among them."""

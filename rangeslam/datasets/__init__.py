@@ -7,6 +7,7 @@ Each takes a path, or a name under the data folder (:func:`data_path`: ``$RANGES
 from rangeslam.datasets.cmu_plaza import PLAZA_CITATION, PLAZA_NAMES, PlazaDataset, plaza
 from rangeslam.datasets.dechorate import DEchorate, load_dechorate
 from rangeslam.datasets.paths import DATA_ENV, data_path, data_root
+from rangeslam.datasets.pyfg import PYFG_CITATION, load_pyfg, write_pyfg
 from rangeslam.datasets.rir_files import LoadedRirs, SilentRirWarning, load_rirs
 from rangeslam.datasets.xtdoa import XTDOA_CITATION, XtdoaDataset, xtdoa
 
@@ -14,6 +15,7 @@ __all__ = [
     "DATA_ENV",
     "PLAZA_CITATION",
     "PLAZA_NAMES",
+    "PYFG_CITATION",
     "XTDOA_CITATION",
     "DEchorate",
     "LoadedRirs",
@@ -23,7 +25,9 @@ __all__ = [
     "data_path",
     "data_root",
     "load_dechorate",
+    "load_pyfg",
     "load_rirs",
     "plaza",
+    "write_pyfg",
     "xtdoa",
 ]

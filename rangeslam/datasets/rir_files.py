@@ -1,4 +1,5 @@
-"""Room impulse responses from files: one ``.npz``, one multichannel WAV, or several mono WAVs.
+"""Room impulse responses from files: one ``.npz``, one SOFA file (:mod:`rangeslam.datasets.sofa_files`),
+one multichannel WAV, or several mono WAVs.
 
 Several loudspeakers are several of those, one each (:func:`one_per_loudspeaker` tells them from
 the mono WAVs of one): ``.npz`` files, multichannel WAVs, or directories of mono WAVs.
@@ -130,6 +131,9 @@ def load_rirs(
               (the RIRs that are steps, when not all are), ``c`` (m/s), and
               ground truth for evaluation: ``source`` (or ``src_v3``), ``room_size``,
               ``trajectory`` (M, 3), ``emission_delay`` (s); other arrays are ignored;
+            - a ``.sofa`` file of impulse responses (AES69, read with sofar), with the
+              microphone and source positions it carries
+              (:func:`rangeslam.datasets.sofa_files.load_sofa`);
             - a WAV file: each channel is one RIR;
             - a directory: its WAV files, one mono RIR each, in natural order of their names
               (``mic2.wav`` before ``mic10.wav``);
@@ -183,18 +187,27 @@ def load_rirs(
         if not q.is_file():
             what = "is a directory, not a file" if q.is_dir() else "does not exist"
             raise InvalidInputError(f"RIR file {q} {what}")
+    return _load_files(paths, fs)
+
+
+def _load_files(paths: list[Path], fs: float | None) -> LoadedRirs:
+    """The RIRs of existing files ``paths``: one .npz or .sofa, else WAVs."""
     suffixes = {q.suffix.lower() for q in paths}
-    if ".npz" in suffixes:
+    if suffixes & {".npz", ".sofa"}:
         if len(paths) != 1:
             raise InvalidInputError(
-                "path_or_paths: give one .npz, or WAV files; got "
+                "path_or_paths: give one .npz, or WAV files (or one .sofa); got "
                 + ", ".join(str(q) for q in paths[:4])
             )
+        if paths[0].suffix.lower() == ".sofa":
+            from rangeslam.datasets.sofa_files import load_sofa
+
+            return load_sofa(paths[0], fs)
         return _load_npz(paths[0], fs)
     for q in paths:
         if q.suffix.lower() != ".wav":
             alone = " (a beacon log is given alone)" if q.suffix.lower() in (".csv", ".txt") else ""
-            raise DataFormatError(f"{q}: not a .wav or .npz file{alone}")
+            raise DataFormatError(f"{q}: not a .wav or .npz file (nor .sofa){alone}")
     return _load_wavs(paths, fs)
 
 
@@ -422,8 +435,8 @@ def one_per_loudspeaker(paths: Sequence[Path]) -> bool:
     for q in map(Path, paths):
         if q.is_dir():
             kinds[q] = "a directory of mono WAVs"
-        elif q.suffix.lower() == ".npz":
-            kinds[q] = "an .npz"
+        elif q.suffix.lower() in (".npz", ".sofa"):
+            kinds[q] = "an .npz"  # a .sofa file too: one loudspeaker's RIRs
         elif q.suffix.lower() == ".wav" and q.is_file():
             channels = wav_channels(q)  # None: not a WAV this walk follows
             kinds[q] = {None: "a WAV", 1: "a mono WAV"}.get(channels, "a multichannel WAV")

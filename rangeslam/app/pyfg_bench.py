@@ -1,0 +1,138 @@
+"""``rangeslam bench pyfg FILES``: range-aided SLAM methods on PyFG files (CORA's benchmark
+problems), one table row per file and method: status, time, APE against the file's reference.
+
+Methods (:data:`PYFG_METHODS`, a registry: a peer is one entry):
+
+- ``odometry``: dead reckoning from each robot's reference first pose, ranges unused;
+- ``gtsam``: GTSAM (Levenberg-Marquardt) from that odometry start
+  (:func:`rangeslam.rangeaided.gtsam_solve.solve_gtsam`), the file's covariances;
+- ``edm+gtsam``: :func:`rangeslam.beacons.beacon_slam` (EDM windows, stitching, GTSAM with the
+  range calibration unknown), where the problem is a one-robot 2-D beacon log
+  (:meth:`RangeOdometry.from_problem <rangeslam.beacons.RangeOdometry.from_problem>`); it uses
+  noise derived from the data, not the file's, and no reference pose. Elsewhere: not run, and
+  the row says why.
+
+APE: one rigid motion (no scale) fitted to all poses carries every robot and landmark (evo's
+``-a`` on the joint trajectory). Times are wall times on this machine; CORA's published times
+(:data:`CORA_SECONDS`) are the authors' machine's, shown beside them for scale only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CORA_SECONDS", "PYFG_METHODS", "pyfg_rows", "run_pyfg_bench"]
+
+#: CORA's solve times [s] as published (Papalia et al., T-RO 2024), on the authors' machine.
+CORA_SECONDS = {"plaza1": 10.56, "plaza2": 2.71, "single_drone": 2.26, "tiers": 11.30}
+
+
+def _odometry(problem):
+    from rangeslam.rangeaided.gtsam_solve import dead_reckoning_result
+
+    res = dead_reckoning_result(problem)
+    return res.poses, res.landmarks, "-", res.seconds, ""
+
+
+def _gtsam(problem):
+    from rangeslam.rangeaided.gtsam_solve import solve_gtsam
+
+    res = solve_gtsam(problem)
+    return res.poses, res.landmarks, res.status.name, res.seconds, res.message
+
+
+def _edm_gtsam(problem):
+    from rangeslam.beacons import RangeOdometry, beacon_slam
+
+    data = RangeOdometry.from_problem(problem)  # InvalidInputError: not a beacon log
+    t0 = time.perf_counter()
+    res = beacon_slam(data)
+    seconds = time.perf_counter() - t0
+    placed = np.where(np.isfinite(res.beacons), res.beacons, np.nan)
+    return res.poses, placed, res.status.name, seconds, res.message
+
+
+#: name -> function(problem) -> (poses, landmarks, status, seconds, message).
+PYFG_METHODS = {"odometry": _odometry, "gtsam": _gtsam, "edm+gtsam": _edm_gtsam}
+
+
+def _ape(problem, poses, marks) -> tuple[float, float]:
+    from rangeslam.evaluation.metrics import ape, ape_statistics
+    from rangeslam.rangeaided.poses import positions
+
+    truth = problem.truth_landmarks
+    if truth is None or not len(truth):
+        truth = np.zeros((0, problem.dim))
+        marks = np.zeros((0, problem.dim))
+    stats = ape_statistics(ape(positions(poses), positions(problem.truth_poses),
+                               np.nan_to_num(marks), truth).errors)  # fmt: skip
+    return stats.mean, stats.rmse
+
+
+def pyfg_rows(path: Path, methods: list[str]) -> list[dict]:
+    """One row per method on the PyFG file ``path``: file, method, status, seconds, APE mean
+    and RMSE [m], CORA's published seconds, and the message (or why the method did not run)."""
+    from rangeslam.datasets.pyfg import load_pyfg
+    from rangeslam.errors import InvalidInputError
+
+    problem = load_pyfg(path)
+    name = Path(path).stem
+    rows = []
+    for method in methods:
+        row = {"file": name, "method": method, "cora_seconds": CORA_SECONDS.get(name)}
+        try:
+            poses, marks, status, seconds, message = PYFG_METHODS[method](problem)
+        except InvalidInputError as exc:
+            rows.append({**row, "status": "not run", "message": str(exc)})
+            continue
+        mean, rmse = _ape(problem, poses, marks)
+        rows.append({**row, "status": status, "seconds": seconds, "ape_mean_m": mean,
+                     "ape_rmse_m": rmse, "message": message})  # fmt: skip
+    return rows
+
+
+def _table(rows: list[dict]) -> str:
+    from rangeslam.app.reports import markdown
+
+    def cell(row, key, spec):
+        value = row.get(key)
+        return "-" if value is None else format(value, spec)
+
+    body = [[r["file"], r["method"], r["status"], cell(r, "seconds", ".2f"),
+             cell(r, "ape_mean_m", ".3f"), cell(r, "ape_rmse_m", ".3f"),
+             cell(r, "cora_seconds", ".2f")] for r in rows]  # fmt: skip
+    header = ["file", "method", "status", "time [s]", "APE mean [m]", "APE RMSE [m]",
+              "CORA's time [s] (their machine)"]  # fmt: skip
+    return markdown(header, body)
+
+
+def run_pyfg_bench(args: argparse.Namespace) -> int:
+    """Every method of ``args.methods`` on every file of ``args.files``; writes pyfg_bench.md,
+    .csv and .json in ``args.out`` and prints the table. Exit 0, or 2 on a bad file."""
+    import sys
+
+    from rangeslam.app.reports import versions, write_csv, write_summary
+    from rangeslam.datasets.pyfg import PYFG_CITATION
+    from rangeslam.errors import InvalidInputError
+
+    rows: list[dict] = []
+    try:
+        for path in args.files:
+            rows += pyfg_rows(path, args.methods)
+    except InvalidInputError as exc:
+        print(f"rangeslam: error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    text = "## Range-aided SLAM on PyFG files\n\n" + _table(rows)
+    (out / "pyfg_bench.md").write_text(text + "\n")
+    written = [out / "pyfg_bench.md", write_csv(out / "pyfg_bench.csv", rows)]
+    written.append(write_summary(out / "pyfg_bench.json", bench="pyfg", citation=PYFG_CITATION,
+                                 rows=rows, versions=versions()))  # fmt: skip
+    print(text)
+    print("\nwritten: " + ", ".join(str(p) for p in written))
+    return 0
