@@ -19,9 +19,9 @@ from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.checks import Check
+from rangeslam.verdict.judge import cost_level
 from rangeslam.verdict.thresholds import (
     AGREEMENT_STARTS,
-    AMBIGUITY_CHI2,
     CHI2_LEVEL,
     EXACT_RTOL,
     RIVAL_SPREADS,
@@ -121,8 +121,8 @@ def rival_check(
     """The agreement :func:`rangeslam.mdu.slam` asks of its answer, on a filter's: the graph
     (ranges at ``sigma``, the step bounds' prior) refined from the filter's answer, then from
     AGREEMENT_STARTS GTSAM-style random starts. A start that ends lower by more than
-    AMBIGUITY_CHI2 / 2 means the filter ended off the data's best minimum (INCONSISTENT); one
-    within it, with a trajectory more than RIVAL_SPREADS times the answer's RMS standard
+    half the cost level (:func:`rangeslam.verdict.judge.cost_level`) means the filter ended off
+    the data's best minimum (INCONSISTENT); one within it, with a trajectory more than RIVAL_SPREADS times the answer's RMS standard
     deviation away, means the ranges do not decide between them (NOT_IDENTIFIABLE).
 
     Args:
@@ -146,7 +146,7 @@ def rival_check(
     cov = own.receiver_cov
     spread = float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2)))) if cov is not None else sigma
     steps = nominal_steps(bounds, ranges, observed)
-    size, margin = float(np.max(ranges[observed])), 0.5 * AMBIGUITY_CHI2
+    size, margin = float(np.max(ranges[observed])), 0.5 * cost_level()
     for _ in range(AGREEMENT_STARTS):
         x0, s0 = random_start(steps, ranges.shape[1], receivers.shape[1], size, rng)
         try:

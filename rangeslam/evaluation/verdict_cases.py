@@ -41,8 +41,9 @@ from rangeslam.geometry.edm import range_matrix
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 from rangeslam.geometry.room import Room
 from rangeslam.sim.scenes import add_outliers, echo_ranges, random_points_in_room
-from rangeslam.verdict import AMBIGUITY_CHI2, PRECISION_FRACTION, mirror_gap, reflected
+from rangeslam.verdict import PRECISION_FRACTION, mirror_gap, reflected
 from rangeslam.verdict.crlb import mdu_crlb, multilateration_crlb, wall_crlb
+from rangeslam.verdict.judge import cost_level
 
 __all__ = [
     "BOUND_FACTOR",
@@ -255,7 +256,7 @@ def multilaterate_case(regime: str, rng: np.random.Generator, seed: int | None =
     except DegenerateGeometryError:
         bound = float("inf")
     reason = "heard by exactly d anchors" if clean.sum() <= 3 else ""
-    if not reason and mirror_gap(x, a[clean], true_r[clean]) < AMBIGUITY_CHI2 * sigma**2:
+    if not reason and mirror_gap(x, a[clean], true_r[clean]) < cost_level() * sigma**2:
         reason = "mirror image through the anchors' plane fits within the noise"
     ok, why = _identifiable(bound, scale, reason)
     run = partial(
@@ -491,7 +492,7 @@ def room_case(regime: str, rng: np.random.Generator, seed: int | None = None):
     scale = float(np.median(np.concatenate([t.ravel() for t in true_r])))
     bound, angle_bound = _wall_bound(room, mics, sources, sigma, np.stack(clean))
     reason = ""
-    if mirror_room_gap(room, mics, sources) <= AMBIGUITY_CHI2 * sigma**2:
+    if mirror_room_gap(room, mics, sources) <= cost_level() * sigma**2:
         reason = "the room's mirror image through the microphones' plane fits within the noise"
     ok, why = _identifiable(bound, scale, reason)
     run = partial(reconstruct_room, mics, ranges, rng=rng)

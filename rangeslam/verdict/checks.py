@@ -32,8 +32,8 @@ from scipy.stats import chi2, norm
 
 from rangeslam._robust import mad_sigma, studentized
 from rangeslam.status import Status
+from rangeslam.verdict.judge import cost_level
 from rangeslam.verdict.thresholds import (
-    AMBIGUITY_CHI2,
     AMBIGUITY_MARGIN,
     CHI2_LEVEL,
     FLAT_FACTOR,
@@ -312,16 +312,17 @@ def tail_check(
 
 def ambiguity_check(cost_gap: float, sigma: float | None, exact_rms: float, what: str) -> Check:
     """NOT_IDENTIFIABLE when a second minimum (e.g. the mirror image) costs at most
-    AMBIGUITY_MARGIN * AMBIGUITY_CHI2 noise variances more than the answer.
+    AMBIGUITY_MARGIN times the cost level (:func:`rangeslam.verdict.judge.cost_level`) noise
+    variances more than the answer.
 
     ``cost_gap``: its sum of squared range residuals minus the answer's, metres^2; ``sigma``: the
     range noise (given or estimated), metres; None or 0 (exact data) uses ``exact_rms``."""
     floor = max(sigma or 0.0, exact_rms)
-    if cost_gap <= AMBIGUITY_MARGIN * AMBIGUITY_CHI2 * floor**2:
+    if cost_gap <= AMBIGUITY_MARGIN * cost_level() * floor**2:
         return Check(
             Status.NOT_IDENTIFIABLE,
             f"{what} and its mirror image fit the data equally well (their costs differ by "
-            f"{cost_gap:.3g} m^2, under {AMBIGUITY_MARGIN * AMBIGUITY_CHI2:.3g} noise variances)",
+            f"{cost_gap:.3g} m^2, under {AMBIGUITY_MARGIN * cost_level():.3g} noise variances)",
         )
     return PASSED
 

@@ -7,11 +7,8 @@ another name. The README's "Verdict thresholds" table lists them with the same w
 
 from __future__ import annotations
 
-from scipy.stats import chi2
-
 __all__ = [
     "AGREEMENT_STARTS",
-    "AMBIGUITY_CHI2",
     "AMBIGUITY_MARGIN",
     "BLIND_POWER",
     "CHI2_LEVEL",
@@ -60,7 +57,7 @@ ROBUST_RATIO = 2.0
 #: so a residual must exceed about 0.6% of the scene to count as a wrong pick.
 TAIL_SCALE_FLOOR = 1e-3
 #: Family-wise false-alarm rate of the studentised-residual tail test (Bonferroni over residuals).
-TAIL_LEVEL = 1e-3
+TAIL_LEVEL = 1.0 - CHI2_LEVEL  # not a level of its own: the verdicts' one level
 #: Without a known noise level, the precision and flatness tests assume the largest noise the
 #: residuals do not rule out at this level (the lower quantile of chi-square on the redundancy).
 NOISE_QUANTILE = 0.05
@@ -136,11 +133,9 @@ BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
 #: the answer's RMS standard deviations away (measured on Fig. 5 walks: the same minimum reached
 #: again lies 0.2-1.0 of them away, a different one 1.25-4).
 RIVAL_SPREADS = 1.2
-#: A second minimum whose cost exceeds the answer's by less than this many noise variances
-#: cannot be told apart from it (the CHI2_LEVEL quantile of chi-square with one degree of freedom).
-AMBIGUITY_CHI2 = float(chi2.ppf(CHI2_LEVEL, 1))
 #: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
-#: times AMBIGUITY_CHI2 noise variances: the gap is measured on noisy data at the estimate, and a
+#: times the cost level (:func:`rangeslam.verdict.judge.cost_level`, the CHI2_LEVEL quantile of
+#: chi-square(1)) in noise variances: the gap is measured on noisy data at the estimate, and a
 #: mirror the noise-free data could not tell apart sometimes shows a larger one there.
 AMBIGUITY_MARGIN = 2.0
 
