@@ -13,21 +13,21 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
+from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.mdu.core import step_prior_rows, unfolding_check, unknowns_up_to_rigid_motion
 from rangeslam.solvers.least_squares import refine_unfolding
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.checks import Check
-from rangeslam.verdict.judge import cost_level
-from rangeslam.verdict.thresholds import (
-    AGREEMENT_STARTS,
-    CHI2_LEVEL,
-    EXACT_RTOL,
-    RIVAL_SPREADS,
-)
+from rangeslam.verdict.judge import LOWER, Alternative, judge, search_complete
+from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, SEARCH_BUDGET
 
-__all__ = ["filter_check", "off_the_batch_minimum", "rival_check"]
+# what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
+# gtsam's indeterminant linear system (a RuntimeError)
+FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
+
+__all__ = ["filter_check", "off_the_batch_minimum", "random_minima", "rival_check"]
 
 
 def filter_check(
@@ -118,52 +118,98 @@ def rival_check(
     sources: np.ndarray,
     rng: np.random.Generator,
 ) -> Check:
-    """The agreement :func:`rangeslam.mdu.slam` asks of its answer, on a filter's: the graph
-    (ranges at ``sigma``, the step bounds' prior) refined from the filter's answer, then from
-    AGREEMENT_STARTS GTSAM-style random starts. A start that ends lower by more than
-    half the cost level (:func:`rangeslam.verdict.judge.cost_level`) means the filter ended off
-    the data's best minimum (INCONSISTENT); one within it, with a trajectory more than RIVAL_SPREADS times the answer's RMS standard
-    deviation away, means the ranges do not decide between them (NOT_IDENTIFIABLE).
+    """The judge :func:`rangeslam.mdu.slam` answers to, on a filter's answer: the graph (ranges
+    at ``sigma``, the step bounds' "uniform" prior) refined from the filter's answer, against
+    GTSAM from GTSAM-style random starts (as many as the stopping rule of
+    :func:`rangeslam.verdict.judge.search_complete` asks, at most SEARCH_BUDGET), all scored on
+    the graph's deviance and compared by :func:`rangeslam.verdict.judge.judge` (the trajectory's
+    information distance, landmarks profiled out). The filter's answer replaced by a lower
+    minimum (by more than the cost level, and outside its confidence region) means the filter
+    ended off the data's best minimum (INCONSISTENT); a rival means the ranges do not decide
+    between them (NOT_IDENTIFIABLE).
 
     Args:
         receivers, sources: (M, d), (K, d) the filter's answer, metres; ranges, observed: (M, K).
         sigma: the range noise the graph is weighted with, metres (> 0).
         bounds: the step bounds the filter was given, or None; rng: for the random starts.
     """
-    from rangeslam.errors import SolverError
-    from rangeslam.geometry.alignment import align
-    from rangeslam.mdu.slam_graph import nominal_steps, random_start
-    from rangeslam.solvers.gtsam_graph import refine_graph
+    from rangeslam.mdu.core import ConvexIterationOptions
+    from rangeslam.mdu.slam import parse_slam
+    from rangeslam.mdu.slam_graph import graph_deviance, refine_run, stacked
 
-    def fit_from(x0, s0, covariances=False):
-        return refine_graph(x0, s0, ranges, noise_std=sigma, mask=observed, step_bounds=bounds,
-                            covariances=covariances, max_iterations=5000)  # fmt: skip
-
+    m, d = receivers.shape
     try:
-        own = fit_from(receivers, sources, covariances=True)
-    except SolverError:
+        problem = parse_slam(ranges, bounds, observed, d, True, sigma, None, None, "uniform", 0,
+                             ConvexIterationOptions(start="cheap"))  # fmt: skip
+    except InvalidInputError as exc:  # the bounds against the ranges at this sigma
+        return Check(Status.INCONSISTENT, f"the graph of the filter's data is refused: {exc}")
+    try:
+        own = stacked(refine_run(problem, np.vstack([receivers, sources]), sigma,
+                                 covariances=False)[0])  # fmt: skip
+    except FIT_ERRORS:
         return Check(Status.CONVERGED, "the graph could not be refined from the filter's answer")
-    cov = own.receiver_cov
-    spread = float(np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2)))) if cov is not None else sigma
-    steps = nominal_steps(bounds, ranges, observed)
-    size, margin = float(np.max(ranges[observed])), 0.5 * cost_level()
-    for _ in range(AGREEMENT_STARTS):
-        x0, s0 = random_start(steps, ranges.shape[1], receivers.shape[1], size, rng)
-        try:
-            fit = fit_from(x0, s0)
-        except SolverError:
-            continue
-        if not fit.converged or fit.error > own.error + margin:
-            continue
-        apart = align(fit.receivers, own.receivers, reflection=True).rmse
-        if fit.error < own.error - margin:
-            return Check(Status.INCONSISTENT, (
-                f"a random start of the same graph ends lower (cost {fit.error:.4g} against "
-                f"{own.error:.4g} from the filter's answer), {apart:.3g} m RMS away: the filter "
-                "ended off the data's best minimum"))  # fmt: skip
-        if apart > max(RIVAL_SPREADS * spread, 1e-6 * size):
-            return Check(Status.NOT_IDENTIFIABLE, (
-                f"a random start of the same graph fits the data as well (cost {fit.error:.4g} "
-                f"against {own.error:.4g}) with a trajectory {apart:.3g} m RMS away: the ranges "
-                "do not decide between them"))  # fmt: skip
+    answer = Alternative(own, graph_deviance(problem, own, sigma), "the filter's answer", payload=1)
+    judgement = judge(
+        answer,
+        random_minima(problem, answer, sigma, rng),
+        metric=_metric(problem, sigma),
+        dof=unknowns_up_to_rigid_motion(m, d),
+        counted=lambda alt: bool(alt.payload),
+    )
+    own_comparison = next((c for c in judgement.comparisons if c.alternative is answer), None)
+    if own_comparison is not None and own_comparison.kind == LOWER:
+        lowest = judgement.answer
+        why = (
+            f"{lowest.origin} of the same graph ends lower (deviance {lowest.deviance:.4g} "
+            f"against {answer.deviance:.4g} from the filter's answer, information distance "
+            f"{own_comparison.distance2:.3g}): the filter ended off the data's best minimum"
+        )
+        return Check(Status.INCONSISTENT, why)
+    if judgement.status is Status.NOT_IDENTIFIABLE:
+        return Check(Status.NOT_IDENTIFIABLE, judgement.reason)
     return Check(Status.CONVERGED)
+
+
+def _metric(problem, sigma: float):
+    """The judge's metric: the trajectory's distance in its information at the lowest."""
+    from rangeslam.mdu.slam_judge import trajectory_distance, trajectory_information
+
+    m = problem.ranges.shape[0]
+    return lambda lowest: trajectory_distance(
+        trajectory_information(problem, lowest.points, sigma), m
+    )
+
+
+def random_minima(problem, answer: Alternative, sigma: float, rng) -> list[Alternative]:
+    """GTSAM from GTSAM-style random starts (a random walk of the nominal steps, landmarks in a
+    box of the largest range), until the stopping rule is met with ``answer`` counted or
+    SEARCH_BUDGET starts were made (failed runs count as made); each minimum an
+    :class:`Alternative` of the graph's deviance."""
+    from rangeslam.mdu.slam_graph import (
+        graph_deviance,
+        nominal_steps,
+        random_start,
+        refine_run,
+        stacked,
+    )
+
+    r, observed = problem.ranges, problem.observed
+    steps, size = nominal_steps(problem.bounds, r, observed), float(np.max(r[observed]))
+    metric, dof = (
+        _metric(problem, sigma),
+        unknowns_up_to_rigid_motion(problem.ranges.shape[0], problem.dim),
+    )
+    found: list[Alternative] = []
+    for j in range(SEARCH_BUDGET - 1):
+        if search_complete(len(found) + 1, judge(answer, found, metric=metric, dof=dof).minima):
+            break
+        x0, s0 = random_start(steps, r.shape[1], problem.dim, size, rng)
+        try:
+            fit = refine_run(problem, np.vstack([x0, s0]), sigma, covariances=False)[0]
+        except FIT_ERRORS:
+            continue
+        pts = stacked(fit)
+        found.append(
+            Alternative(pts, graph_deviance(problem, pts, sigma), f"random start {j}", payload=1)
+        )
+    return found

@@ -8,7 +8,6 @@ another name. The README's "Verdict thresholds" table lists them with the same w
 from __future__ import annotations
 
 __all__ = [
-    "AGREEMENT_STARTS",
     "AMBIGUITY_MARGIN",
     "BLIND_POWER",
     "CHI2_LEVEL",
@@ -29,7 +28,6 @@ __all__ = [
     "PROBE_UNKNOWNS",
     "RANK_RTOL",
     "RELATIVE_RMS",
-    "RIVAL_SPREADS",
     "ROBUST_RATIO",
     "SAME_RTOL",
     "SEARCH_BUDGET",
@@ -120,19 +118,12 @@ SEARCH_BUDGET = 8
 #: Without noise_std two runs reach "the same" answer when their squared distances agree to this
 #: fraction of the squared scale.
 SAME_RTOL = 1e-5
-#: Random least-squares (calibrate) or GTSAM (slam) starts that must not find another answer of
-#: equal cost.
-AGREEMENT_STARTS = 3
 #: Without noise_std the planarity F-test counts as blind when it would miss 3-D data whose fold
 #: is this many times the noise in the 2-D residual (:func:`planarity_power`): the odds of
 #: CHI2_LEVEL, 1000. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power
 #: 5e5) or 3 (none) is blind; from 5 positions (power 17.5) the test saw every planar walk
 #: under 3-D landmarks (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
 BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
-#: Another start's answer of equal cost is a rival minimum when it lies more than this many of
-#: the answer's RMS standard deviations away (measured on Fig. 5 walks: the same minimum reached
-#: again lies 0.2-1.0 of them away, a different one 1.25-4).
-RIVAL_SPREADS = 1.2
 #: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
 #: times the cost level (:func:`rangeslam.verdict.judge.cost_level`, the CHI2_LEVEL quantile of
 #: chi-square(1)) in noise variances: the gap is measured on noisy data at the estimate, and a
