@@ -101,9 +101,10 @@ def test_bad_sofa_files_are_named(rng, tmp_path):
 
 
 @pytest.mark.slow
-def test_cli_run_gives_the_same_room_from_sofa_and_npz(rng, tmp_path):
+def test_cli_run_gives_the_same_room_from_sofa_and_npz(rng, tmp_path, capsys):
     """`rangeslam run r.sofa` and `rangeslam run r.npz` on the same simulation give the same
-    walls and source and both converge (about 10 s)."""
+    walls and source and both converge (about 10 s); each summary names where the microphones
+    came from (the npz, the sofa file)."""
     from rangeslam.app.cli import main
 
     src, listener, local = scene(rng)
@@ -118,6 +119,7 @@ def test_cli_run_gives_the_same_room_from_sofa_and_npz(rng, tmp_path):
             == 0
         )
         out[name] = json.loads((tmp_path / name[2:] / "run_summary.json").read_text())
+        assert f"mics from the {name[2:]}" in capsys.readouterr().out
     a, b = out["r.npz"], out["r.sofa"]
     assert a["converged"] and b["converged"]
     np.testing.assert_allclose(b["source"], a["source"], atol=1e-9)

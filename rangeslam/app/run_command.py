@@ -193,22 +193,23 @@ def _geometry_from_npz(args: argparse.Namespace, loaded) -> tuple[Any, Any, str]
     """(mics or None, step bounds or None, origin) from the npz, as the flags choose."""
     from rangeslam.errors import InvalidInputError
 
+    kind = Path(args.rirs[0]).suffix.lstrip(".").lower() or "file"  # npz or sofa
     if args.mics_from_npz or args.step_bounds_from_npz:
         want = "mics" if args.mics_from_npz else "step_bounds"
         value = getattr(loaded, want)
         if value is None:
             raise InvalidInputError(f"--{want.replace('_', '-')}-from-npz: the RIRs hold no {want}")
         mics, bounds = (value, None) if want == "mics" else (None, value)
-        return mics, bounds, f"{want} from the npz"
+        return mics, bounds, f"{want} from the {kind}"
     if loaded.mics is not None and loaded.step_bounds is not None:
         raise InvalidInputError(
             "the npz holds both mics and step_bounds: choose with --mics-from-npz (the room) or "
             "--step-bounds-from-npz (the trajectory)"
         )
     if loaded.mics is not None:
-        return loaded.mics, None, "mics from the npz"
+        return loaded.mics, None, f"mics from the {kind}"
     if loaded.step_bounds is not None:
-        return None, loaded.step_bounds, "step_bounds from the npz"
+        return None, loaded.step_bounds, f"step_bounds from the {kind}"
     raise InvalidInputError(
         "say what is known: --mics FILE (microphone positions, (M, 3)) or --step-bounds FILE "
         "(bounds on each step of a moving microphone, (2, M - 1))"
