@@ -13,21 +13,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.errors import InvalidInputError
 from rangeslam.mdu.core import step_prior_rows, unfolding_check, unknowns_up_to_rigid_motion
 from rangeslam.solvers.least_squares import refine_unfolding
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.checks import Check
-from rangeslam.verdict.judge import LOWER, Alternative, judge, search_complete
+from rangeslam.verdict.judge import LOWER, Alternative, judge
 from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, SEARCH_BUDGET
 
-# what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
-# gtsam's indeterminant linear system (a RuntimeError)
-FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
-
-__all__ = ["filter_check", "off_the_batch_minimum", "random_minima", "rival_check"]
+__all__ = ["filter_check", "off_the_batch_minimum", "rival_check"]
 
 
 def filter_check(
@@ -136,6 +132,12 @@ def rival_check(
     from rangeslam.mdu.core import ConvexIterationOptions
     from rangeslam.mdu.slam import parse_slam
     from rangeslam.mdu.slam_graph import graph_deviance, refine_run, stacked
+    from rangeslam.mdu.slam_judge import (
+        FIT_ERRORS,
+        counted_as_start,
+        judge_metric,
+        random_minima,
+    )
 
     m, d = receivers.shape
     try:
@@ -149,12 +151,14 @@ def rival_check(
     except FIT_ERRORS:
         return Check(Status.CONVERGED, "the graph could not be refined from the filter's answer")
     answer = Alternative(own, graph_deviance(problem, own, sigma), "the filter's answer", payload=1)
+    # the answer and the random starts together at most SEARCH_BUDGET
+    starts = random_minima(problem, answer, [], sigma, rng, budget=SEARCH_BUDGET - 1)
     judgement = judge(
         answer,
-        random_minima(problem, answer, sigma, rng),
-        metric=_metric(problem, sigma),
+        starts,
+        metric=judge_metric(problem, sigma),
         dof=unknowns_up_to_rigid_motion(m, d),
-        counted=lambda alt: bool(alt.payload),
+        counted=counted_as_start,
     )
     own_comparison = next((c for c in judgement.comparisons if c.alternative is answer), None)
     if own_comparison is not None and own_comparison.kind == LOWER:
@@ -168,48 +172,3 @@ def rival_check(
     if judgement.status is Status.NOT_IDENTIFIABLE:
         return Check(Status.NOT_IDENTIFIABLE, judgement.reason)
     return Check(Status.CONVERGED)
-
-
-def _metric(problem, sigma: float):
-    """The judge's metric: the trajectory's distance in its information at the lowest."""
-    from rangeslam.mdu.slam_judge import trajectory_distance, trajectory_information
-
-    m = problem.ranges.shape[0]
-    return lambda lowest: trajectory_distance(
-        trajectory_information(problem, lowest.points, sigma), m
-    )
-
-
-def random_minima(problem, answer: Alternative, sigma: float, rng) -> list[Alternative]:
-    """GTSAM from GTSAM-style random starts (a random walk of the nominal steps, landmarks in a
-    box of the largest range), until the stopping rule is met with ``answer`` counted or
-    SEARCH_BUDGET starts were made (failed runs count as made); each minimum an
-    :class:`Alternative` of the graph's deviance."""
-    from rangeslam.mdu.slam_graph import (
-        graph_deviance,
-        nominal_steps,
-        random_start,
-        refine_run,
-        stacked,
-    )
-
-    r, observed = problem.ranges, problem.observed
-    steps, size = nominal_steps(problem.bounds, r, observed), float(np.max(r[observed]))
-    metric, dof = (
-        _metric(problem, sigma),
-        unknowns_up_to_rigid_motion(problem.ranges.shape[0], problem.dim),
-    )
-    found: list[Alternative] = []
-    for j in range(SEARCH_BUDGET - 1):
-        if search_complete(len(found) + 1, judge(answer, found, metric=metric, dof=dof).minima):
-            break
-        x0, s0 = random_start(steps, r.shape[1], problem.dim, size, rng)
-        try:
-            fit = refine_run(problem, np.vstack([x0, s0]), sigma, covariances=False)[0]
-        except FIT_ERRORS:
-            continue
-        pts = stacked(fit)
-        found.append(
-            Alternative(pts, graph_deviance(problem, pts, sigma), f"random start {j}", payload=1)
-        )
-    return found

@@ -86,13 +86,22 @@ def _frames(sofa, m: int, p: Path) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], axis=-1)
 
 
+def positions_of(sofa, values: np.ndarray, name: str, p: Path) -> np.ndarray:
+    """:func:`sofa_positions` of ``values`` of the SOFA variable ``name``, read with the type
+    and units the file gives it (``{name}_Type``, ``{name}_Units``; SOFA's defaults
+    'cartesian' and 'metre' when absent)."""
+    kind = getattr(sofa, f"{name}_Type", "cartesian")
+    return sofa_positions(values, kind, getattr(sofa, f"{name}_Units", "metre"), name, p)
+
+
+def per_measurement_positions(sofa, name: str, m: int, p: Path) -> np.ndarray:
+    """(M, 3) the SOFA variable ``name`` given once or per measurement, as positions."""
+    return positions_of(sofa, _per_measurement(_array(sofa, name, p), m, name, p), name, p)
+
+
 def _microphones(sofa, m: int, r: int, p: Path) -> np.ndarray:
     """(M * R, 3) receiver positions in the room, row m * R + r."""
-    listener = sofa_positions(
-        _per_measurement(_array(sofa, "ListenerPosition", p), m, "ListenerPosition", p),
-        getattr(sofa, "ListenerPosition_Type", "cartesian"),
-        getattr(sofa, "ListenerPosition_Units", "metre"), "ListenerPosition", p,
-    )  # fmt: skip
+    listener = per_measurement_positions(sofa, "ListenerPosition", m, p)
     rec = _array(sofa, "ReceiverPosition", p)
     rec = rec.reshape(rec.shape + (1,) * (3 - rec.ndim))  # (R, 3, I or M)
     if rec.shape[:2] != (r, 3) or rec.shape[2] not in (1, m):
@@ -100,27 +109,21 @@ def _microphones(sofa, m: int, r: int, p: Path) -> np.ndarray:
             f"{p}: ReceiverPosition must have shape ({r}, 3, 1) or ({r}, 3, {m}); got {rec.shape}"
         )
     rec = np.broadcast_to(np.moveaxis(rec, 2, 0), (m, r, 3))  # (M, R, 3)
-    rec = sofa_positions(rec, getattr(sofa, "ReceiverPosition_Type", "cartesian"),
-                         getattr(sofa, "ReceiverPosition_Units", "metre"), "ReceiverPosition", p)  # fmt: skip
+    rec = positions_of(sofa, rec, "ReceiverPosition", p)
     rot = _frames(sofa, m, p)
     return (listener[:, None, :] + np.einsum("mij,mrj->mri", rot, rec)).reshape(m * r, 3)
 
 
 def _source(sofa, m: int, p: Path) -> np.ndarray:
     """(3,) the source position, one for every measurement."""
-    src = sofa_positions(
-        _per_measurement(_array(sofa, "SourcePosition", p), m, "SourcePosition", p),
-        getattr(sofa, "SourcePosition_Type", "cartesian"),
-        getattr(sofa, "SourcePosition_Units", "metre"), "SourcePosition", p,
-    )  # fmt: skip
+    src = per_measurement_positions(sofa, "SourcePosition", m, p)
     emitter = getattr(sofa, "EmitterPosition", None)
     if emitter is not None:
         e = _array(sofa, "EmitterPosition", p)
         e = e.reshape(e.shape + (1,) * (3 - e.ndim))
         if e.shape[0] != 1:
             raise DataFormatError(f"{p}: one emitter per file; EmitterPosition has {e.shape[0]}")
-        e = sofa_positions(np.moveaxis(e[0], 1, 0), getattr(sofa, "EmitterPosition_Type", "cartesian"),
-                           getattr(sofa, "EmitterPosition_Units", "metre"), "EmitterPosition", p)  # fmt: skip
+        e = positions_of(sofa, np.moveaxis(e[0], 1, 0), "EmitterPosition", p)
         src = src + np.broadcast_to(e, (m, 3))  # emitters are in the source's frame; a zero
         # offset (sofar's default) or a translation without source view is what this reads
     if np.ptp(src, axis=0).max() > 0:

@@ -67,7 +67,11 @@ from rangeslam.verdict.judge import (
 from rangeslam.verdict.thresholds import KEPT_SIGMAS, RANK_RTOL, SEARCH_BUDGET
 
 __all__ = [
+    "FIT_ERRORS",
+    "counted_as_start",
+    "judge_metric",
     "judge_slam",
+    "random_minima",
     "subgraph_fit",
     "trajectory_distance",
     "trajectory_information",
@@ -75,7 +79,7 @@ __all__ = [
 
 # what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
 # gtsam's indeterminant linear system (a RuntimeError)
-_FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
+FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
 # LM iteration limits of a refit from the answer: first a short run; only when it stopped short of
 # its minimum (a Gauss-Newton step still predicting more than STATIONARY_CHI2 of decrease: GraphFit
 # not converged) the search's limit from there. A refit that has reached the answer's flat valley
@@ -140,7 +144,7 @@ def _block_refit(problem: SlamProblem, proposal: Proposal, sigma: float) -> np.n
             if fit.converged:
                 break
             pts = stacked(fit)
-    except _FIT_ERRORS:
+    except FIT_ERRORS:
         return None
     return stacked(fit)
 
@@ -213,7 +217,7 @@ def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list
         x0, s0 = random_start(nominal, r.shape[1], problem.dim, size, rng)
         try:
             fit = _start_fit(problem, np.vstack([x0, s0]), sigma)
-        except _FIT_ERRORS as exc:
+        except FIT_ERRORS as exc:
             failures.append(f"random start {j}: {exc}")
             yield None
             continue
@@ -241,6 +245,55 @@ def _block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
     return alternatives
 
 
+def judge_metric(problem: SlamProblem, sigma: float):
+    """The judge's ``metric``: at the lowest candidate, the trajectory's distance
+    (:func:`trajectory_distance`) in its information (:func:`trajectory_information`) at range
+    sigma ``sigma`` (metres)."""
+    m = problem.ranges.shape[0]
+
+    def metric(lowest: Alternative):
+        return trajectory_distance(trajectory_information(problem, lowest.points, sigma), m)
+
+    return metric
+
+
+def counted_as_start(alternative: Alternative) -> bool:
+    """Whether a candidate samples the basins (the answer, runs, random starts: payload True)."""
+    return bool(alternative.payload)
+
+
+def random_minima(
+    problem: SlamProblem,
+    answer: Alternative,
+    counted: Sequence[Alternative],
+    sigma: float,
+    rng,
+    *,
+    budget: int,
+    at_least: int = 0,
+    failures: list[str] | None = None,
+) -> list[Alternative]:
+    """``counted`` (the starts made so far beside ``answer``) and GTSAM from random starts
+    (:func:`_random_alternatives`), made until the stopping rule
+    (:func:`rangeslam.verdict.judge.search_complete`, ``answer`` counted) is met after
+    ``at_least`` of them, or ``budget`` were made (a failed run counts as made, its failure
+    appended to ``failures``)."""
+    dof = unknowns_up_to_rigid_motion(problem.ranges.shape[0], problem.dim)
+    metric, found = judge_metric(problem, sigma), list(counted)
+
+    def complete() -> bool:
+        judged = judge(answer, found, metric=metric, dof=dof, counted=counted_as_start)
+        return search_complete(len(found) + 1, judged.minima)
+
+    randoms = _random_alternatives(problem, sigma, rng, [] if failures is None else failures)
+    made = 0
+    while made < budget and (made < at_least or not complete()):
+        alt = next(randoms)
+        made += 1
+        found += [] if alt is None else [alt]
+    return found
+
+
 def judge_slam(
     problem: SlamProblem, answer: SlamRun, runs: Sequence[SlamRun], sigma: float, rng
 ) -> JudgedSearch:
@@ -250,27 +303,22 @@ def judge_slam(
     m = problem.ranges.shape[0]
     points = np.vstack([answer.receivers, answer.sources])
     main = Alternative(points, graph_deviance(problem, points, sigma), "the answer", payload=True)
-    dof = unknowns_up_to_rigid_motion(m, problem.dim)
-
-    def metric(lowest: Alternative):
-        return trajectory_distance(trajectory_information(problem, lowest.points, sigma), m)
-
-    def run(alternatives):
-        return judge(main, alternatives, metric=metric, dof=dof, counted=lambda a: bool(a.payload))
-
     alternatives = _block_alternatives(problem, points, sigma)
-    counted = [
+    runs_made = [
         Alternative(p, graph_deviance(problem, p, sigma), f"convex-iteration run {i}", payload=True)
         for i, p in enumerate(np.vstack([r.receivers, r.sources]) for r in runs)
     ]
     failures: list[str] = []
-    randoms = _random_alternatives(problem, sigma, rng, failures)
-    budget, made = max(SEARCH_BUDGET, problem.extra_starts), 0
-    while made < budget and (
-        made < problem.extra_starts or not search_complete(len(counted) + 1, run(counted).minima)
-    ):
-        alt = next(randoms)
-        made += 1
-        counted += [] if alt is None else [alt]
-    judgement = run(alternatives + counted)
+    counted = random_minima(
+        problem, main, runs_made, sigma, rng,
+        budget=max(SEARCH_BUDGET, problem.extra_starts), at_least=problem.extra_starts,
+        failures=failures,
+    )  # fmt: skip
+    judgement = judge(
+        main,
+        alternatives + counted,
+        metric=judge_metric(problem, sigma),
+        dof=unknowns_up_to_rigid_motion(m, problem.dim),
+        counted=counted_as_start,
+    )
     return JudgedSearch.of(judgement, len(counted) + 1, failures)
