@@ -165,3 +165,20 @@ def test_slam_logs_its_steps():
         m.startswith("slam: EDM starts (convex iteration), each refined with GTSAM: done in")
         for m in seen.messages
     )
+
+
+def test_the_heartbeat_never_names_a_finished_step_as_under_way():
+    """A step's end takes the heartbeat's line back to the step it ran in (or the step given at
+    the start): under load a beat after "x: done in 0.8 s" said that finished step was under way."""
+    beat = progress.Heartbeat("run", step="reading", enabled=False)
+
+    def log(message):
+        beat.emit(logging.LogRecord("rangeslam", logging.INFO, __file__, 0, message, None, None))
+
+    log("room: labelling ...")
+    log("run: drawing the plots ...")
+    assert beat.step == "run: drawing the plots ..."
+    log("run: drawing the plots: done in 0.8 s")
+    assert beat.step == "room: labelling ..."
+    log("room: labelling: failed after 2.0 s")
+    assert beat.step == "reading"

@@ -180,6 +180,8 @@ class Heartbeat(logging.Handler):
         self.stream = sys.stderr if stream is None else stream
         self.enabled = enabled
         self.step = step
+        self._given = step
+        self._open: list[str] = []  # the steps under way, as their start messages
         self.lines = 0
         self.started = time.perf_counter()
         self._stop = threading.Event()
@@ -188,8 +190,19 @@ class Heartbeat(logging.Handler):
         self._saved: tuple[int, bool] | None = None
 
     def emit(self, record: logging.LogRecord) -> None:
-        """Keep the latest step's message."""
-        self.step = record.getMessage()
+        """Keep the step under way: a step's start ("what ...") is the step; its end ("what:
+        done in ..." or "what: failed after ...") goes back to the step it ran in (the step
+        given at the start when none), so a line never reports a finished step as under way."""
+        message = record.getMessage()
+        if message.endswith(" ..."):
+            self._open.append(message)
+        else:
+            ended = message.split(": done in ")[0].split(": failed after ")[0] + " ..."
+            if ended not in self._open:  # another message of the library: what it does now
+                self.step = message
+                return
+            self._open.remove(ended)
+        self.step = self._open[-1] if self._open else self._given
 
     def line(self) -> str:
         """The line written now."""
