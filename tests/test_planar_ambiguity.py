@@ -20,10 +20,9 @@ import rangeslam
 from rangeslam.app.experiments import fig3_scene
 from rangeslam.geometry.alignment import align
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.mdu.planarity import planarity_power
+from rangeslam.mdu.planarity import blind_power, planarity_power
 from rangeslam.sim.trajectories import lemniscate
 from rangeslam.status import Status
-from rangeslam.verdict.thresholds import BLIND_POWER
 
 _ROOM = (5.0, 4.0, 2.6)
 
@@ -164,6 +163,6 @@ def test_planarity_power():
         return planarity_power(n - 3, 7 * m - (2 * n - 3))
 
     assert power(3) == np.inf
-    assert power(4) > BLIND_POWER > power(5)
+    assert power(4) > blind_power() > power(5)
     assert power(5) == pytest.approx(17.5, abs=0.1)
     assert power(10) < power(6) < power(5)

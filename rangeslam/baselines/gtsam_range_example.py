@@ -55,7 +55,7 @@ __all__ = ["gtsam_range_example"]
 # good basin is 2.5 m off on average: the map is turned by 3.6 degrees about the start, which the
 # prior's heading sigma of pi leaves free (pose 0 itself stays on the prior's mean).
 # The verdict tells the basins apart without the truth (:func:`range_fit`): in the wrong basin the
-# largest studentised range residual is 7.7 robust standard deviations (limit 5.34 at TAIL_LEVEL,
+# largest studentised range residual is 7.7 robust standard deviations (limit 5.34 at the level,
 # Bonferroni over 3,529 ranges), in the good one about 3.5. Of s = 0..29: 23 right, all
 # CONVERGED; 7 wrong (19.7 m), all INCONSISTENT (they said CONVERGED before). Not judged: the
 # misfit of the ranges' unmodelled 7% scale, which is smooth (no tail): the good basin fits the
@@ -173,7 +173,7 @@ def range_fit(data, poses, beacons, used):
     """Do the used ranges fit the answer, as far as the data can tell without the truth? The
     studentised tail of their residuals |p - l| - r against their own robust (MAD) scale
     (:func:`rangeslam.verdict.checks.tail_check`, without a noise level: the example's 100 m is
-    a weight, not the ranges' noise; at TAIL_LEVEL, Bonferroni over the ranges, and the RMS
+    a weight, not the ranges' noise; at 1 - CHI2_LEVEL, Bonferroni over the ranges, and the RMS
     within ROBUST_RATIO of that scale): a wrong basin explains part of the path and leaves
     ranges far off, INCONSISTENT. Not the RMS against the noise: the example models no range
     calibration, so even its right basin on Plaza1 (ranges 7% long) fits them 1.6 times worse

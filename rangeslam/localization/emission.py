@@ -81,7 +81,7 @@ from rangeslam.localization.pseudorange import (
 from rangeslam.localization.robust_start import check_robust_options
 from rangeslam.localization.room_reconstruction import RoomReconstruction, reconstruct_room
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import OFFSET_RANK_RTOL
+from rangeslam.verdict.thresholds import RANK_RTOL
 
 __all__ = [
     "OffsetMultilaterationResult",
@@ -277,7 +277,7 @@ def _joint_offset_fit(mics, r, use, b0, pts0) -> SharedOffsetFit:
     rms = math.sqrt(ssr / n_res)
     message = "" if fit.status > 0 else f"offset fit: least squares failed: {fit.message}; "
     failed = Status.SOLVER_FAILED if message else None
-    if sv[-1] <= OFFSET_RANK_RTOL * sv[0]:
+    if sv[-1] <= RANK_RTOL * sv[0]:
         text = message + "the offset cannot be told from the geometry (rank-deficient joint fit); "
         return SharedOffsetFit(
             theta[-1], pts, rms, float("inf"), (failed or Status.NOT_IDENTIFIABLE, text)

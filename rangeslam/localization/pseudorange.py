@@ -61,7 +61,7 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.thresholds import EXACT_RTOL, MSAC_INLIER_K, OFFSET_RANK_RTOL
+from rangeslam.verdict.thresholds import EXACT_RTOL, MSAC_INLIER_K, RANK_RTOL
 
 __all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
 
@@ -216,7 +216,7 @@ def _rank_ok(z: np.ndarray, anchors: np.ndarray, weights: np.ndarray) -> tuple[b
     if not np.all(np.isfinite(jac)):
         return False, np.full(jac.shape[1], np.inf)
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    if sv.size < jac.shape[1] or sv[-1] <= OFFSET_RANK_RTOL * sv[0]:
+    if sv.size < jac.shape[1] or sv[-1] <= RANK_RTOL * sv[0]:
         return False, np.full(jac.shape[1], np.inf)
     # the diagonal of (J^T J)^-1 = V S^-2 V^T from the SVD (no inverse of the squared matrix: far
     # anchors made it numerically singular and np.linalg.inv raised)

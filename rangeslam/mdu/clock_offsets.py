@@ -54,7 +54,7 @@ from rangeslam.mdu.core import (
 from rangeslam.mdu.emission import UnknownEmissionCalibration, as_groups
 from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.status import Status
-from rangeslam.verdict.thresholds import EXACT_RTOL, OFFSET_RANK_RTOL, RELATIVE_RMS, SAME_RTOL
+from rangeslam.verdict.thresholds import EXACT_RTOL, RANK_RTOL, RELATIVE_RMS, SAME_RTOL
 
 # Function evaluations of one search run: from a start in the right basin, Levenberg-Marquardt
 # converges in 40 - 70 evaluations on the xtdoa data (12 microphones, 6 - 11 events); runs from
@@ -116,7 +116,7 @@ class ProfiledUnfolding:
         self.t = arrivals[observed] / scale
         self.design = offset_design(self.pairs, self.m, groups)
         u, sv, _ = np.linalg.svd(self.design, full_matrices=False)
-        self.basis = u[:, sv > OFFSET_RANK_RTOL * sv[0]]
+        self.basis = u[:, sv > RANK_RTOL * sv[0]]
 
     def _project(self, v: np.ndarray) -> np.ndarray:
         return v - self.basis @ (self.basis.T @ v)
@@ -268,7 +268,7 @@ def clock_verdict(
     if n_obs == need:
         return Status.NOT_IDENTIFIABLE, "no redundant arrivals: the data cannot tell the solutions"
     sv = np.linalg.svd(joint_jacobian(model, fit.theta), compute_uv=False)
-    rank = int(np.sum(sv > OFFSET_RANK_RTOL * sv[0]))
+    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
     if rank < need:
         return Status.NOT_IDENTIFIABLE, (
             f"the Jacobian has rank {rank} < {need}: the points or offsets are not determined"
@@ -308,7 +308,7 @@ def clock_offsets_crlb(
     pairs = np.argwhere(observed)
     design = offset_design(pairs, m, g)
     u, sv, _ = np.linalg.svd(design, full_matrices=False)
-    basis = u[:, sv > OFFSET_RANK_RTOL * sv[0]]
+    basis = u[:, sv > RANK_RTOL * sv[0]]
     pts = np.vstack([x, s])
     jac = unfolding_jacobian(pts, m, pairs)
     jac = jac - basis @ (basis.T @ jac)

@@ -49,7 +49,7 @@ from rangeslam.status import HasStatus, Status
 from rangeslam.verdict.thresholds import (
     CHI2_LEVEL,
     EXACT_RTOL,
-    OFFSET_RANK_RTOL,
+    RANK_RTOL,
     RELATIVE_RMS,
     SAME_RTOL,
 )
@@ -497,7 +497,7 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
             "no redundant ranges: finitely many exact solutions, the data cannot tell which; "
         )
     sv = np.linalg.svd(scaled.model.jacobian(fit.x), compute_uv=False)
-    rank = int(np.sum(sv > OFFSET_RANK_RTOL * sv[0]))
+    rank = int(np.sum(sv > RANK_RTOL * sv[0]))
     if rank < need:
         status = Status.NOT_IDENTIFIABLE
         message += (

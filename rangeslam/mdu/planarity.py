@@ -16,9 +16,9 @@ from scipy.stats import f as f_dist
 from rangeslam.solvers.least_squares import refine_unfolding, unfolding_residuals
 from rangeslam.status import Status
 from rangeslam.verdict import PASSED, Check, flatness_check
-from rangeslam.verdict.thresholds import BLIND_POWER, CHI2_LEVEL
+from rangeslam.verdict.thresholds import CHI2_LEVEL
 
-__all__ = ["dimension_check", "flat_rival_check", "lifted_ssr", "planarity_power"]
+__all__ = ["blind_power", "dimension_check", "flat_rival_check", "lifted_ssr", "planarity_power"]
 
 
 def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:
@@ -95,7 +95,7 @@ def dimension_check(
     planar and dim=2 leaves a structured residual that no noise level explains.
     NOT_IDENTIFIABLE when the test cannot be made (no redundant ranges in 3-D), or, without
     ``noise_std`` (metres), when it cannot see 3-D data (:func:`planarity_power` over
-    BLIND_POWER): the residual is then all the noise estimate has, and a landmark's height
+    blind_power()): the residual is then all the noise estimate has, and a landmark's height
     folds into it and into its in-plane distances (a walk of 3 steps under 3-D
     landmarks converged with dim=2, landmarks 0.6-3.3 m off). With ``noise_std`` the residual
     test sees a fold over the noise; one under it can still shift a landmark of a nearly
@@ -123,7 +123,7 @@ def dimension_check(
                 "freedom); fit with dim=3",
             )
     power = planarity_power(extra, redundancy)
-    if dof3 <= 0 or (noise_std is None and power > BLIND_POWER):
+    if dof3 <= 0 or (noise_std is None and power > blind_power()):
         test = (
             f"without noise_std, with {dof3} redundant ranges in 3-D, the planarity F-test "
             f"would miss 3-D data whose 2-D residual is up to {power:.3g} times the noise"
@@ -154,3 +154,13 @@ def planarity_power(extra: int, redundancy: int) -> float:
     if dof3 <= 0:
         return float("inf")
     return float(extra * f_dist.ppf(CHI2_LEVEL, extra, dof3) / redundancy)
+
+
+def blind_power() -> float:
+    """The :func:`planarity_power` beyond which the F-test counts as blind without a noise
+    level: the odds of the verdicts' level, CHI2_LEVEL / (1 - CHI2_LEVEL) + 1 (1000 at 0.999).
+    A fold that many times the noise is as unlikely to be missed as a false alarm is to be
+    raised. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power 5e5) or 3
+    (none) is blind; from 5 positions (power 17.5) the test saw every planar walk under 3-D
+    landmarks (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600)."""
+    return 1.0 / (1.0 - CHI2_LEVEL)

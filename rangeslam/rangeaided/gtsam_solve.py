@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import chi2
 
 from rangeslam._robust import mad_sigma
 from rangeslam.errors import InvalidInputError
@@ -23,7 +23,8 @@ from rangeslam.rangeaided.poses import positions
 from rangeslam.rangeaided.problem import RangeAidedProblem, tangent_width
 from rangeslam.rangeaided.start import landmark_start, odometry_start
 from rangeslam.status import HasStatus, Status, status_message
-from rangeslam.verdict.thresholds import CHI2_LEVEL, TAIL_LEVEL
+from rangeslam.verdict.checks import tail_limit
+from rangeslam.verdict.thresholds import CHI2_LEVEL
 
 __all__ = [
     "GAUGE_SIGMA",
@@ -232,7 +233,7 @@ def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, itera
       chi-square quantile at CHI2_LEVEL under the problem's stated noise. Residuals far *below*
       it (stated noise conservative, as in CORA's files) pass, and the message says by how much.
     - OUTLIERS: the largest whitened range residual, in units of the residuals' own robust
-      scale (1.4826 MAD), is beyond the Bonferroni quantile at TAIL_LEVEL, widened for the MAD's
+      scale (1.4826 MAD), is beyond the Bonferroni quantile at the level (:func:`rangeslam.verdict.checks.tail_limit`), widened for the MAD's
       own uncertainty as :func:`rangeslam.verdict.checks.tail_check` does: a wrong basin or
       wrong ranges show here even when the stated noise is loose.
     The precision of the answer (a gauge-free covariance) is not judged.
@@ -276,7 +277,7 @@ def _tail(whitened: np.ndarray) -> str:
     if n < 5 or np.max(whitened) < EXACT_SIGMAS:  # round-off has no tail to judge
         return ""
     robust = mad_sigma(whitened)
-    limit = float(norm.isf(TAIL_LEVEL / (2 * n))) * (1 + 2.4 / np.sqrt(n))
+    limit = tail_limit(n)
     worst = float(np.max(whitened)) / robust
     if worst <= limit:
         return ""

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 __all__ = [
     "AMBIGUITY_MARGIN",
-    "BLIND_POWER",
     "CHI2_LEVEL",
     "EXACT_RTOL",
     "FLAT_FACTOR",
@@ -19,7 +18,6 @@ __all__ = [
     "KEPT_SIGMAS",
     "MSAC_INLIER_K",
     "NOISE_QUANTILE",
-    "OFFSET_RANK_RTOL",
     "PRECISION_FRACTION",
     "PROBE_DIRECTIONS",
     "PROBE_FROM",
@@ -31,7 +29,6 @@ __all__ = [
     "ROBUST_RATIO",
     "SAME_RTOL",
     "SEARCH_BUDGET",
-    "TAIL_LEVEL",
     "TAIL_SCALE_FLOOR",
     "WALL_CONTRADICTED_MISSING",
 ]
@@ -54,8 +51,6 @@ ROBUST_RATIO = 2.0
 #: The robust scale of the tail test is at least this fraction of the scene size (3 mm at 3 m),
 #: so a residual must exceed about 0.6% of the scene to count as a wrong pick.
 TAIL_SCALE_FLOOR = 1e-3
-#: Family-wise false-alarm rate of the studentised-residual tail test (Bonferroni over residuals).
-TAIL_LEVEL = 1.0 - CHI2_LEVEL  # not a level of its own: the verdicts' one level
 #: Without a known noise level, the precision and flatness tests assume the largest noise the
 #: residuals do not rule out at this level (the lower quantile of chi-square on the redundancy).
 NOISE_QUANTILE = 0.05
@@ -79,12 +74,10 @@ PROBE_OUTLIER_K = 5.0
 
 # --- identifiable ----------------------------------------------------------------------------
 
-#: Singular values of the gauge-free Jacobian below this fraction of the largest are zero.
+#: Singular values of a scaled Jacobian below this fraction of the largest are zero: the
+#: gauge-free Jacobian of the points, and with unknown range offsets (emission times, clock
+#: offsets) the offsets and positions cannot then be told apart (NOT_IDENTIFIABLE).
 RANK_RTOL = 1e-7
-#: With unknown range offsets (emission times, clock offsets), the offsets and the positions
-#: cannot be told apart when the smallest singular value of the scaled, weighted Jacobian is
-#: under this fraction of the largest (a rank-deficient fit: NOT_IDENTIFIABLE).
-OFFSET_RANK_RTOL = 1e-8
 #: The RMS standard deviation the information implies must be at most this fraction of the scene
 #: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
 PRECISION_FRACTION = 0.05
@@ -118,12 +111,6 @@ SEARCH_BUDGET = 8
 #: Without noise_std two runs reach "the same" answer when their squared distances agree to this
 #: fraction of the squared scale.
 SAME_RTOL = 1e-5
-#: Without noise_std the planarity F-test counts as blind when it would miss 3-D data whose fold
-#: is this many times the noise in the 2-D residual (:func:`planarity_power`): the odds of
-#: CHI2_LEVEL, 1000. Seven landmarks: a walk of 4 positions (one redundant range in 3-D, power
-#: 5e5) or 3 (none) is blind; from 5 positions (power 17.5) the test saw every planar walk
-#: under 3-D landmarks (1 mm noise, 6 of 6 at 5 and 6 positions, F 50-9600).
-BLIND_POWER = 1.0 / (1.0 - CHI2_LEVEL)
 #: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
 #: times the cost level (:func:`rangeslam.verdict.judge.cost_level`, the CHI2_LEVEL quantile of
 #: chi-square(1)) in noise variances: the gap is measured on noisy data at the estimate, and a
