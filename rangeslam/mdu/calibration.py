@@ -53,13 +53,13 @@ from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import (
     consistency_check,
     noise_upper_bound,
+    tail_limit,
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
 from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
 from rangeslam.verdict.thresholds import (
     EXACT_RTOL,
-    PROBE_OUTLIER_K,
     RELATIVE_RMS,
     SAME_RTOL,
 )
@@ -617,8 +617,9 @@ def enough_for_robust(problem: CalibrationProblem) -> bool:
 def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
     """robust="auto"'s first look: one short robust run (the L1 SDP for ROBUST_MAX_ITERATIONS
     solves, the Cauchy refit and the studentized rejection); True when it dropped ranges whose
-    median |residual| is over PROBE_OUTLIER_K times the noise its inliers imply: wrong picks
-    stand out. (A least-squares fit spreads wrong picks over every range, and from a short run
+    median |residual| is beyond the tail test's limit (:func:`rangeslam.verdict.checks.
+    tail_limit` over the observed ranges, in the noise its inliers imply): wrong picks stand
+    out. (A least-squares fit spreads wrong picks over every range, and from a short run
     cannot be told from a local minimum.)"""
     options = dataclasses.replace(
         problem.options, max_attempts=1, max_iterations=ROBUST_MAX_ITERATIONS
@@ -638,7 +639,7 @@ def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
         return False
     distances = range_matrix(cand.fit.receivers, cand.fit.sources)
     off = np.abs(distances - r)[dropped]
-    return bool(np.median(off) > PROBE_OUTLIER_K * noise)
+    return bool(np.median(off) > tail_limit(int(observed.sum())) * noise)
 
 
 def heavy_tail(cand: Candidate, problem: CalibrationProblem, statuses: tuple[Status, ...]) -> bool:

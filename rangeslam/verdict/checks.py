@@ -55,6 +55,7 @@ __all__ = [
     "flatness_check",
     "gauge_free_covariance",
     "information_check",
+    "inlier_sigmas",
     "mirror_gap",
     "mirror_point",
     "noise_upper_bound",
@@ -272,6 +273,16 @@ def consistency_check(
             f"RMS residual {rms:.3g} m is more than {RELATIVE_RMS:.0%} of the scene size",
         )
     return tail_check(residuals, jac, None, scale) if tail else PASSED
+
+
+def inlier_sigmas() -> float:
+    """How many noise standard deviations one range's residual may be from the fit and still be
+    kept (an inlier): the two-sided test of one residual at the verdicts' level, sqrt of the
+    chi-square(1) quantile at CHI2_LEVEL (3.29 at 0.999), the judge's cost level for one range
+    (:func:`rangeslam.verdict.judge.cost_level`). Every outlier rejection (calibrate's refit,
+    reconstruct_room, the offset estimators, MSAC's hypotheses) and a robust kernel's kept
+    ranges use it."""
+    return float(np.sqrt(cost_level()))
 
 
 def tail_limit(n: int) -> float:

@@ -12,16 +12,12 @@ __all__ = [
     "CHI2_LEVEL",
     "EXACT_RTOL",
     "FLAT_FACTOR",
-    "INLIER_K",
     "JOINT_WALL_CHECKS",
     "JOINT_WALL_RANGES",
-    "KEPT_SIGMAS",
-    "MSAC_INLIER_K",
     "NOISE_QUANTILE",
     "PRECISION_FRACTION",
     "PROBE_DIRECTIONS",
     "PROBE_FROM",
-    "PROBE_OUTLIER_K",
     "PROBE_SPREADS",
     "PROBE_UNKNOWNS",
     "RANK_RTOL",
@@ -57,20 +53,10 @@ NOISE_QUANTILE = 0.05
 
 # --- no unexplained outliers -----------------------------------------------------------------
 
-#: A range whose studentised residual exceeds this many robust standard deviations (1.4826 MAD,
-#: or ``noise_std``) is a wrong pick to the outlier rejection of calibrate, reconstruct_room and
-#: the offset estimators.
-INLIER_K = 3.0
-#: MSAC's inlier threshold for minimal-subset hypotheses, in the same standard deviations (a
-#: hypothesis from d + 1 noisy ranges misses the others by more than the noise).
-MSAC_INLIER_K = 2.5
-#: A robust kernel (slam's Huber, Cauchy or Tukey) kept a range when its residual at the answer
-#: is within this many noise standard deviations: the chi-square test runs on those (a range
-#: the kernel discounted is not held against the answer), and the breakdown rule counts the others.
-KEPT_SIGMAS = 4.0
-#: robust="auto" of calibrate goes robust when the ranges a short robust run dropped are this
-#: many times its inliers' noise off (median): clear wrong picks, not the tail of the noise.
-PROBE_OUTLIER_K = 5.0
+#: (A range is an inlier while its residual is within :func:`rangeslam.verdict.checks.
+#: inlier_sigmas` noise standard deviations, the level's one-range test; a wrong pick stands out
+#: beyond :func:`rangeslam.verdict.checks.tail_limit`, the level's Bonferroni bound: no constant
+#: of their own.)
 
 # --- identifiable ----------------------------------------------------------------------------
 
