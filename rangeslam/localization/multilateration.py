@@ -60,7 +60,7 @@ from rangeslam.verdict import (
     mirror_gap,
     noise_upper_bound,
 )
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.thresholds import EXACT_RTOL
 
 __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
@@ -309,7 +309,7 @@ def _srls_refit(prob: ScaledProblem, inliers: np.ndarray, fixed: bool) -> Refit:
         return Refit(fit.x, fit, None)
     res = _range_residuals(fit.x, prob.anchors_s[inliers], prob.ranges_s[inliers])
     sigma = math.sqrt(float(res @ res) / max(int(inliers.sum()) - d, 1)) / TRUNCATED_STD
-    return Refit(fit.x, fit, max(inlier_sigmas() * sigma, 1e-9))
+    return Refit(fit.x, fit, max(level_sigmas() * sigma, 1e-9))
 
 
 def _robust_fit(
@@ -330,7 +330,7 @@ def _robust_fit(
     if start is None:
         raise DegenerateGeometryError("every subset of d+1 anchors is affinely dependent")
     # Floor on the threshold (scaled units): exact data has residuals at round-off level.
-    thr = thr_s if fixed else max(inlier_sigmas() * start.sigma, 1e-9)
+    thr = thr_s if fixed else max(level_sigmas() * start.sigma, 1e-9)
     search = refine_inliers(
         lambda x: _range_residuals(x, prob.anchors_s, prob.ranges_s),
         lambda inl: _srls_refit(prob, inl, fixed),

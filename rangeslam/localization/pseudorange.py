@@ -61,7 +61,7 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.thresholds import EXACT_RTOL, RANK_RTOL
 
 __all__ = ["OffsetMultilaterationResult", "multilaterate_with_offset"]
@@ -302,7 +302,7 @@ def _offset_refit(prob: OffsetProblem, inliers: np.ndarray, fixed: bool) -> Refi
         return Refit(fit.z, fit, None)
     dof = max(int(inliers.sum()) - prob.dim - 1, 1)
     sigma = math.sqrt(fit.cost / dof) / TRUNCATED_STD
-    return Refit(fit.z, fit, max(inlier_sigmas() * sigma, 1e-9))
+    return Refit(fit.z, fit, max(level_sigmas() * sigma, 1e-9))
 
 
 def _offset_inliers(
@@ -331,7 +331,7 @@ def _offset_inliers(
         lambda inl: _offset_refit(prob, inl, fixed is not None),
         start.z,
         use,
-        fixed if fixed is not None else max(inlier_sigmas() * start.sigma, 1e-9),
+        fixed if fixed is not None else max(level_sigmas() * start.sigma, 1e-9),
         lambda inl: inl.sum() >= d + 2 and affine_rank(prob.anchors_s[inl]) >= d,
     )
     kept = int(search.inliers.sum())

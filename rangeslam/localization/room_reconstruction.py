@@ -63,7 +63,7 @@ from rangeslam.verdict import (
     information_check,
     noise_upper_bound,
 )
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS
 
 __all__ = ["RoomReconstruction", "reconstruct_room"]
@@ -373,7 +373,7 @@ def _reweighted_fit(model: JointWallModel, theta, use, *, robust: bool, fixed_th
             return JointFit(theta, use, sigma, nfev, None)
         new = observed.copy()
         if fixed_thr is None:
-            new[observed] = ~(stud > inlier_sigmas() * sigma)  # untestable (NaN) ranges stay
+            new[observed] = ~(stud > level_sigmas() * sigma)  # untestable (NaN) ranges stay
         else:
             new = observed & (res_all <= fixed_thr)
         # Stop when the set repeats: unchanged, or a cycle through ranges sitting on the threshold
@@ -523,7 +523,7 @@ def _consensus_sources(prob: RoomProblem, start: ColumnStart, max_hypotheses: in
             r_s[j, :, 0],
             mask=observed[j, :, 0],
             robust=True,
-            inlier_threshold=inlier_sigmas() * start.sigma0,
+            inlier_threshold=level_sigmas() * start.sigma0,
             rng=rng,
         )
         if res.converged:
@@ -545,7 +545,7 @@ def _consensus_sources(prob: RoomProblem, start: ColumnStart, max_hypotheses: in
             observed[:, :, cols],
             sources0,
             walls_best[known],
-            inlier_sigmas() * start.sigma0,
+            level_sigmas() * start.sigma0,
             max_hypotheses,
             rng,
         )
@@ -569,7 +569,7 @@ def _joint_passes(
     sources, sigma, nfev = sources0, sigma0, 0
     fitted_walls = None
     for _ in range(2 if robust else 1):
-        thr = fixed_thr if fixed_thr is not None else inlier_sigmas() * sigma
+        thr = fixed_thr if fixed_thr is not None else level_sigmas() * sigma
         if fitted_walls is not None:
             sources = _relocate_sources(
                 mics_s, r_s, observed, sources, fitted_walls, thr, n_hyp, rng
@@ -580,7 +580,7 @@ def _joint_passes(
         if fixed_thr is None:
             # The MAD of all ranges about the selected model is a steadier scale than the few
             # direct paths (it may only be larger: the walls were chosen to fit at sigma).
-            thr = inlier_sigmas() * max(sigma, MAD_TO_STD * float(np.median(res0[observed])))
+            thr = level_sigmas() * max(sigma, MAD_TO_STD * float(np.median(res0[observed])))
         use = observed & (res0 <= thr) if robust else observed.copy()
         fit = _reweighted_fit(model, theta, use, robust=robust, fixed_thr=fixed_thr)
         theta, use, sigma, nfev = fit.theta, fit.use, fit.sigma, nfev + fit.nfev

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.sparse import coo_matrix
 
 from rangeslam._validation import (
     MAX_METRES,
@@ -36,10 +37,6 @@ from rangeslam.solvers.least_squares import (
 from rangeslam.status import Status
 from rangeslam.verdict import (
     PASSED,
-    PROBE_DIRECTIONS,
-    PROBE_FROM,
-    PROBE_SPREADS,
-    PROBE_UNKNOWNS,
     Check,
     consistency_check,
     first_failure,
@@ -53,7 +50,14 @@ from rangeslam.verdict import (
     verdict_noise,
     weak_moves,
 )
-from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS
+from rangeslam.verdict.thresholds import (
+    CHI2_LEVEL,
+    EXACT_RTOL,
+    PRECISION_FRACTION,
+    RANK_RTOL,
+    RELATIVE_RMS,
+    SEARCH_BUDGET,
+)
 
 __all__ = [
     "EDM_STARTS",
@@ -73,6 +77,7 @@ __all__ = [
     "lifted_ssr",
     "mdu_edm",
     "mdu_mask",
+    "moves_that_could_fail",
     "passes_residual_test",
     "points_check",
     "region_check",
@@ -496,11 +501,12 @@ def region_check(
     scale: float,
     what: str,
 ) -> Check:
-    """The receivers' precision test of :func:`rangeslam.verdict.information_check` repeated at
-    the answer moved PROBE_SPREADS standard deviations along its PROBE_DIRECTIONS weakest
-    receiver directions (:func:`rangeslam.verdict.weak_moves`), for problems of at most
-    PROBE_UNKNOWNS unknowns or when the answer's own RMS standard deviation exceeds PROBE_FROM
-    of ``scale``.
+    """The receivers' precision test of :func:`rangeslam.verdict.information_check` repeated
+    where the truth may lie: the answer moved the level's :func:`rangeslam.verdict.level_sigmas`
+    standard deviations along each receiver direction (:func:`rangeslam.verdict.weak_moves`).
+    A move whose Jacobian change cannot fail the test (:func:`moves_that_could_fail`, Weyl's
+    inequality) is not made; of the others those along at most SEARCH_BUDGET directions, weakest
+    first (the judge's budget of alternatives).
 
     Args:
         receivers, sources: (M, d), (K, d) the answer, metres.
@@ -521,11 +527,12 @@ def region_check(
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
     rows = np.arange(m * d)
-    cov = projection @ cov @ projection.T
-    own = rms_precision(cov, sigma, d, rows)
-    if len(cov) > PROBE_UNKNOWNS and own <= PROBE_FROM * scale:
-        return PASSED
-    for move in weak_moves(cov, sigma, rows, PROBE_DIRECTIONS, PROBE_SPREADS):
+    projected = projection @ cov @ projection.T
+    own = rms_precision(projected, sigma, d, rows)
+    moves = weak_moves(projected, sigma, rows)
+    for move in moves_that_could_fail(points, m, pairs, model, sigma, scale, moves)[
+        : 2 * SEARCH_BUDGET
+    ]:
         moved = points + move[: points.size].reshape(-1, d)
         info_jac, gauge, projection = information_model(
             moved[:m], moved[m:], unfolding_jacobian(moved, m, pairs), prior_jac, offset_columns
@@ -536,6 +543,52 @@ def region_check(
         if not check.passed:
             return probed_failure(check, own)
     return PASSED
+
+
+def moves_that_could_fail(
+    points: np.ndarray,
+    m: int,
+    pairs: np.ndarray,
+    model: tuple,
+    sigma: float,
+    scale: float,
+    moves: list[np.ndarray],
+) -> list[np.ndarray]:
+    """The ``moves`` (each (p,), metres, the points' d N entries first) after which the
+    receivers' precision test might fail, in their order; a move is left out when a bound shows
+    it cannot. The bound, Weyl's inequality: moving ``points`` (N, d) turns the unit vector u of
+    each of the (P, 2) receiver-source ``pairs`` (i, j) by |du| <= b = min(2, 2 |delta_i -
+    delta_j| / r_ij), which changes the unit-noise range Jacobian J (rows [u, -u]) by dJ with
+    spectral norm e <= sqrt(||dJ||_1 ||dJ||_inf) <= sqrt(max_i sum_(pairs of i) b * 2 sqrt(d)
+    max b) (Hoelder). Every non-zero singular value s of J stays above s - e (the prior rows are
+    held at the answer, the offsets' columns are fixed, the rigid motions stay null), so the
+    gauge-free covariance's trace grows by at most (s_min / (s_min - e))^2 and its projection's
+    by ||P||_2^2. The move cannot fail the test when the RMS standard deviation that allows
+    stays within PRECISION_FRACTION of ``scale`` and (s_min - e) / (s_max + e) stays above
+    RANK_RTOL. ``model`` as in :func:`region_check`; ``sigma`` the range noise, metres."""
+    if not moves:
+        return []
+    cov, projection, prior_jac, offset_columns = model
+    n, d = points.shape
+    s_min = 1.0 / np.sqrt(np.linalg.eigvalsh(cov)[-1])
+    extra = [a for a in (prior_jac, offset_columns) if a is not None]
+    s_max = np.sqrt(2.0 * len(pairs) + sum(float(np.sum(a**2)) for a in extra))  # >= ||J||_2
+    spread = sigma * np.linalg.norm(projection, 2) * np.sqrt(np.trace(cov) / m)
+    ends = np.column_stack([pairs[:, 0], m + pairs[:, 1]])  # (P, 2) point indices
+    r = np.linalg.norm(points[ends[:, 0]] - points[ends[:, 1]], axis=1)
+    delta = np.stack(moves, axis=1)[: n * d].reshape(n, d, -1)  # (N, d, n_moves)
+    turn = np.linalg.norm(delta[ends[:, 0]] - delta[ends[:, 1]], axis=1)  # (P, n_moves)
+    turn = np.minimum(2.0, 2.0 * turn / r[:, None])
+    incidence = coo_matrix(
+        (np.ones(2 * len(ends)), (ends.T.ravel(), np.tile(np.arange(len(ends)), 2))),
+        shape=(n, len(ends)),
+    ).tocsr()
+    per_point = incidence @ turn  # (N, n_moves) sum over each point's pairs
+    e = np.sqrt(per_point.max(axis=0) * 2.0 * np.sqrt(d) * turn.max(axis=0))
+    with np.errstate(divide="ignore"):
+        grown = np.where(e < s_min, spread * s_min / (s_min - e), np.inf)
+    held = (grown <= PRECISION_FRACTION * scale) & (s_min - e > RANK_RTOL * (s_max + e))
+    return [move for move, harmless in zip(moves, held, strict=True) if not harmless]
 
 
 def sources_verdict(

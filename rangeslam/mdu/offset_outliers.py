@@ -15,7 +15,7 @@ Here they are found without that mark, in three steps:
    offset per event), and is scored by the median |residual| over all arrivals. The search ends
    when :data:`VOTES` subsets reached the lowest score, or after ``hypotheses`` subsets.
 2. Growth: with the best answer's receivers, every event is placed again with the threshold
-   :func:`~rangeslam.verdict.checks.inlier_sigmas` robust standard deviations (1.4826 MAD of the residuals, or ``noise_std``);
+   :func:`~rangeslam.verdict.checks.level_sigmas` robust standard deviations (1.4826 MAD of the residuals, or ``noise_std``);
    the arrivals within it are inliers, and an event keeps its place only when a majority of its
    arrivals (at least d + 3) are inliers (the receivers' offsets are shared, so an event most
    receivers disagree with is the event that is wrong).
@@ -40,7 +40,7 @@ from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.alignment import align
 from rangeslam.localization.pseudorange import multilaterate_with_offset
 from rangeslam.status import Status
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 
 __all__ = [
     "SUBSET_EVENTS",
@@ -258,7 +258,7 @@ def grow_inliers(
     placement: EventPlacement, observed: np.ndarray, dim: int, noise_std: float | None
 ) -> tuple[np.ndarray, float]:
     """Step 2: (inliers (M, K), threshold metres) from a placement: |residual| within
-    :func:`~rangeslam.verdict.checks.inlier_sigmas` sigma (``noise_std``: known, or the refit's estimate; else 1.4826 median
+    :func:`~rangeslam.verdict.checks.level_sigmas` sigma (``noise_std``: known, or the refit's estimate; else 1.4826 median
     |residual| over the placed arrivals times sqrt(M / (M - d - 1)), the residuals of M arrivals
     fitted with d + 1 unknowns being smaller than the noise), in events with at least
     :func:`min_event_inliers` of them."""
@@ -267,7 +267,7 @@ def grow_inliers(
     m = observed.shape[0]
     dof = math.sqrt(m / (m - dim - 1)) if m > dim + 1 else 1.0
     sigma = noise_std if noise_std else MAD_TO_STD * dof * float(np.median(res[finite]))
-    threshold = inlier_sigmas() * max(sigma, 1e-12)
+    threshold = level_sigmas() * max(sigma, 1e-12)
     inliers = finite & (res <= threshold)
     kept = inliers.sum(axis=0) >= min_event_inliers(observed.shape[0], dim)
     return inliers & kept[None, :], threshold

@@ -21,7 +21,7 @@ from rangeslam.solvers.least_squares import (
     unfolding_residuals,
 )
 from rangeslam.status import Status
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 
 __all__ = ["agreeing", "embedding_fit", "reject_outliers", "repair_points", "robust_refit"]
 
@@ -60,7 +60,7 @@ def reject_outliers(fit, ranges, mask, dim, noise_std):
         # then judges the inliers as exact
         sigma = noise_std if noise_std else mad_sigma(stud)
         new = mask.copy()
-        new[mask] = ~(stud > inlier_sigmas() * sigma)  # untestable (NaN) ranges stay in
+        new[mask] = ~(stud > level_sigmas() * sigma)  # untestable (NaN) ranges stay in
         try:
             check_determined(new, dim, "the inlier set")
         except InvalidInputError:

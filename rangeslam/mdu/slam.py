@@ -49,7 +49,7 @@ from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.breakdown import outvoted_points
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, cost_level
 from rangeslam.verdict.thresholds import EXACT_RTOL
 
@@ -101,7 +101,7 @@ class SlamResult(HasStatus):
             metres; NaN for the others.
         inliers: (M, K) bool, the ranges the verdict judged: every observed one, or with a
             robust kernel those it kept (residual within
-            :func:`rangeslam.verdict.checks.inlier_sigmas` noise standard deviations); None for methods without it.
+            :func:`rangeslam.verdict.checks.level_sigmas` noise standard deviations); None for methods without it.
         checks: every check of the judge (:func:`rangeslam.mdu.slam_judge.judge_slam`: rival
             minima, search complete) and the verdict, each with its statistic and level; empty
             without refinement.
@@ -284,7 +284,7 @@ def resected(problem: SlamProblem, run: SlamRun, sigma_ref, rng) -> SlamRun:
     """A robust run whose kernel left out half or more of a step's or a landmark's ranges
     (:func:`rangeslam.verdict.breakdown.outvoted_points`) with those points moved to where a
     robust multilateration from the others puts them (when more of their ranges agree there,
-    within inlier_sigmas() of the noise), then refined as an EDM answer is (:func:`edm_run`); kept
+    within level_sigmas() of the noise), then refined as an EDM answer is (:func:`edm_run`); kept
     when its graph cost (on the graph of ``sigma_ref``) is lower, else ``run``. A kernel lets a
     landmark sit where 2-3 of its 8 ranges and a wrong pick agree, shedding the right ranges at
     a small cost; the trajectory is right and places it again."""
@@ -293,7 +293,7 @@ def resected(problem: SlamProblem, run: SlamRun, sigma_ref, rng) -> SlamRun:
     kept = judged_ranges(problem, run)[0]
     observed, m = problem.observed, problem.ranges.shape[0]
     noise = verdict_noise(problem.noise_std, sigma_ref, EXACT_RTOL * problem.scale)
-    threshold = inlier_sigmas() * max(noise or 0.0, problem.floor)
+    threshold = level_sigmas() * max(noise or 0.0, problem.floor)
     pts = np.vstack([run.receivers, run.sources])
     moved = 0
     for axis in (1, 0):  # steps (rows), then landmarks (columns)
@@ -410,7 +410,7 @@ def slam(
             data (the graph is finished as exact, the tests allow round-off only).
         robust: GTSAM kernel against wrong echoes: None (or False), "huber", "cauchy" (also
             True) or "tukey" (:data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`). The
-            answer is then judged on the ranges the kernel kept (residual within inlier_sigmas()
+            answer is then judged on the ranges the kernel kept (residual within level_sigmas()
             noise standard deviations; ``SlamResult.inliers``, ``outliers``, ``n_outliers``),
             and is OUTLIERS when it left out more than half the redundant ranges or half of one
             step's or one landmark's (:mod:`rangeslam.verdict.breakdown`).

@@ -58,7 +58,7 @@ from rangeslam.mdu.slam_graph import (
 from rangeslam.mdu.slam_verdict import SlamProblem, SlamRun
 from rangeslam.solvers.gtsam_graph import refine_graph
 from rangeslam.solvers.least_squares import unfolding_jacobian
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
@@ -154,7 +154,7 @@ def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) 
     """(M d, M d) the information of the trajectory at ``pts`` (M + K, d), the landmarks
     profiled out: the Schur complement F_xx - F_xl F_ll^+ F_lx of F = J^T J, J the whitened
     Jacobian of the graph at range sigma ``sigma`` (metres): range rows over sigma (for a robust
-    graph, the ranges its kernel weighs, within inlier_sigmas() of sigma) and the step priors' rows
+    graph, the ranges its kernel weighs, within level_sigmas() of sigma) and the step priors' rows
     (:func:`rangeslam.mdu.core.step_prior_rows`, in range-noise units, over sigma). A landmark
     direction without information (one off a planar walk, at the plane) is left out of F_ll^+
     (singular values under RANK_RTOL of the largest)."""
@@ -162,7 +162,7 @@ def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) 
     used = problem.observed
     if problem.robust:  # the ranges the kernel weighs there
         res = range_matrix(pts[:m], pts[m:]) - problem.ranges
-        used = used & (np.abs(res) <= inlier_sigmas() * sigma)
+        used = used & (np.abs(res) <= level_sigmas() * sigma)
     jac = unfolding_jacobian(pts, m, np.argwhere(used)) / sigma
     prior = step_prior_rows(
         problem.bounds, problem.step_prior, problem.step_sigma, pts[:m], sigma, n_points

@@ -32,7 +32,7 @@ from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.checks import inlier_sigmas
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.thresholds import EXACT_RTOL, TAIL_SCALE_FLOOR
 
 if TYPE_CHECKING:
@@ -164,9 +164,9 @@ def robust_breakdown(problem: SlamProblem, kept: np.ndarray):
 
 def kept_ranges(problem: SlamProblem, best: SlamRun) -> np.ndarray:
     """(M, K) bool: the observed ranges a robust kernel kept at ``best``, those within
-    inlier_sigmas() standard deviations (3.29) of the noise.
+    level_sigmas() standard deviations (3.29) of the noise.
 
-    With ``noise_std`` the test is |residual| <= inlier_sigmas() noise_std (0 is exact data: the
+    With ``noise_std`` the test is |residual| <= level_sigmas() noise_std (0 is exact data: the
     sigma the exact graph was finished at, EXACT_POLISH of the floor). Without it the residuals
     are studentized by their leverage in the range fit (:func:`rangeslam._robust.studentized`: a
     point heard by few ranges fits them nearly exactly, and the raw residuals' MAD then
@@ -189,7 +189,7 @@ def kept_ranges(problem: SlamProblem, best: SlamRun) -> np.ndarray:
     else:
         test, sigma = abs_res, max(problem.noise_std, exact_rms)
     kept = observed.copy()
-    kept[observed] = ~(test > inlier_sigmas() * sigma)  # NaN: untestable, kept
+    kept[observed] = ~(test > level_sigmas() * sigma)  # NaN: untestable, kept
     return kept
 
 

@@ -12,9 +12,9 @@ identifiable, consistent, outliers and reports the first that fails.
   motions), must have full rank by a tolerance relative to its own spectrum, and the RMS standard
   deviation it implies must be a small fraction of the scene (``PRECISION_FRACTION``): a problem
   determined "to first order" but only to decimetres is not identifiable from these data.
-  :func:`weak_moves` gives the points where an estimator repeats that test (PROBE_SPREADS
-  standard deviations along the weakest directions), since near-singular geometry can make the
-  bound at the answer far smaller than at the truth.
+  :func:`weak_moves` gives the points where an estimator repeats that test (the level's
+  :func:`level_sigmas` standard deviations along each direction), since near-singular geometry
+  can make the bound at the answer far smaller than at the truth.
 - :func:`consistency_check`: with ``noise_std``, the chi-square test of the sum of squared residuals
   on the redundancy; without it, the residuals' RMS against the scene size and against their own
   robust (MAD) scale, and the studentised tail (:func:`tail_check`, also on its own), so that a
@@ -39,7 +39,6 @@ from rangeslam.verdict.thresholds import (
     FLAT_FACTOR,
     NOISE_QUANTILE,
     PRECISION_FRACTION,
-    PROBE_SPREADS,
     RANK_RTOL,
     RELATIVE_RMS,
     ROBUST_RATIO,
@@ -55,7 +54,7 @@ __all__ = [
     "flatness_check",
     "gauge_free_covariance",
     "information_check",
-    "inlier_sigmas",
+    "level_sigmas",
     "mirror_gap",
     "mirror_point",
     "noise_upper_bound",
@@ -200,24 +199,19 @@ def rms_precision(
     return float(sigma * np.sqrt(max(np.trace(cov[np.ix_(rows, rows)]), 0.0) / n_points))
 
 
-def weak_moves(
-    cov: np.ndarray, sigma: float, rows: np.ndarray, count: int, spreads: float
-) -> list[np.ndarray]:
-    """Up to 2 ``count`` moves, each (p,), of all p unknowns by ``spreads`` standard deviations
-    (``sigma`` times the square root of an eigenvalue lambda of the unit-noise ``cov`` (p, p)
-    restricted to ``rows``) along the ``count`` weakest directions u of the unknowns ``rows``,
-    both signs; each move carries the other unknowns along by their regression on those rows
-    (the conditional mean: cov[:, rows] u / lambda per unit move along u). Eigenvalues under
-    RANK_RTOL of the largest (the gauge's round-off) give no move."""
+def weak_moves(cov: np.ndarray, sigma: float, rows: np.ndarray) -> list[np.ndarray]:
+    """Moves (p,) of all p unknowns by :func:`level_sigmas` standard deviations (``sigma`` times
+    the square root of an eigenvalue lambda of the unit-noise ``cov`` (p, p) restricted to
+    ``rows``) along each direction u of the unknowns ``rows``, weakest first, both signs: where
+    the truth may lie at the verdicts' level. Each move carries the other unknowns along by
+    their regression on those rows (the conditional mean: cov[:, rows] u / lambda per unit move
+    along u). Eigenvalues under RANK_RTOL of the largest (the gauge's round-off) give no move."""
     block = cov[np.ix_(rows, rows)]
     eigenvalues, vectors = np.linalg.eigh(block)
-    moves = []
-    for value, u in zip(eigenvalues[::-1][:count], vectors.T[::-1][:count], strict=True):
-        if value <= RANK_RTOL * eigenvalues[-1]:
-            break
-        move = spreads * sigma * (cov[:, rows] @ u) / np.sqrt(value)
-        moves += [move, -move]
-    return moves
+    keep = eigenvalues > RANK_RTOL * eigenvalues[-1]
+    values, directions = eigenvalues[keep][::-1], vectors[:, keep][:, ::-1]
+    columns = level_sigmas() * sigma * (cov[:, rows] @ directions) / np.sqrt(values)
+    return [sign * move for move in columns.T for sign in (1.0, -1.0)]
 
 
 def probed_failure(check: Check, own: float) -> Check:
@@ -225,8 +219,8 @@ def probed_failure(check: Check, own: float) -> Check:
     reason saying so; ``own`` is the RMS standard deviation at the answer itself, metres."""
     return Check(
         check.status,
-        f"{check.reason}, {PROBE_SPREADS:g} standard deviations from the answer along one of its "
-        f"weakest directions (at the answer: {own:.3g} m); the precision holds only at the "
+        f"{check.reason}, {level_sigmas():.3g} standard deviations from the answer along one of "
+        f"its weak directions (at the answer: {own:.3g} m); the precision holds only at the "
         "answer itself",
     )
 
@@ -275,13 +269,14 @@ def consistency_check(
     return tail_check(residuals, jac, None, scale) if tail else PASSED
 
 
-def inlier_sigmas() -> float:
-    """How many noise standard deviations one range's residual may be from the fit and still be
-    kept (an inlier): the two-sided test of one residual at the verdicts' level, sqrt of the
-    chi-square(1) quantile at CHI2_LEVEL (3.29 at 0.999), the judge's cost level for one range
-    (:func:`rangeslam.verdict.judge.cost_level`). Every outlier rejection (calibrate's refit,
-    reconstruct_room, the offset estimators, MSAC's hypotheses) and a robust kernel's kept
-    ranges use it."""
+def level_sigmas() -> float:
+    """The verdicts' level as a number of standard deviations of one quantity: the two-sided
+    normal quantile, sqrt of the chi-square(1) quantile at CHI2_LEVEL (3.29 at 0.999), the
+    judge's cost level for one range (:func:`rangeslam.verdict.judge.cost_level`). A range is an
+    inlier while its residual is within this many noise standard deviations (every outlier
+    rejection, MSAC's hypotheses, a robust kernel's kept ranges); the truth may lie this many
+    standard deviations from the answer along any one direction (the probe of
+    :func:`weak_moves`)."""
     return float(np.sqrt(cost_level()))
 
 

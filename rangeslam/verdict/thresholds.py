@@ -16,10 +16,6 @@ __all__ = [
     "JOINT_WALL_RANGES",
     "NOISE_QUANTILE",
     "PRECISION_FRACTION",
-    "PROBE_DIRECTIONS",
-    "PROBE_FROM",
-    "PROBE_SPREADS",
-    "PROBE_UNKNOWNS",
     "RANK_RTOL",
     "RELATIVE_RMS",
     "ROBUST_RATIO",
@@ -54,7 +50,7 @@ NOISE_QUANTILE = 0.05
 # --- no unexplained outliers -----------------------------------------------------------------
 
 #: (A range is an inlier while its residual is within :func:`rangeslam.verdict.checks.
-#: inlier_sigmas` noise standard deviations, the level's one-range test; a wrong pick stands out
+#: level_sigmas` noise standard deviations, the level's one-range test; a wrong pick stands out
 #: beyond :func:`rangeslam.verdict.checks.tail_limit`, the level's Bonferroni bound: no constant
 #: of their own.)
 
@@ -67,20 +63,6 @@ RANK_RTOL = 1e-7
 #: The RMS standard deviation the information implies must be at most this fraction of the scene
 #: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
 PRECISION_FRACTION = 0.05
-#: The precision test is repeated at the answer moved this many standard deviations along each
-#: of its PROBE_DIRECTIONS weakest directions (where the truth may well lie): near-singular
-#: geometry makes the information change faster than the noise moves the answer, and a bound
-#: that holds only at the answer then flatters it (measured on lemniscate walks without step
-#: bounds: 6 answers 1-4% of the scene fixed at the answer, 11-40% at the truth).
-PROBE_SPREADS = 2.0
-PROBE_DIRECTIONS = 6
-#: Problems of at most PROBE_UNKNOWNS unknowns are always probed (up to 13 more SVDs of their
-#: Jacobian); larger ones (one SVD of 6000 x 474 takes 0.35 s) only when the answer's own RMS
-#: standard deviation exceeds PROBE_FROM of the scene size. A lemniscate walk of 4 steps without
-#: bounds, singular at the truth, was fixed to 0.6% of the scene at its answer and to 1.4 m two
-#: deviations away: a large problem that near a singular point would pass unprobed.
-PROBE_UNKNOWNS = 300
-PROBE_FROM = 0.01
 #: A configuration whose thinnest RMS spread is under this multiple of sqrt(sigma * scale) may be
 #: flat: noise of sigma bends a flat configuration out of its plane by about that much (a range
 #: changes by the square of an out-of-plane offset over twice the range).
