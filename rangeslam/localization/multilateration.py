@@ -408,7 +408,8 @@ def _inputs(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> P
     """The answer's checks' inputs. The judge's sigma is the given noise, else the kept
     residuals' estimate sqrt(ssr / redundancy) (as calibrate's), never below the exact-data RMS;
     the precision is judged at the given noise, else at the largest the kept residuals allow
-    (:func:`noise_upper_bound`: a few residuals say little about the noise)."""
+    (:func:`noise_upper_bound`: a few residuals say little about the noise). A robust fit's
+    kernel truncates at its last inlier threshold, at least MSAC_INLIER_K judge's sigmas."""
     obs = prob.observed
     a, r, inl = prob.anchors_s[obs], prob.ranges_s[obs], verdict.inliers[obs]
     x = verdict.fit.x
@@ -419,7 +420,10 @@ def _inputs(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> P
     ssr, redundancy = float(res @ res), int(inl.sum()) - prob.dim
     estimate = float(np.sqrt(ssr / redundancy)) if redundancy > 0 else None
     sigma = max(verdict_noise(noise_s, estimate, exact) or 0.0, exact)
-    objective = PointObjective(a, r, sigma, verdict.threshold)
+    # the kernel's truncation: the search's last threshold, never within MSAC_INLIER_K noise
+    # deviations (exact data: the search floors its threshold below the exact-data RMS)
+    threshold = None if verdict.threshold is None else max(verdict.threshold, MSAC_INLIER_K * sigma)
+    objective = PointObjective(a, r, sigma, threshold)
     precision = verdict_noise(noise_s, noise_upper_bound(ssr, redundancy), exact)
     return PointVerdictInputs(a, r, x, inl, objective, noise_s, range_scale, exact, precision)
 
@@ -486,8 +490,10 @@ def _point_checks(v: PointVerdictInputs, judged: JudgedSearch, scale: float):
     pairs += [(Check(rival.status, rival.reason), rival.check)]
     pairs += [(Check(Status.CONVERGED), judged.record())]  # the budget only records
     if cov is not None and sigma:  # full rank: the precision is judged over the region
-        on = dataclasses.replace(v.objective, sigma=sigma)
-        worst = region_precision(on, v.x, limit)
+        # the region is the judge's (its objective, at its sigma); the precision in it is
+        # judged at the information check's sigma: the RMS scales with sigma
+        ratio = sigma / v.objective.sigma
+        worst = ratio * region_precision(v.objective, v.x, limit / ratio)
         region = _region_check(worst, limit, scale)
         pairs += [(region, CheckRecord("precision over the confidence region", scale * worst,
                                        scale * limit, region.passed, region.reason))]  # fmt: skip

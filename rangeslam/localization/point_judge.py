@@ -18,10 +18,12 @@ threshold of its own (:func:`point_proposals`):
 - random starts, counted by the stopping rule (:func:`rangeslam.verdict.judge.search_complete`),
   at most SEARCH_BUDGET starts with the answer.
 
-The precision is then judged over the answer's likelihood confidence region
-(:func:`region_precision`), not at the answer alone: the truth may be anywhere the data do not
-rule out, and near-degenerate geometry (d + 1 anchors) lets the information change within it by
-a factor of two or more.
+The precision is then judged over the answer's likelihood confidence region on the judge's
+objective (:func:`region_precision`: the points the judge would call the same answer), not at
+the answer alone: the truth may be anywhere the data do not rule out, and near-degenerate
+geometry (d + 1 anchors) lets the information change within it by a factor of two or more
+(verdict benchmark case "d+1 anchors" 2133493343: 8.3 cm RMS at the answer, 17.8 cm at the
+truth 1.3 standard deviations away).
 
 All quantities are in the estimator's scaled units (anchors centred, unit RMS radius) unless
 stated.
