@@ -31,13 +31,12 @@ stated.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq, minimize
 
-from rangeslam.verdict.checks import range_gauss_newton, reflected
+from rangeslam.verdict.checks import reflected
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
@@ -49,6 +48,7 @@ from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 __all__ = [
     "PointObjective",
+    "batch_gauss_newton",
     "judge_point",
     "point_proposals",
     "region_precision",
@@ -92,35 +92,83 @@ class PointObjective:
         dist = np.maximum(np.linalg.norm(diff, axis=1), np.finfo(float).tiny)
         return diff / dist[:, None] / self.sigma
 
-    def fit(self, z: np.ndarray) -> np.ndarray:
-        """The local minimum of the deviance from ``z`` (d,): Gauss-Newton on all the ranges, or
+    def fit(self, starts: np.ndarray, use: np.ndarray | None = None) -> np.ndarray:
+        """(K, d) the local minima of the deviance from ``starts`` (K, d), each on the ranges
+        ``use`` (K, M) bool allows (default all): Gauss-Newton (:func:`batch_gauss_newton`), or
         for the truncated kernel on the ranges it keeps, repeated until they settle (the cost
         does not rise from one round to the next, so at most M + 1 rounds)."""
+        use = np.ones((len(starts), len(self.ranges)), bool) if use is None else use
         if self.threshold is None:
-            return range_gauss_newton(z, self.anchors, self.ranges)
-        kept, d = None, len(z)
+            return batch_gauss_newton(starts, self.anchors, self.ranges, use)
+        z, kept = starts, None
         for _ in range(len(self.ranges) + 1):
-            now = self.kept(z)
-            if now.sum() < d or (kept is not None and np.array_equal(now, kept)):
+            with np.errstate(invalid="ignore"):
+                now = use & (np.abs(self._batch_residuals(z)) <= self.threshold)
+            if kept is not None and np.array_equal(now, kept):
                 break
             kept = now
-            z = range_gauss_newton(z, self.anchors[kept], self.ranges[kept])
+            z = batch_gauss_newton(z, self.anchors, self.ranges, kept)
         return z
 
+    def _batch_residuals(self, z: np.ndarray) -> np.ndarray:
+        """(K, M) range residuals at the points ``z`` (K, d)."""
+        return np.linalg.norm(z[:, None, :] - self.anchors[None], axis=2) - self.ranges
 
-def point_proposals(x: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> Iterator:
-    """Starts (d,) with their origins, each to be refitted on all the ranges: the answer ``x``
-    (d,) mirrored through the best plane of the ``anchors`` (M, d); and, for each anchor m, the
-    point refitted on the other ``ranges`` (M,) from ``x`` and from its mirror through their best
-    plane (with d of them left, the two points they fix)."""
+
+def batch_gauss_newton(
+    starts: np.ndarray, anchors: np.ndarray, ranges: np.ndarray, use: np.ndarray, steps: int = 20
+) -> np.ndarray:
+    """Gauss-Newton on the range residuals ||z_k - a_m|| - r_m from each of ``starts`` (K, d) at
+    once, start k on the ranges ``use[k]`` ((K, M) bool; anchors (M, d), ranges (M,)); steps by
+    the pseudo-inverse of J^T J (a start with fewer than d ranges, or on a singular geometry,
+    moves in the directions they fix). Up to ``steps`` steps, until every step is below 1e-12 of
+    the largest distance (as :func:`rangeslam.verdict.checks.range_gauss_newton`). Returns
+    (K, d); a start that left the finite numbers stays non-finite."""
+    z, weight = np.array(starts, dtype=float), use.astype(float)
+    with np.errstate(all="ignore"):
+        for _ in range(steps):
+            diff = z[:, None, :] - anchors[None]
+            dist = np.maximum(np.linalg.norm(diff, axis=2), np.finfo(float).tiny)
+            jac = diff / dist[..., None] * weight[..., None]
+            res = (dist - ranges) * weight
+            normal = np.einsum("kmi,kmj->kij", jac, jac)
+            gradient = np.einsum("kmi,km->ki", jac, res)
+            finite = np.all(np.isfinite(normal), axis=(1, 2))
+            normal[~finite] = 0.0
+            step = -_solve(normal, gradient)
+            z = z + np.where(finite[:, None], step, np.nan)
+            moved = np.abs(step[finite]).max(initial=0.0)
+            if not moved > 1e-12 * float(np.max(dist[finite], initial=0.0)):
+                break
+    return z
+
+
+def _solve(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """(K, d) the solutions of the (K, d, d) systems ``normal`` z = ``rhs`` (K, d); by the
+    pseudo-inverse when one is singular."""
+    try:
+        return np.linalg.solve(normal, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return np.einsum("kij,kj->ki", np.linalg.pinv(normal, hermitian=True), rhs)
+
+
+def point_proposals(x: np.ndarray, anchors: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
+    """The first fits of the leave-one-anchor-out alternatives of the answer ``x`` (d,):
+    starts (2 M, d), the ranges each uses ((2 M, M) bool: all but anchor m) and their origins.
+    For each anchor m of ``anchors`` (M, d): ``x`` itself, and its mirror through the best plane
+    (line in 2-D) of the others (with d of them left, the two points they fix). Each is fitted
+    on its ranges, then on all of them from there."""
     n = len(anchors)
-    yield reflected(x[None], anchors)[0], "the mirror through the anchors' plane"
+    starts, use, origins = [], [], []
     for m in range(n):
         keep = np.arange(n) != m
-        a, r = anchors[keep], ranges[keep]
-        yield range_gauss_newton(x, a, r), f"the refit without anchor {m}"
-        side = range_gauss_newton(reflected(x[None], a)[0], a, r)
-        yield side, f"the refit without anchor {m}, from the other side of the others"
+        starts += [x, reflected(x[None], anchors[keep])[0]]
+        use += [keep, keep]
+        origins += [
+            f"the refit without anchor {m}",
+            f"the refit without anchor {m}, from the other side of the others",
+        ]
+    return np.array(starts), np.array(use), origins
 
 
 def _distance(objective: PointObjective):
@@ -138,40 +186,51 @@ def _distance(objective: PointObjective):
     return metric
 
 
-def _scored(objective: PointObjective, z: np.ndarray, origin: str, counted: bool):
-    """An Alternative of the fit from ``z``, or None when the fit left the finite numbers."""
-    with np.errstate(all="ignore"):
-        x = objective.fit(z)
+def _scored(objective: PointObjective, fitted: np.ndarray, origins: list, counted: bool):
+    """Alternatives of the fitted points (K, d) with their ``origins``; None for a fit that left
+    the finite numbers."""
+    out = []
+    for x, origin in zip(fitted, origins, strict=True):
         dev = objective.deviance(x) if np.all(np.isfinite(x)) else float("nan")
-    if not np.isfinite(dev):
-        return None
-    return Alternative(x[None], dev, origin, payload=counted)
+        out.append(Alternative(x[None], dev, origin, payload=counted) if np.isfinite(dev) else None)
+    return out
 
 
 def judge_point(objective: PointObjective, x: np.ndarray, rng) -> JudgedSearch:
-    """The answer ``x`` (d,) against every alternative (module docstring) on ``objective``; the
-    random starts are drawn from ``rng`` around the anchors' centroid, spread by the median
-    range. Failed fits are counted as starts made and named in ``failures``."""
-    a, r = objective.anchors, objective.ranges
-    d = len(x)
+    """The answer ``x`` (d,) against every alternative (module docstring) on ``objective``: the
+    mirror through the anchors' plane, the leave-one-anchor-out refits (:func:`point_proposals`)
+    and up to SEARCH_BUDGET - 1 random starts around the anchors' centroid, spread by the median
+    range (drawn from ``rng`` at once and fitted together; judged in turn until the stopping
+    rule ends them). A failed fit is named in ``failures`` (a random one counts as made)."""
+    a, r, d = objective.anchors, objective.ranges, len(x)
     main = Alternative(x[None], objective.deviance(x), "the answer", payload=True)
-    metric = _distance(objective)
-    fixed = [_scored(objective, z, origin, False) for z, origin in point_proposals(x, a, r)]
+    starts, use, origins = point_proposals(x, a)
+    first = objective.fit(starts, use)
+    n_random = SEARCH_BUDGET - 1
+    randoms = a.mean(axis=0) + float(np.median(r)) * rng.standard_normal((n_random, d))
+    mirror = reflected(x[None], a)
+    fitted = objective.fit(np.vstack([mirror, first, randoms]))
+    fixed = _scored(objective, fitted[: 1 + len(first)],
+                    ["the mirror through the anchors' plane", *origins], False)  # fmt: skip
+    random = _scored(objective, fitted[1 + len(first) :],
+                     [f"random start {j}" for j in range(n_random)], True)  # fmt: skip
     failures = [f"{fixed.count(None)} alternatives did not fit"] if None in fixed else []
     alternatives = [alt for alt in fixed if alt is not None]
-    counted: list[Alternative] = []
-    centre, spread, made = a.mean(axis=0), float(np.median(r)), 0
+    metric = _distance(objective)
 
     def run(found):
         return judge(main, found, metric=metric, dof=d, counted=lambda alt: bool(alt.payload))
 
-    while made < SEARCH_BUDGET - 1 and not search_complete(made + 1, run(counted).minima):
-        start = centre + spread * rng.standard_normal(d)
-        alt = _scored(objective, start, f"random start {made}", True)
-        counted += [] if alt is None else [alt]
-        failures += [f"random start {made} did not fit"] if alt is None else []
+    made = 0
+    while made < n_random and not search_complete(made + 1, run(random_made(random, made)).minima):
+        failures += [] if random[made] is not None else [f"random start {made} did not fit"]
         made += 1
-    return JudgedSearch.of(run(alternatives + counted), made + 1, failures)
+    return JudgedSearch.of(run(alternatives + random_made(random, made)), made + 1, failures)
+
+
+def random_made(random: list, made: int) -> list[Alternative]:
+    """The first ``made`` random starts' alternatives that fitted."""
+    return [alt for alt in random[:made] if alt is not None]
 
 
 def region_precision(objective: PointObjective, x: np.ndarray, limit: float) -> float:
