@@ -87,7 +87,7 @@ def test_judge_finds_the_other_intersection_of_d_plus_one_anchors():
     within the level, far outside the answer's confidence region, while the refits from the
     answer's own side confirm it (SAME)."""
     rng = np.random.default_rng(3)
-    anchors, x, _, r = _slab_scene(rng)
+    anchors, _truth, _, r = _slab_scene(rng)
     answer = multilaterate(anchors, r, noise_std=1e-2, rng=rng).position
     judged = judge_point(PointObjective(anchors, r, 1e-2), answer, rng)
     kinds = {c.kind for c in judged.judgement.comparisons}
