@@ -519,7 +519,9 @@ def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None, rng
     point), then the checks in order (:func:`_point_checks`); the first that fails sets the
     status, and every check is listed."""
     inputs = _inputs(prob, verdict, noise_std)
-    judged = judge_point(inputs.objective, inputs.x, rng)
+    # the random starts draw from a child generator: the caller's stream is not advanced (a
+    # pipeline that passes one rng through many calls draws the same numbers as before)
+    judged = judge_point(inputs.objective, inputs.x, rng.spawn(1)[0])
     verdict, inputs = _judged(prob, verdict, inputs, judged)
     pairs = _point_checks(inputs, judged, prob.scale)
     check = first_failure(*(c for c, _ in pairs))
