@@ -134,6 +134,12 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--no-real", action="store_true")
     ap.add_argument("--timeout", type=int, default=300, help="seconds per case (default 300)")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        metavar="ESTIMATOR",
+        help="run only these estimators' cases (drawn as in the full run: the same seeds)",
+    )
     args = ap.parse_args()
     if args.summarise is not None:
         with open(args.summarise, newline="") as f:
@@ -149,6 +155,8 @@ def main() -> None:
     if not args.no_real:  # first, so that an interrupted run still has them
         cases, notes = real_cases(args.data)
     cases += draw_cases(args.cases, seed, weights=WEIGHTS)
+    if args.only:
+        cases = [c for c in cases if c.estimator in args.only]
     for note in notes:
         print(note, file=sys.stderr)
     outcomes, t0 = [], time.perf_counter()

@@ -205,7 +205,11 @@ def test_msac_keeps_half_right_picks_of_a_distant_cluster(rng):
     from the point, half their ranges wrong by 0.2-1 m either way: the minimal subsets of right
     ranges give points off by several thresholds there, so only the local optimisation of the
     best hypotheses (LO-RANSAC) keeps exactly the right picks (without it, 9 of 60 draws kept
-    others; with it, 0 of 300)."""
+    others; with it, 0 of 300). The judge of the truncated cost (issue 42) finds, in a few draws
+    (2 of 40 seeds), a point just outside the answer's confidence region that keeps another set
+    of ranges within the cost level (the noise only estimated from 3 redundant ranges): those
+    are NOT_IDENTIFIABLE by its rival check, with the right picks still kept."""
+    rivals = 0
     for _ in range(20):
         anchors = rng.uniform([3, 2, 0.4], [4.5, 3.5, 2.0], (12, 3))
         x = rng.uniform([0.3, 0.3, 0.3], [1.5, 1.5, 2.3])
@@ -213,8 +217,12 @@ def test_msac_keeps_half_right_picks_of_a_distant_cluster(rng):
         wrong = rng.permutation(12)[:6]
         r[wrong] += rng.choice([-1, 1], 6) * rng.uniform(0.2, 1.0, 6)
         out = multilaterate(anchors, r, robust=True, inlier_threshold=4e-3, rng=rng)
-        assert out.converged, out.message
         assert np.array_equal(np.flatnonzero(~out.inliers), np.sort(wrong)), out.message
+        if not out.converged:
+            rival = next(c for c in out.checks if c.name == "rival minima")
+            assert out.status is Status.NOT_IDENTIFIABLE and not rival.passed, out.message
+            rivals += 1
+    assert rivals <= 2
 
 
 def test_robust_needs_redundancy(rng):

@@ -20,6 +20,7 @@ estimate (reweighted least squares, Rousseeuw and Leroy 1987) and SR-LS is re-so
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import eigh
 from scipy.optimize import brentq
+from scipy.stats import chi2
 
 from rangeslam._robust import robust_mode
 from rangeslam._validation import (
@@ -43,6 +45,7 @@ from rangeslam._validation import (
     shape_str,
 )
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError, SolverError
+from rangeslam.localization.point_judge import PointObjective, judge_point, region_precision
 from rangeslam.localization.robust_start import (
     TRUNCATED_STD,
     Refit,
@@ -53,15 +56,23 @@ from rangeslam.localization.robust_start import (
 )
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import (
-    ambiguity_check,
+    Check,
     consistency_check,
     first_failure,
+    gauge_free_covariance,
     information_check,
-    mirror_gap,
     noise_upper_bound,
+    rms_precision,
+    verdict_noise,
 )
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.thresholds import EXACT_RTOL
+from rangeslam.verdict.judge import LOWER, CheckRecord, JudgedSearch
+from rangeslam.verdict.thresholds import (
+    CHI2_LEVEL,
+    EXACT_RTOL,
+    PRECISION_FRACTION,
+    RELATIVE_RMS,
+)
 
 __all__ = ["MultilaterationResult", "affine_rank", "minimal_subset_points", "multilaterate"]
 
@@ -89,7 +100,16 @@ class MultilaterationResult(HasStatus):
             consistent ranges, SOLVER_FAILED when its inlier set kept changing,
             NOT_IDENTIFIABLE in the GTRS hard case (``converged`` is ``status is CONVERGED``).
         message: what happened, in words.
-        lagrange_multiplier: the GTRS multiplier lam at the solution (dimensionless, scaled problem).
+        lagrange_multiplier: the GTRS multiplier lam at the solution (dimensionless, scaled
+            problem); NaN when the judge replaced the SR-LS point by a lower minimum.
+        checks: every check of the verdict, in order: "residuals", "information" (the precision
+            at the answer, metres), "rival minima" (the judge: the least cost gap of another
+            minimum, noise variances), "search complete" (the stopping rule of the random
+            starts) and "precision over the confidence region" (metres); empty when the verdict
+            ended before them (the hard case, a robust search that failed).
+        judged: alternatives the judge compared with the answer (the mirror through the
+            anchors' plane, refits without one anchor, random starts); ``reached``: starts (the
+            answer counted) that reached the answer.
     """
 
     position: np.ndarray
@@ -99,6 +119,9 @@ class MultilaterationResult(HasStatus):
     status: Status
     message: str
     lagrange_multiplier: float
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
     @property
     def n_outliers(self) -> int:
@@ -247,12 +270,18 @@ class SrlsFit:
 
 @dataclass(frozen=True)
 class Verdict:
-    """How a run ended: the estimate (scaled units), the inliers, status and message."""
+    """How a run ended: the estimate (scaled units), the inliers, status and message; a robust
+    fit's last inlier ``threshold`` (scaled units; None for least squares), the ``checks`` run
+    and the judge's counts (see :class:`MultilaterationResult`)."""
 
     fit: SrlsFit
     inliers: np.ndarray
     status: Status
     message: str
+    threshold: float | None = None
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
 
 def check_spanning(points: np.ndarray, d: int, name: str, what: str) -> None:
@@ -344,7 +373,7 @@ def _robust_fit(
         how = "LMedS" if inlier_threshold is None else "MSAC"
         kept = int(search.inliers.sum())
         message = f"SR-LS after {how} outlier rejection: {kept} of {n_obs} ranges kept"
-        return Verdict(last, search.inliers, Status.CONVERGED, message)
+        return Verdict(last, search.inliers, Status.CONVERGED, message, search.threshold)
     failed = SrlsFit(last.x, float("nan"), last.unique)
     if search.rejected is None:
         message = "robust multilateration: the inlier set was still changing after 20 re-fits"
@@ -356,27 +385,157 @@ def _robust_fit(
     return Verdict(failed, search.rejected, Status.OUTLIERS, message)
 
 
-def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> Verdict:
-    """The verdict of :mod:`rangeslam.verdict` on a fit: determined, unambiguous, consistent."""
-    d, inl, scale = prob.dim, verdict.inliers, prob.scale
+@dataclass(frozen=True)
+class PointVerdictInputs:
+    """What the checks of one answer need, in scaled units: the observed ``anchors`` (N, d) and
+    ``ranges`` (N,), the answer ``x`` (d,), the ranges it kept ``inl`` (N,), the judge's
+    ``objective``, the given noise ``noise_s`` (None if unknown), the median kept range
+    ``range_scale``, the exact-data RMS ``exact`` and the noise the precision is judged at,
+    ``precision_sigma`` (None: not judged)."""
+
+    anchors: np.ndarray
+    ranges: np.ndarray
+    x: np.ndarray
+    inl: np.ndarray
+    objective: PointObjective
+    noise_s: float | None
+    range_scale: float
+    exact: float
+    precision_sigma: float | None
+
+
+def _inputs(prob: ScaledProblem, verdict: Verdict, noise_std: float | None) -> PointVerdictInputs:
+    """The answer's checks' inputs. The judge's sigma is the given noise, else the kept
+    residuals' estimate sqrt(ssr / redundancy) (as calibrate's), never below the exact-data RMS;
+    the precision is judged at the given noise, else at the largest the kept residuals allow
+    (:func:`noise_upper_bound`: a few residuals say little about the noise). A robust fit's
+    kernel truncates at its last inlier threshold, at least level_sigmas() judge's sigmas."""
+    obs = prob.observed
+    a, r, inl = prob.anchors_s[obs], prob.ranges_s[obs], verdict.inliers[obs]
     x = verdict.fit.x
-    a, r = prob.anchors_s[inl], prob.ranges_s[inl]
-    res = _range_residuals(x, a, r)
-    diff = x - a
+    res = _range_residuals(x, a[inl], r[inl])
+    range_scale = float(np.median(r[inl]))
+    exact = EXACT_RTOL * range_scale
+    noise_s = noise_std / prob.scale if noise_std is not None else None
+    ssr, redundancy = float(res @ res), int(inl.sum()) - prob.dim
+    estimate = float(np.sqrt(ssr / redundancy)) if redundancy > 0 else None
+    sigma = max(verdict_noise(noise_s, estimate, exact) or 0.0, exact)
+    # the kernel's truncation: the search's last threshold, never within level_sigmas() noise
+    # deviations (exact data: the search floors its threshold below the exact-data RMS)
+    threshold = (
+        None if verdict.threshold is None else max(verdict.threshold, level_sigmas() * sigma)
+    )
+    objective = PointObjective(a, r, sigma, threshold)
+    precision = verdict_noise(noise_s, noise_upper_bound(ssr, redundancy), exact)
+    return PointVerdictInputs(a, r, x, inl, objective, noise_s, range_scale, exact, precision)
+
+
+def _judged(prob: ScaledProblem, verdict: Verdict, inputs: PointVerdictInputs, judged):
+    """The verdict with the judge's answer: a lower minimum (LOWER: its cost gap beyond the
+    level, outside the answer's confidence region) replaces the SR-LS point, its kept ranges
+    the inliers; otherwise the SR-LS point stands (a lower point within its region confirms it)."""
+    first = judged.judgement.comparisons[0] if judged.judgement.comparisons else None
+    if first is None or first.kind != LOWER:
+        return verdict, inputs
+    lowest = judged.judgement.answer
+    x = np.asarray(lowest.points[0], dtype=float)
+    inl = prob.observed.copy()
+    inl[prob.observed] = inputs.objective.kept(x)
+    note = (
+        f"; {lowest.origin} reached a lower minimum of the range likelihood than SR-LS (by "
+        f"{first.delta_cost:.3g} noise variances), which replaced it"
+    )
+    fit = SrlsFit(x, float("nan"), True)
+    verdict = dataclasses.replace(verdict, fit=fit, inliers=inl, message=verdict.message + note)
+    return verdict, dataclasses.replace(inputs, x=x, inl=inl[prob.observed])
+
+
+def _residual_record(v: PointVerdictInputs, check: Check, scale: float) -> CheckRecord:
+    """The residual test as a record: with a noise level, the sum of squared residuals over its
+    variance against the chi-square quantile; without one, the RMS residual (metres) against
+    RELATIVE_RMS of the scene."""
+    res = _range_residuals(v.x, v.anchors[v.inl], v.ranges[v.inl])
+    redundancy = int(v.inl.sum()) - v.x.size
+    if v.noise_s and redundancy > 0:
+        statistic = float(res @ res) / max(v.noise_s, v.exact) ** 2
+        level = float(chi2.ppf(CHI2_LEVEL, redundancy))
+    else:
+        statistic = scale * float(np.sqrt(np.mean(res**2)))
+        level = scale * RELATIVE_RMS * v.range_scale
+    return CheckRecord("residuals", statistic, level, check.passed, check.reason)
+
+
+def _point_checks(v: PointVerdictInputs, judged: JudgedSearch, scale: float):
+    """The checks of the answer in order (residuals, information, the judge, the precision over
+    the confidence region) as (Check, CheckRecord) pairs; the region's precision only when the
+    information has full rank. Statistics in metres where they are lengths."""
+    d, sigma = v.x.size, v.precision_sigma
+    a, r = v.anchors[v.inl], v.ranges[v.inl]
+    diff = v.x - a
     jac = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-12)[:, None]
     redundancy = len(r) - d
-    noise_s = noise_std / scale if noise_std is not None else None
-    sigma_s = noise_s if noise_s is not None else noise_upper_bound(float(res @ res), redundancy)
-    exact = EXACT_RTOL * float(np.median(r))
-    range_scale = float(np.median(r))
-    check = first_failure(
-        consistency_check(res, jac, redundancy, noise_s, range_scale, exact),
-        information_check(jac, None, sigma_s, range_scale, "the point", dim=d),
-        ambiguity_check(mirror_gap(x, a, r), sigma_s, exact, "the point"),
+    consistency = consistency_check(
+        _range_residuals(v.x, a, r), jac, redundancy, v.noise_s, v.range_scale, v.exact
     )
-    if check.passed:
-        return verdict
-    return Verdict(verdict.fit, inl, check.status, f"{verdict.message}; {check.reason}")
+    cov, n_zero = gauge_free_covariance(jac, None)
+    information = information_check(
+        jac, None, sigma, v.range_scale, "the point", dim=d, covariance=(cov, n_zero)
+    )
+    limit = PRECISION_FRACTION * v.range_scale
+    own = rms_precision(cov, sigma or 0.0, d) if cov is not None else float("inf")
+    pairs = [
+        (consistency, _residual_record(v, consistency, scale)),
+        (information, CheckRecord("information", scale * own,
+                                  scale * limit, information.passed, information.reason)),
+    ]  # fmt: skip
+    rival = judged.judgement
+    pairs += [(Check(rival.status, rival.reason), rival.check)]
+    pairs += [(Check(Status.CONVERGED), judged.record())]  # the budget only records
+    if cov is not None and sigma:  # full rank: the precision is judged over the region
+        # the region is the judge's (its objective, at its sigma); the precision in it is
+        # judged at the information check's sigma: the RMS scales with sigma
+        ratio = sigma / v.objective.sigma
+        worst = ratio * region_precision(v.objective, v.x, limit / ratio)
+        region = _region_check(worst, limit, scale)
+        pairs += [(region, CheckRecord("precision over the confidence region", scale * worst,
+                                       scale * limit, region.passed, region.reason))]  # fmt: skip
+    return pairs
+
+
+def _region_check(worst: float, limit: float, scale: float) -> Check:
+    """NOT_IDENTIFIABLE when the precision fails somewhere in the answer's confidence region
+    (``worst``, ``limit``: scaled units; ``scale`` metres per unit)."""
+    if worst <= limit:
+        return Check(Status.CONVERGED)
+    return Check(
+        Status.NOT_IDENTIFIABLE,
+        f"the point is only weakly determined within its confidence region: somewhere the data "
+        f"do not rule out, the information fixes it to {scale * worst:.3g} m RMS or worse, more "
+        f"than {PRECISION_FRACTION:.1%} of the scene size {scale * limit / PRECISION_FRACTION:.3g} m",
+    )
+
+
+def _checked(prob: ScaledProblem, verdict: Verdict, noise_std: float | None, rng) -> Verdict:
+    """The verdict of one answer: the judge of every alternative
+    (:func:`rangeslam.localization.point_judge.judge_point`; a lower minimum replaces the SR-LS
+    point), then the checks in order (:func:`_point_checks`); the first that fails sets the
+    status, and every check is listed."""
+    inputs = _inputs(prob, verdict, noise_std)
+    # the random starts draw from a child generator: the caller's stream is not advanced (a
+    # pipeline that passes one rng through many calls draws the same numbers as before)
+    judged = judge_point(inputs.objective, inputs.x, rng.spawn(1)[0])
+    verdict, inputs = _judged(prob, verdict, inputs, judged)
+    pairs = _point_checks(inputs, judged, prob.scale)
+    check = first_failure(*(c for c, _ in pairs))
+    message = verdict.message if check.passed else f"{verdict.message}; {check.reason}"
+    return dataclasses.replace(
+        verdict,
+        status=check.status,
+        message=f"{message}; {judged.words()}",
+        checks=tuple(record for _, record in pairs),
+        judged=len(judged.judgement.comparisons),
+        reached=judged.judgement.reached,
+    )
 
 
 def _result(prob: ScaledProblem, verdict: Verdict, weights: WeightSpec) -> MultilaterationResult:
@@ -396,6 +555,9 @@ def _result(prob: ScaledProblem, verdict: Verdict, weights: WeightSpec) -> Multi
         status=verdict.status,
         message=verdict.message,
         lagrange_multiplier=float(verdict.fit.lam),
+        checks=verdict.checks,
+        judged=verdict.judged,
+        reached=verdict.reached,
     )
 
 
@@ -466,5 +628,5 @@ def multilaterate(
         )
         verdict = Verdict(verdict.fit, verdict.inliers, Status.NOT_IDENTIFIABLE, message)
     elif verdict.status is Status.CONVERGED:
-        verdict = _checked(prob, verdict, noise_std)
+        verdict = _checked(prob, verdict, noise_std, rng)
     return _result(prob, verdict, weights)

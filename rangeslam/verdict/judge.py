@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2
@@ -169,12 +170,14 @@ class JudgedSearch:
         )
 
 
+@lru_cache(maxsize=64)  # scipy's quantile costs 0.3 ms; a judge asks it on every call
 def cost_level(level: float = CHI2_LEVEL) -> float:
     """The cost gap (deviance units) within which two answers cannot be told apart: the
     ``level`` quantile of chi-square with one degree of freedom."""
     return float(chi2.ppf(level, 1))
 
 
+@lru_cache(maxsize=256)
 def distance_level(dof: int, level: float = CHI2_LEVEL) -> float:
     """The information distance delta^2 beyond which an alternative lies outside the answer's
     confidence region of ``dof`` unknowns (beyond the gauge): the ``level`` quantile of
