@@ -79,6 +79,11 @@ class Alternative:
     ambiguous: tuple[int, ...] = ()
     ambiguity: str = ""
     payload: object = None  # the estimator's own record of this candidate (its fit)
+    #: The cost gap (noise variances) this alternative's basin shows on the data the answer
+    #: predicts (noise-free ranges at the answer, refitted from here): the noncentrality of the
+    #: likelihood-ratio statistic, what the data could be expected to show. None when not made,
+    #: or when that basin does not exist without the noise.
+    expected_gap: float | None = None
 
 
 @dataclass(frozen=True)
@@ -258,7 +263,11 @@ def judge(
             continue
         gap = float(alt.deviance - lowest.deviance)
         far = distance2(lowest, alt, ())
-        kind = SAME if far <= q_far else (WORSE if gap > q_cost else RIVAL)
+        kind = (
+            SAME
+            if far <= q_far
+            else (WORSE if _told_apart(gap, alt, lowest, answer, q_cost) else RIVAL)
+        )
         if kind == RIVAL and alt.ambiguous and distance2(lowest, alt, alt.ambiguous) <= q_far:
             kind = AMBIGUITY
         if alt is answer and kind != SAME:
@@ -266,6 +275,19 @@ def judge(
         comparisons.append(Comparison(alt, gap, far, kind))
     minima = _distinct_minima(lowest, comparisons, counted, distance2, q_far)
     return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
+
+
+def _told_apart(gap: float, alt: Alternative, lowest: Alternative, answer, q_cost: float) -> bool:
+    """Whether ``alt``'s cost ``gap`` over ``lowest`` rules it out: beyond the level on the data
+    as observed and, when the answer is the lowest and ``alt`` carries its expected gap, on the
+    data the answer predicts too. An expected gap within the level means the data could not be
+    expected to tell the two apart (the test's power is under a half): an observed gap beyond
+    it is the noise's luck, not the data's evidence (a point whose mirror through nearly
+    coplanar anchors the noise-free ranges do not resolve)."""
+    if gap <= q_cost:
+        return False
+    expected = alt.expected_gap if lowest is answer else None
+    return expected is None or expected > q_cost
 
 
 def _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far) -> Judgement:
