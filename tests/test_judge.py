@@ -100,6 +100,46 @@ def test_costlier_far_alternative_is_worse(rng):
     assert out.check.statistic == pytest.approx(1.01 * cost_level())
 
 
+def test_an_alternative_the_data_could_not_be_expected_to_rule_out_is_a_rival(rng):
+    """A far alternative beyond the level on the data as observed, but within it on the data the
+    answer predicts (its expected gap, the likelihood ratio's noncentrality), is a rival: the
+    observed gap is the noise's luck. Beyond the level on both, or without an expected gap, it
+    is worse."""
+    pts, m, k = scene(rng)
+    far = pts.copy()
+    far[0] += 0.2
+    answer = scored(pts, m, k, ranges_of(pts, m), "answer")
+    gap = answer.deviance + 1.5 * cost_level()
+    for expected, kind in ((0.8 * cost_level(), RIVAL), (1.2 * cost_level(), WORSE), (None, WORSE)):
+        alt = Alternative(far, gap, "the mirror", expected_gap=expected)
+        out = judge(answer, [alt], metric=metric_for(m, k), dof=3 * (m + k) - 6)
+        assert out.comparisons[0].kind == kind
+        assert out.status is (Status.NOT_IDENTIFIABLE if kind == RIVAL else Status.CONVERGED)
+
+
+def test_multilaterate_mirror_of_nearly_coplanar_anchors_is_judged_by_its_expected_gap(rng):
+    """Anchors within 1 cm of a plane, the point 12-30 cm above it at 1 mm noise: the noise-free
+    mirror gap is under the level, so whatever the noisy gap, multilaterate does not say
+    CONVERGED: five draws whose noise makes the mirror look worse than the level (without the
+    expected gap the judge called them CONVERGED)."""
+    import rangeslam
+    from rangeslam.verdict.checks import mirror_gap
+
+    for _ in range(5):
+        a = np.column_stack([rng.uniform(0, 4, (7, 2)), rng.uniform(-0.01, 0.01, 7)])
+        for _ in range(2000):
+            x = np.array([*rng.uniform(1, 3, 2), rng.uniform(0.12, 0.3)])
+            true_r = np.linalg.norm(a - x, axis=1)
+            r = true_r + SIGMA * rng.standard_normal(7)
+            level = cost_level() * SIGMA**2
+            if mirror_gap(x, a, true_r) < level < mirror_gap(x, a, r):
+                break
+        else:
+            pytest.fail("no such draw in 2000")
+        out = rangeslam.multilaterate(a, r, noise_std=SIGMA, rng=rng)
+        assert out.status is not Status.CONVERGED
+
+
 def test_lower_alternative_replaces_the_answer(rng):
     """An alternative lower by more than the level replaces the answer, which is LOWER then (or
     a rival, were it within the level)."""

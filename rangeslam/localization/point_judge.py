@@ -198,25 +198,16 @@ def _scored(objective: PointObjective, fitted: np.ndarray, origins: list, counte
     return out
 
 
-def with_expected_gaps(
-    objective: PointObjective, x: np.ndarray, alternatives: list, q_far: float
-) -> list:
-    """``alternatives`` (None kept) each with its expected gap: refitted from where it lies on
-    the ranges the answer ``x`` (d,) predicts (noise-free), the deviance there (the answer's is
-    0). A refit that returns within the confidence region ``q_far`` of ``x`` (information
-    distance) finds no such basin without the noise: no expected gap."""
-    found = [alt for alt in alternatives if alt is not None]
-    if not found:
-        return alternatives
+def with_expected_gaps(objective: PointObjective, x: np.ndarray, alternatives: list) -> list:
+    """``alternatives`` (None kept) each with its expected gap: the deviance of its point on the
+    ranges the answer ``x`` (d,) predicts (noise-free; the answer's own is 0), the noncentrality
+    of the likelihood ratio of the two points (for least squares sum ((||x' - a|| - ||x - a||) /
+    sigma)^2)."""
     predicted = dataclasses.replace(objective, ranges=np.linalg.norm(objective.anchors - x, axis=1))
-    refits = predicted.fit(np.vstack([alt.points for alt in found]))
-    jac = objective.jacobian(x)
-    gaps = {}
-    for alt, z in zip(found, refits, strict=True):
-        distinct = np.all(np.isfinite(z)) and float(np.sum((jac @ (z - x)) ** 2)) > q_far
-        gaps[id(alt)] = predicted.deviance(z) if distinct else None
     return [
-        None if alt is None else dataclasses.replace(alt, expected_gap=gaps[id(alt)])
+        None
+        if alt is None
+        else dataclasses.replace(alt, expected_gap=predicted.deviance(alt.points[0]))
         for alt in alternatives
     ]
 
@@ -239,9 +230,8 @@ def judge_point(objective: PointObjective, x: np.ndarray, rng) -> JudgedSearch:
                     ["the mirror through the anchors' plane", *origins], False)  # fmt: skip
     random = _scored(objective, fitted[1 + len(first) :],
                      [f"random start {j}" for j in range(n_random)], True)  # fmt: skip
-    q_far = distance_level(d)
-    fixed = with_expected_gaps(objective, x, fixed, q_far)
-    random = with_expected_gaps(objective, x, random, q_far)
+    fixed = with_expected_gaps(objective, x, fixed)
+    random = with_expected_gaps(objective, x, random)
     failures = [f"{fixed.count(None)} alternatives did not fit"] if None in fixed else []
     alternatives = [alt for alt in fixed if alt is not None]
     metric = _distance(objective)

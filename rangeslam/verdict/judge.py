@@ -79,10 +79,9 @@ class Alternative:
     ambiguous: tuple[int, ...] = ()
     ambiguity: str = ""
     payload: object = None  # the estimator's own record of this candidate (its fit)
-    #: The cost gap (noise variances) this alternative's basin shows on the data the answer
-    #: predicts (noise-free ranges at the answer, refitted from here): the noncentrality of the
-    #: likelihood-ratio statistic, what the data could be expected to show. None when not made,
-    #: or when that basin does not exist without the noise.
+    #: The cost gap (noise variances) this alternative shows on the data the answer predicts
+    #: (noise-free): the noncentrality of the likelihood ratio of the two answers, the gap the
+    #: data could be expected to show. None when not made.
     expected_gap: float | None = None
 
 
@@ -257,6 +256,8 @@ def judge(
     q_cost, q_far = cost_level(level), distance_level(dof, level)
     lowest = min(pool, key=lambda a: a.deviance)  # the answer judged: the most likely
     distance2 = metric(lowest)
+    # the expected gaps are the answer's: they count while the lowest is the answer itself
+    answer_lowest = lowest is answer or distance2(lowest, answer, ()) <= q_far
     comparisons = []
     for alt in pool:
         if alt is lowest:
@@ -266,7 +267,7 @@ def judge(
         kind = (
             SAME
             if far <= q_far
-            else (WORSE if _told_apart(gap, alt, lowest, answer, q_cost) else RIVAL)
+            else (WORSE if _told_apart(gap, alt, answer_lowest, q_cost) else RIVAL)
         )
         if kind == RIVAL and alt.ambiguous and distance2(lowest, alt, alt.ambiguous) <= q_far:
             kind = AMBIGUITY
@@ -277,16 +278,16 @@ def judge(
     return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
 
 
-def _told_apart(gap: float, alt: Alternative, lowest: Alternative, answer, q_cost: float) -> bool:
-    """Whether ``alt``'s cost ``gap`` over ``lowest`` rules it out: beyond the level on the data
-    as observed and, when the answer is the lowest and ``alt`` carries its expected gap, on the
-    data the answer predicts too. An expected gap within the level means the data could not be
+def _told_apart(gap: float, alt: Alternative, answer_lowest: bool, q_cost: float) -> bool:
+    """Whether ``alt``'s cost ``gap`` over the lowest candidate rules it out: beyond the level on
+    the data as observed and, when the answer is the lowest (``answer_lowest``: it, or the same
+    answer) and ``alt`` carries its expected gap, on the data the answer predicts too. An expected gap within the level means the data could not be
     expected to tell the two apart (the test's power is under a half): an observed gap beyond
     it is the noise's luck, not the data's evidence (a point whose mirror through nearly
     coplanar anchors the noise-free ranges do not resolve)."""
     if gap <= q_cost:
         return False
-    expected = alt.expected_gap if lowest is answer else None
+    expected = alt.expected_gap if answer_lowest else None
     return expected is None or expected > q_cost
 
 
