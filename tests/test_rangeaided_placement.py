@@ -160,3 +160,22 @@ def test_heading_not_in_the_data_is_a_rival(rng):
     rival = next(c for c in res.checks if c.name == "rival minima")
     assert not rival.passed and rival.statistic <= rival.level
     assert "fits the data as well" in res.message
+
+
+def test_file_priors_fix_the_gauge(rng):
+    """A prior on a pose of each robot (data, as a PyFG VERTEX_SE2:PRIOR): each robot's first
+    pose is its prior run back along its odometry (no search, no gauge prior), and the answer
+    lies in the priors' frame, within 0.6 m of the truth without any alignment (as the
+    recovery test after alignment)."""
+    from rangeslam.rangeaided import PosePriors
+
+    p = two_robots(rng)
+    rows = np.array([7, p.robot_rows(1)[12]])
+    cov = np.broadcast_to(np.diag([1e-4, 1e-4, 1e-6]), (2, 3, 3))
+    q = _without_truth(p, pose_priors=PosePriors(rows, p.truth_poses[rows], cov, np.zeros(2)))
+    placement = place_robots(q)
+    assert placement.how == ("from the file's prior on A7", "from the file's prior on B12")
+    res = solve_gtsam(q)
+    assert res.status is Status.CONVERGED, res.message
+    np.testing.assert_allclose(res.poses[rows], p.truth_poses[rows], atol=0.05)
+    assert np.max(np.linalg.norm(positions(res.poses) - positions(p.truth_poses), axis=1)) < 0.6
