@@ -26,13 +26,15 @@ RANGE_SIGMA = 0.1
 
 
 def _circle(n: int, centre, radius: float, phase: float, dim: int) -> np.ndarray:
-    """(n, 3) or (n, 7) poses driving round a circle (3-D: climbing, yawing)."""
+    """(n, 3) or (n, 7) poses driving round a circle (3-D: climbing +-1 m, yawing; with +-0.3 m
+    a landmark's mirror image through the nearly flat path fitted within the judge's cost level,
+    a rival: NOT_IDENTIFIABLE, rightly)."""
     a = phase + np.linspace(0, 1.5 * np.pi, n)
     xy = np.column_stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)])
     yaw = a + np.pi / 2
     if dim == 2:
         return np.column_stack([xy, yaw])
-    z = 1.0 + 0.3 * np.sin(2 * a)
+    z = 1.0 + 1.0 * np.sin(2 * a)
     q = np.column_stack([np.zeros((n, 2)), np.sin(yaw / 2), np.cos(yaw / 2)])
     return np.column_stack([xy, z, q])
 
@@ -201,13 +203,14 @@ def test_cli_run_bad_pyfg_exits_2(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "name", ["factor_graph_small", "plaza1", "mrclam5a", "tiers", "single_drone"]
-)
+@pytest.mark.parametrize("name", ["factor_graph_small", "plaza1", "mrclam5a", "single_drone"])
 def test_cli_run_on_the_cora_files(tmp_path, name):
     """`rangeslam run` on each of CORA's files writes one TUM file per robot that evo reads;
-    GTSAM from odometry ends below odometry alone's APE on every file (measured: Plaza1 0.26 vs
-    1.34 m mean, MR.CLAM 5a 0.13 vs 0.19, TIERS 0.036 vs 0.076, drone 0.55 vs 0.85)."""
+    GTSAM with the first poses from the data ends below odometry alone's APE (dead reckoning
+    from the same first poses) on every file (measured: Plaza1 0.255 vs 1.335 m mean, MR.CLAM 5a
+    0.158 vs 0.220, TIERS 0.036 vs 0.076 with the reference's first poses, drone 0.509 vs
+    0.854). TIERS is left to `rangeslam bench pyfg` (benchmarks/README.md): its judge's random
+    placements take about 7 minutes, more than the slow suite's budget for one file."""
     file_interface = pytest.importorskip("evo.tools.file_interface")
     try:
         path = data_path(f"pyfg/{name}.pyfg")
@@ -224,8 +227,10 @@ def test_cli_run_on_the_cora_files(tmp_path, name):
 
 
 def test_bench_pyfg_table(rng, tmp_path, capsys):
-    """`rangeslam bench pyfg`: a row per file and method; edm+gtsam runs on a one-robot 2-D
-    beacon log and says why it does not on two robots; the table, CSV and JSON are written."""
+    """`rangeslam bench pyfg`: a row per file and method; gtsam's first poses come from the data,
+    the odometry baseline's and gtsam-reference-start's from the reference (named in the
+    table); edm+gtsam runs on a one-robot 2-D beacon log and says why it does not on two
+    robots; the table, CSV and JSON are written."""
     from rangeslam.beacons import simulate_beacon_run
 
     run = simulate_beacon_run(rng, n_steps=400)
@@ -236,11 +241,16 @@ def test_bench_pyfg_table(rng, tmp_path, capsys):
     assert main(["bench", "pyfg", *map(str, files), "--out", str(out)]) == 0
     rows = json.loads((out / "pyfg_bench.json").read_text())["rows"]
     assert [(r["file"], r["method"]) for r in rows] == [
-        (f, m) for f in ("one", "two") for m in ("odometry", "gtsam", "edm+gtsam")
+        (f, m)
+        for f in ("one", "two")
+        for m in ("odometry", "gtsam", "gtsam-reference-start", "edm+gtsam")
     ]
     by = {(r["file"], r["method"]): r for r in rows}
     assert by["two", "edm+gtsam"]["status"] == "not run"
     assert "2 robots" in by["two", "edm+gtsam"]["message"]
     assert by["one", "edm+gtsam"]["ape_mean_m"] >= 0
     assert by["two", "gtsam"]["ape_rmse_m"] < by["two", "odometry"]["ape_rmse_m"]
-    assert "| two | gtsam | CONVERGED |" in (out / "pyfg_bench.md").read_text()
+    table = (out / "pyfg_bench.md").read_text()
+    assert "| two | gtsam | data | CONVERGED |" in table
+    assert "| two | gtsam-reference-start | reference |" in table
+    assert by["two", "gtsam"]["judge_seconds"] > 0

@@ -1,5 +1,6 @@
 """``rangeslam run FILE.pyfg``: a range-aided SLAM problem (CORA's PyFG files) solved with GTSAM
-from the odometry, scored against the file's reference values.
+from the odometry, each robot's first pose placed from the data (never from the reference),
+judged, and scored against the file's reference values (the only use of them).
 
 One library call does the work (:func:`rangeslam.rangeaided.gtsam_solve.solve_gtsam`); this
 module reads the file and writes, in ``--out``:
@@ -9,9 +10,10 @@ module reads the file and writes, in ``--out``:
   reference values the same way, so ``evo_ape tum run_reference.tum run_trajectory.tum -a``
   scores one robot;
 - ``run_landmarks.csv``: each landmark's estimate and reference;
-- ``run_summary.md`` / ``.json``: the verdict, the time, and the APE against the reference: all
-  robots and landmarks moved by one rigid motion (evo's ``-a``, no scale) fitted to all poses,
-  with odometry alone beside it;
+- ``run_summary.md`` / ``.json``: the verdict with every check (name, statistic, level,
+  passed), how each robot was placed, the time, and the APE against the reference: all robots
+  and landmarks moved by one rigid motion (evo's ``-a``, no scale) fitted to all poses, with
+  odometry alone (from the same first poses) beside it;
 - ``run_trajectory.png``: the aligned paths over the reference.
 
 Exit 0 converged, 1 not converged, 2 bad input.
@@ -115,6 +117,12 @@ def _plot(out: Path, problem, result, scores: dict, title: str) -> Path:
     return save_figure(fig, out / "run_trajectory.png")
 
 
+def _check_words(check) -> str:
+    """One check in words: "name passed (statistic against level)"."""
+    verdict = "passed" if check.passed else "FAILED"
+    return f"{check.name} {verdict} ({check.statistic:.4g} against {check.level:.4g})"
+
+
 def _lines(path: Path, problem, result, scores: dict, odometry: dict) -> list[str]:
     r = problem.ranges
     lines = [
@@ -124,9 +132,10 @@ def _lines(path: Path, problem, result, scores: dict, odometry: dict) -> list[st
         f"{problem.n_poses} poses, {problem.n_landmarks} landmarks, {len(problem.odometry.time)} "
         f"odometry edges, {len(r.ranges)} ranges ({int(np.sum(~r.to_landmark))} between poses), "
         f"{len(problem.landmark_observations.time)} landmark observations",
-        f"- {result.method} (each robot's first pose from the file's reference): "
-        f"**{result.status.name}** in {result.seconds:.2f} s, {result.iterations} iterations "
-        f"({result.message})",
+        f"- {result.method}: **{result.status.name}** in {result.seconds:.2f} s (judge "
+        f"{result.judge_seconds:.2f} s), {result.iterations} iterations ({result.message})",
+        f"- first poses: {result.placement}",
+        "- checks: " + "; ".join(_check_words(c) for c in result.checks),
     ]
     if scores:
         lines.append(
@@ -162,7 +171,11 @@ def _write(out: Path, path: Path, problem, result, lines: list[str], extra: dict
     record = {"mode": "pyfg", "file": str(path), "method": result.method,
               "status": result.status.name, "converged": result.converged,
               "message": result.message, "seconds": result.seconds,
-              "iterations": result.iterations, **extra}  # fmt: skip
+              "iterations": result.iterations, "judge_seconds": result.judge_seconds,
+              "placement": result.placement,
+              "checks": [{"name": c.name, "statistic": float(c.statistic), "level": float(c.level),
+                          "passed": bool(c.passed), "reason": c.reason} for c in result.checks],
+              **extra}  # fmt: skip
     summary = write_summary(out / "run_summary.json", **record, versions=versions())
     return [summary, out / "run_summary.md", *written]
 
@@ -189,7 +202,7 @@ def pyfg_run(args: argparse.Namespace) -> int:
         print(f"rangeslam: error: {exc}", file=sys.stderr)
         return 2
     scores = score(problem, result)
-    odometry = score(problem, dead_reckoning_result(problem))
+    odometry = score(problem, dead_reckoning_result(problem, first_poses=result.first_poses))
     lines = _lines(path, problem, result, scores, odometry)
     extra = {k: v for k, v in scores.items() if not k.startswith("aligned")}
     extra["odometry_ape_mean_m"] = odometry.get("ape_mean_m")

@@ -1,7 +1,9 @@
 """GTSAM for a range-aided SLAM problem: Pose2 / Pose3 between factors with the problem's
 covariances, range factors pose-landmark and pose-pose, bearing-range factors for 2-D relative
-landmark observations, priors; Levenberg-Marquardt from a start (by default the odometry:
-:mod:`rangeslam.rangeaided.start`), then the verdict (:func:`judge`).
+landmark observations, priors; Levenberg-Marquardt from the odometry start with each robot's
+first pose from the data (:func:`rangeslam.rangeaided.placement.place_robots`; the reference
+values are never read), then the verdict: the residual checks (:func:`judge`) and the one judge
+of alternative answers (:func:`rangeslam.rangeaided.rivals.judge_answer`).
 
 Keys: ``x`` + pose row, ``l`` + landmark row. GTSAM's Pose3 tangent is (rotation, translation);
 the problem's covariances are translation first, so they are permuted (:func:`gtsam_covariance`).
@@ -19,15 +21,20 @@ from scipy.stats import chi2
 
 from rangeslam._robust import mad_sigma
 from rangeslam.errors import InvalidInputError
+from rangeslam.rangeaided.gtsam_values import MAX_ITERATIONS, gtsam_pose, to_values
+from rangeslam.rangeaided.placement import Placement, place_robots
 from rangeslam.rangeaided.poses import positions
 from rangeslam.rangeaided.problem import RangeAidedProblem, tangent_width
+from rangeslam.rangeaided.rivals import candidate, judge_answer
 from rangeslam.rangeaided.start import landmark_start, odometry_start
 from rangeslam.status import HasStatus, Status, status_message
 from rangeslam.verdict.checks import tail_limit
+from rangeslam.verdict.judge import LOWER, CheckRecord
 from rangeslam.verdict.thresholds import CHI2_LEVEL
 
 __all__ = [
     "GAUGE_SIGMA",
+    "MAX_ITERATIONS",
     "FactorGroups",
     "RangeAidedResult",
     "build_graph",
@@ -41,12 +48,8 @@ __all__ = [
 #: Standard deviation (m and rad) of the prior that fixes the gauge at the first robot's first
 #: pose when the problem has no priors.
 GAUGE_SIGMA = 1e-6
-#: Levenberg-Marquardt's iteration limit and relative error tolerance (GTSAM's defaults are 100
-#: and 1e-5).
-MAX_ITERATIONS = 200
 #: Whitened residuals all below this are exact data fitted to round-off: no tail is judged.
 EXACT_SIGMAS = 1e-6
-RELATIVE_TOLERANCE = 1e-6
 
 
 def gtsam_covariance(cov: np.ndarray) -> np.ndarray:
@@ -58,29 +61,16 @@ def gtsam_covariance(cov: np.ndarray) -> np.ndarray:
     return cov[np.ix_(order, order)]
 
 
-def _pose(gtsam, row: np.ndarray):
-    if len(row) == 3:
-        return gtsam.Pose2(*row)
-    q = row[3:] / np.linalg.norm(row[3:])
-    return gtsam.Pose3(gtsam.Rot3.Quaternion(q[3], q[0], q[1], q[2]), gtsam.Point3(*row[:3]))
-
-
-def _pose_row(gtsam, pose, dim: int) -> np.ndarray:
-    if dim == 2:
-        return np.array([pose.x(), pose.y(), pose.theta()])
-    q = pose.rotation().toQuaternion()
-    out = np.array([*pose.translation(), q.x(), q.y(), q.z(), q.w()])
-    return out * (1.0 if out[6] >= 0 else np.r_[1, 1, 1, -1, -1, -1, -1])
-
-
 @dataclass(frozen=True)
 class FactorGroups:
-    """Which factors of the graph are which: index ranges [start, stop) per kind."""
+    """Which factors of the graph are which: index ranges [start, stop) per kind; ``gauge``
+    the index of the gauge prior (None when the problem's priors fix the frame)."""
 
     odometry: range
     ranges: range
     observations: range
     priors: range
+    gauge: int | None = None
 
 
 def _add_measurements(gtsam, graph, problem: RangeAidedProblem, x, lm) -> tuple[range, ...]:
@@ -89,7 +79,7 @@ def _add_measurements(gtsam, graph, problem: RangeAidedProblem, x, lm) -> tuple[
     cov = gtsam.noiseModel.Gaussian.Covariance
     start = graph.size()
     for a, b, value, c in zip(o.pose_a, o.pose_b, o.values, o.covariance, strict=True):
-        graph.add(between(x(a), x(b), _pose(gtsam, value), cov(gtsam_covariance(c))))
+        graph.add(between(x(a), x(b), gtsam_pose(gtsam, value), cov(gtsam_covariance(c))))
     odo = range(start, graph.size())
     to_point = gtsam.RangeFactor2D if dim == 2 else gtsam.RangeFactor3D
     to_pose = gtsam.RangeFactorPose2 if dim == 2 else gtsam.RangeFactorPose3
@@ -126,14 +116,15 @@ def build_graph(problem: RangeAidedProblem, start_poses: np.ndarray):
     point_prior = gtsam.PriorFactorPoint2 if problem.dim == 2 else gtsam.PriorFactorPoint3
     cov = gtsam.noiseModel.Gaussian.Covariance
     for i, value, c in zip(pp.pose, pp.values, pp.covariance, strict=True):
-        graph.add(prior(x(i), _pose(gtsam, value), cov(gtsam_covariance(c))))
+        graph.add(prior(x(i), gtsam_pose(gtsam, value), cov(gtsam_covariance(c))))
     for j, value, c in zip(lp.landmark, lp.values, lp.covariance, strict=True):
         graph.add(point_prior(lm(j), np.asarray(value, float), cov(c)))
+    gauge = None
     if not len(pp.time) and not len(lp.time):
-        k = tangent_width(problem.dim)
-        graph.add(prior(x(0), _pose(gtsam, start_poses[0]),
+        k, gauge = tangent_width(problem.dim), graph.size()
+        graph.add(prior(x(0), gtsam_pose(gtsam, start_poses[0]),
                         gtsam.noiseModel.Isotropic.Sigma(k, GAUGE_SIGMA)))  # fmt: skip
-    return graph, FactorGroups(odo, rng_, obs, range(obs.stop, graph.size()))
+    return graph, FactorGroups(odo, rng_, obs, range(obs.stop, graph.size()), gauge)
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,15 +134,21 @@ class RangeAidedResult(HasStatus):
     Attributes:
         poses: (P, 3) or (P, 7) estimated poses, rows as the problem's.
         landmarks: (L, d) estimated landmark positions [m].
-        status, message: the verdict (:func:`judge`); ``converged`` derives from the status.
-        method: what ran ("gtsam from odometry").
-        iterations: Levenberg-Marquardt's iterations.
+        status, message: the verdict; ``converged`` derives from the status.
+        method: what ran ("gtsam, first poses from the data").
+        iterations: Levenberg-Marquardt's iterations (of the answer kept).
         initial_error, final_error: GTSAM's cost (half the sum of squared whitened residuals)
             at the start and at the answer.
-        seconds: wall time of building and solving (not loading or judging).
+        seconds: wall time of placing the robots, building the graph and solving (not loading
+            or judging).
         range_chi2, odometry_chi2: sums of squared whitened residuals at the answer, with
             ``range_dof``, ``odometry_dof`` terms.
         worst_range: the largest whitened range residual (in its sigmas).
+        checks: every check the verdict ran, in order (name, statistic, level, passed, reason).
+        first_poses: (R, 3) or (R, 7) each robot's first pose the start used.
+        placement: how each robot's first pose was found, in words.
+        judge_seconds: wall time of the alternatives and the judge [s].
+        alternatives: candidates the judge compared with the answer.
     """
 
     poses: np.ndarray
@@ -168,6 +165,11 @@ class RangeAidedResult(HasStatus):
     odometry_chi2: float
     odometry_dof: int
     worst_range: float
+    checks: tuple[CheckRecord, ...] = ()
+    first_poses: np.ndarray | None = None
+    placement: str = ""
+    judge_seconds: float = 0.0
+    alternatives: int = 0
 
 
 def _connected(problem: RangeAidedProblem) -> list[str]:
@@ -223,19 +225,28 @@ def _identifiable(problem: RangeAidedProblem) -> str:
 
 
 def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, iterations: int,
-          max_iterations: int) -> tuple[Status, str, dict]:  # fmt: skip
-    """(status, message, statistics) of the answer ``values``; the checks in the order solver,
-    identifiable, outliers, consistent:
+          max_iterations: int, *, placement: Placement | None = None,
+          search=None) -> tuple[Status, str, dict, tuple[CheckRecord, ...]]:  # fmt: skip
+    """(status, message, statistics, checks) of the answer ``values``; the checks in order, the
+    first that fails naming the status:
 
-    - SOLVER_FAILED: the cost is not finite, or Levenberg-Marquardt used all its iterations.
-    - NOT_IDENTIFIABLE: a robot tied to nothing, a landmark with too few ranges.
-    - INCONSISTENT: the whitened range or odometry residuals' sum of squares is above its
-      chi-square quantile at CHI2_LEVEL under the problem's stated noise. Residuals far *below*
-      it (stated noise conservative, as in CORA's files) pass, and the message says by how much.
-    - OUTLIERS: the largest whitened range residual, in units of the residuals' own robust
-      scale (1.4826 MAD), is beyond the Bonferroni quantile at the level (:func:`rangeslam.verdict.checks.tail_limit`), widened for the MAD's
-      own uncertainty as :func:`rangeslam.verdict.checks.tail_check` does: a wrong basin or
-      wrong ranges show here even when the stated noise is loose.
+    - "solver" (SOLVER_FAILED): the cost is not finite, or Levenberg-Marquardt used all its
+      iterations.
+    - "robots placed" (NOT_IDENTIFIABLE): every robot placed by the data (``placement``).
+    - "identifiable" (NOT_IDENTIFIABLE): no robot tied to nothing, no landmark with too few
+      ranges.
+    - "rival minima" (NOT_IDENTIFIABLE): the one judge found no other answer that fits as well
+      (``search``, a :class:`rangeslam.verdict.judge.JudgedSearch`).
+    - "range outliers" (OUTLIERS): the largest whitened range residual, in units of the
+      residuals' own robust scale (1.4826 MAD), within the Bonferroni quantile at 1 - CHI2_LEVEL,
+      widened for the MAD's own uncertainty (:func:`rangeslam.verdict.checks.tail_limit`):
+      a wrong basin or wrong ranges show here even when the stated noise is loose.
+    - "range chi-square", "odometry chi-square" (INCONSISTENT): the whitened residuals' sum of
+      squares within its chi-square quantile at CHI2_LEVEL under the stated noise. Residuals far
+      *below* it (stated noise conservative, as in CORA's files) pass; the message says by how
+      much.
+    - "search complete": the stopping rule, not the budget, ended the random starts (reported;
+      the status does not depend on it, as in slam).
     The precision of the answer (a gauge-free covariance) is not judged.
     """
     rng_w = _whitened(graph, values, groups.ranges)
@@ -246,44 +257,72 @@ def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, itera
         "odometry_chi2": float(np.sum(odo_w**2)), "odometry_dof": k * len(odo_w),
         "worst_range": float(np.max(rng_w)) if len(rng_w) else 0.0,
     }  # fmt: skip
-    limits = [float(chi2.ppf(CHI2_LEVEL, max(n, 1))) for n in (len(rng_w), k * len(odo_w))]
     ratios = [np.sqrt(stats["range_chi2"] / max(len(rng_w), 1)),
               np.sqrt(stats["odometry_chi2"] / max(k * len(odo_w), 1))]  # fmt: skip
     detail = (f"residuals / stated sigma (RMS): ranges {ratios[0]:.3g}, odometry {ratios[1]:.3g}; "
               f"worst range {stats['worst_range']:.3g} sigma")  # fmt: skip
-    tail = _tail(rng_w)
-    why = _identifiable(problem)
-    if not np.isfinite(graph.error(values)) or iterations >= max_iterations:
-        status, reason = (
-            Status.SOLVER_FAILED,
-            f"Levenberg-Marquardt stopped at {iterations} iterations",
-        )
-    elif why:
-        status, reason = Status.NOT_IDENTIFIABLE, why
-    elif tail:  # a heavy tail is named before the sum of squares it inflates (as checks.py)
-        status, reason = Status.OUTLIERS, tail
-    elif stats["range_chi2"] > limits[0] or stats["odometry_chi2"] > limits[1]:
-        status, reason = Status.INCONSISTENT, "the residuals are larger than the stated noise"
-    else:
-        status, reason = Status.CONVERGED, ""
+    cost = float(graph.error(values))
+    ok = bool(np.isfinite(cost)) and iterations < max_iterations
+    why = "" if ok else f"Levenberg-Marquardt stopped at {iterations} iterations (cost {cost:.6g})"
+    checks = [(CheckRecord("solver", float(iterations), float(max_iterations), ok, why),
+               Status.SOLVER_FAILED)]  # fmt: skip
+    checks += _identifiability_checks(problem, placement, search)
+    checks += _residual_checks(rng_w, stats, k * len(odo_w))
+    if search is not None:
+        checks.append((search.record(), None))
+    failed = [(c, st) for c, st in checks if not c.passed and st is not None]
+    status, reason = (failed[0][1], failed[0][0].reason) if failed else (Status.CONVERGED, "")
     text = f"{reason}; {detail}" if reason else detail
-    return status, status_message(status, text + "; precision not judged"), stats
+    if search is not None:
+        text += "; " + search.words()
+    message = status_message(status, text + "; precision not judged")
+    return status, message, stats, tuple(c for c, _ in checks)
 
 
-def _tail(whitened: np.ndarray) -> str:
-    """Why the largest of the (n,) whitened |range residuals| is an outlier against their own
-    robust scale ('' when it is not, or with fewer than 5)."""
+def _identifiability_checks(problem: RangeAidedProblem, placement, search) -> list[tuple]:
+    """(CheckRecord, status if failed) of the placement, the ties and the judge's rivals."""
+    out = []
+    if placement is not None:
+        why = placement.unplaced_reason(problem.robots)
+        out.append((CheckRecord("robots placed", float(np.sum(~placement.placed)), 0.0, not why,
+                                why), Status.NOT_IDENTIFIABLE))  # fmt: skip
+    why = _identifiable(problem)
+    out.append((CheckRecord("identifiable", float(bool(why)), 0.0, not why, why),
+                Status.NOT_IDENTIFIABLE))  # fmt: skip
+    if search is not None:
+        out.append((search.judgement.check, Status.NOT_IDENTIFIABLE))
+    return out
+
+
+def _residual_checks(rng_w: np.ndarray, stats: dict, odo_dof: int) -> list[tuple]:
+    """(CheckRecord, status if failed) of the range tail and the two chi-square tests."""
+    reason, worst, limit = _tail(rng_w)
+    out = [(CheckRecord("range outliers", worst, limit, not reason, reason), Status.OUTLIERS)]
+    for name, value, dof in (("range", stats["range_chi2"], len(rng_w)),
+                             ("odometry", stats["odometry_chi2"], odo_dof)):  # fmt: skip
+        level = float(chi2.ppf(CHI2_LEVEL, max(dof, 1)))
+        why = "" if value <= level else "the residuals are larger than the stated noise"
+        out.append((CheckRecord(f"{name} chi-square", value, level, not why, why),
+                    Status.INCONSISTENT))  # fmt: skip
+    return out
+
+
+def _tail(whitened: np.ndarray) -> tuple[str, float, float]:
+    """(why, largest / robust scale, limit) of the (n,) whitened |range residuals|: why the
+    largest is an outlier against their own robust scale ('' when it is not, or with fewer
+    than 5: then the statistic and limit are nan)."""
     n = len(whitened)
     if n < 5 or np.max(whitened) < EXACT_SIGMAS:  # round-off has no tail to judge
-        return ""
+        return "", float("nan"), float("nan")
     robust = mad_sigma(whitened)
     limit = tail_limit(n)
-    worst = float(np.max(whitened)) / robust
+    worst = float(np.max(whitened) / robust)
     if worst <= limit:
-        return ""
+        return "", worst, limit
     many = int(np.sum(whitened / robust > limit))
     return (f"{many} ranges lie beyond {limit:.3g} times the residuals' robust scale (the largest "
-            f"{worst:.3g}): ranges the fit does not explain (wrong ranges, or a wrong basin)")  # fmt: skip
+            f"{worst:.3g}): ranges the fit does not explain (wrong ranges, or a wrong basin)",
+            worst, limit)  # fmt: skip
 
 
 def solve_gtsam(
@@ -292,94 +331,83 @@ def solve_gtsam(
     first_poses=None,
     start: tuple[np.ndarray, np.ndarray] | None = None,
     max_iterations: int = MAX_ITERATIONS,
+    rng=None,
 ) -> RangeAidedResult:
-    """Solve ``problem`` with GTSAM's Levenberg-Marquardt and judge the answer.
+    """Solve ``problem`` with GTSAM's Levenberg-Marquardt and judge the answer. The reference
+    values (``truth_poses``, ``truth_landmarks``) are never read.
 
     Args:
         problem: the range-aided SLAM problem.
-        first_poses: (R, 3) or (R, 7) each robot's first pose for the odometry start (default:
-            the problem's reference first poses; :func:`rangeslam.rangeaided.start.first_poses`).
+        first_poses: (R, 3) or (R, 7) each robot's first pose, when the user knows them (given
+            data, 2-D (x, y [m], theta [rad]), 3-D (x, y, z [m], qx, qy, qz, qw)): the odometry
+            start from them, robot A's held as the gauge when the problem has no priors, the
+            others free (the judge's random starts still try other placements). Default: placed
+            from the data (:func:`rangeslam.rangeaided.placement.place_robots`).
         start: (poses (P, w), landmarks (L, d)) to start from instead of the odometry.
         max_iterations: Levenberg-Marquardt's limit; reaching it is SOLVER_FAILED.
+        rng: numpy Generator or seed of the placement search's and the judge's random starts
+            (default seed 0: the same answer on every run).
 
     Returns:
-        RangeAidedResult; ``seconds`` times building the graph and optimising. The status says
-        whether the answer is right as far as the data can tell (:func:`judge`).
+        RangeAidedResult; ``seconds`` times placing, building the graph and optimising,
+        ``judge_seconds`` the alternatives and the judge. A lower alternative replaces the answer.
+        The status says whether the answer is right as far as the data can tell (:func:`judge`).
     """
-    import gtsam
-
     if not isinstance(problem, RangeAidedProblem):
         raise InvalidInputError(
             f"problem must be a RangeAidedProblem; got {type(problem).__name__}"
         )
+    rng = np.random.default_rng(0 if rng is None else rng)
     t0 = time.perf_counter()
     if start is None:
-        poses, _ = odometry_start(problem, first_poses)
+        placement = place_robots(problem, first=first_poses, rng=rng)
+        poses, _ = odometry_start(problem, placement.first)
         marks = landmark_start(problem, poses)
-        method = "gtsam from odometry"
+        given = first_poses is not None
+        method = "gtsam, first poses " + ("given" if given else "from the data")
     else:
         poses, marks = (np.asarray(a, dtype=float) for a in start)
+        placement = place_robots(problem, first=poses[[problem.robot_rows(r)[0] for r in
+                                                       range(len(problem.robots))]])  # fmt: skip
         method = "gtsam from the given start"
     graph, groups = build_graph(problem, poses)
-    values = gtsam.Values()
-    for i, row in enumerate(poses):
-        values.insert(gtsam.symbol("x", i), _pose(gtsam, row))
-    for j, point in enumerate(marks):
-        values.insert(gtsam.symbol("l", j), np.asarray(point, float))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(max_iterations)
-    params.setRelativeErrorTol(RELATIVE_TOLERANCE)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    initial = graph.error(values)
-    answer = optimizer.optimize()
+    answer = candidate(problem, graph, (poses, marks), "the answer", True, max_iterations)
     seconds = time.perf_counter() - t0
-    iterations = int(optimizer.iterations())
-    status, message, stats = judge(problem, graph, groups, answer, iterations, max_iterations)
-    poses, marks = _estimates(answer, problem)
+    search = judge_answer(problem, graph, answer, placement, groups.gauge, rng, max_iterations)
+    best = search.judgement.answer.payload
+    status, message, stats, checks = judge(
+        problem, graph, groups, best.values, best.iterations, max_iterations,
+        placement=placement if start is None else None, search=search,
+    )  # fmt: skip
+    if any(c.kind == LOWER for c in search.judgement.comparisons):
+        message += f"; {search.judgement.answer.origin} replaced the first answer (lower cost)"
     return RangeAidedResult(
-        poses=poses,
-        landmarks=marks,
-        status=status,
-        message=message,
-        method=method,
-        iterations=iterations,
-        initial_error=float(initial),
-        final_error=float(graph.error(answer)),
-        seconds=seconds,
-        **stats,
-    )
-
-
-def _estimates(values, problem: RangeAidedProblem) -> tuple[np.ndarray, np.ndarray]:
-    """((P, w) poses, (L, d) landmarks) of GTSAM ``values``."""
-    import gtsam
-
-    dim = problem.dim
-    poses = np.array([_pose_row(gtsam, _at(values, dim, i), dim) for i in range(problem.n_poses)])
-    point = values.atPoint2 if dim == 2 else values.atPoint3
-    marks = [point(gtsam.symbol("l", j)) for j in range(problem.n_landmarks)]
-    return poses, np.array(marks, dtype=float).reshape(-1, dim)
-
-
-def _at(values, dim: int, i: int):
-    import gtsam
-
-    key = gtsam.symbol("x", i)
-    return values.atPose2(key) if dim == 2 else values.atPose3(key)
+        poses=best.poses, landmarks=best.marks, status=status, message=message, method=method,
+        iterations=best.iterations, initial_error=float(graph.error(to_values(poses, marks))),
+        final_error=float(graph.error(best.values)), seconds=seconds, **stats, checks=checks,
+        first_poses=placement.first, placement=placement.words(problem.robots),
+        judge_seconds=time.perf_counter() - t0 - seconds,
+        alternatives=len(search.judgement.comparisons),
+    )  # fmt: skip
 
 
 def dead_reckoning_result(problem: RangeAidedProblem, *, first_poses=None) -> RangeAidedResult:
     """Odometry alone (the start, not optimised) as a result, for the tables: NOT_IDENTIFIABLE
-    (dead reckoning does not use the ranges; nothing judges it)."""
+    (dead reckoning does not use the ranges; nothing judges it). ``first_poses``: (R, w) each
+    robot's first pose; default placed from the data
+    (:func:`rangeslam.rangeaided.placement.place_robots`, which does use the ranges between
+    robots to place them; the reference is not read)."""
     t0 = time.perf_counter()
-    poses, gaps = odometry_start(problem, first_poses)
+    placement = place_robots(problem, first=first_poses)
+    poses, gaps = odometry_start(problem, placement.first)
     marks = landmark_start(problem, poses)
     seconds = time.perf_counter() - t0
     status = Status.NOT_IDENTIFIABLE
     note = f"dead reckoning, ranges unused ({gaps} missing steps held)"
     return RangeAidedResult(poses, marks, status, status_message(status, note), "odometry alone",
                             0, float("nan"), float("nan"), seconds, float("nan"), 0, float("nan"),
-                            0, float("nan"))  # fmt: skip
+                            0, float("nan"), first_poses=placement.first,
+                            placement=placement.words(problem.robots))  # fmt: skip
 
 
 def position_estimates(result: RangeAidedResult) -> np.ndarray:
