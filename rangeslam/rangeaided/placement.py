@@ -7,7 +7,7 @@ numbers, SE(3): 6), placed in turn (the robot with the most links first) from th
 it shares with what is placed already: ranges to placed robots' poses, ranges to landmarks the
 placed robots locate (d + 1 ranges or an observation: :func:`rangeslam.rangeaided.start.
 located_landmarks`), relative observations of those landmarks. The rigid motion is found by a
-small search: least squares (scipy, the robust soft-L1 loss at KEPT_SIGMAS whitened units, as
+small search: least squares (scipy, the robust soft-L1 loss at level_sigmas() whitened units, as
 the chain drifts) from a grid of headings (12 in 2-D; in 3-D 12 yaws and 12 random rotations)
 times a translation that lays the linked ends' centroids on each other, offset by the median
 range in each axis direction; the lowest cost is kept, the other distinct minima (outside the
@@ -32,8 +32,8 @@ from rangeslam.rangeaided.start import (
     located_landmarks,
     odometry_start,
 )
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import distance_level
-from rangeslam.verdict.thresholds import KEPT_SIGMAS
 
 __all__ = ["HEADINGS", "Links", "Placement", "anchors", "links", "place_robots", "rigid_fit"]
 
@@ -203,7 +203,7 @@ def rigid_fit(link: Links, dim: int, starts: list[np.ndarray]) -> list[tuple[flo
     found = []
     for x0 in starts:
         fit = least_squares(_residuals, x0, args=(link, dim), loss="soft_l1",
-                            f_scale=KEPT_SIGMAS, method="trf")  # fmt: skip
+                            f_scale=level_sigmas(), method="trf")  # fmt: skip
         found.append((float(fit.cost), fit.x, fit.jac))
     found.sort(key=lambda f: f[0])
     level = distance_level(tangent_width(dim))

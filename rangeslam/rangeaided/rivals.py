@@ -45,8 +45,9 @@ from rangeslam.rangeaided.placement import Placement, place_robots
 from rangeslam.rangeaided.poses import compose, matrix_to_quaternion, positions, relative
 from rangeslam.rangeaided.problem import RangeAidedProblem, tangent_width
 from rangeslam.rangeaided.start import identity_pose, landmark_start, odometry_start
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import Alternative, JudgedSearch, judge, search_complete
-from rangeslam.verdict.thresholds import KEPT_SIGMAS, SEARCH_BUDGET
+from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 __all__ = [
     "Fit",
@@ -153,7 +154,7 @@ def random_start(problem: RangeAidedProblem, placement: Placement, gauge: int | 
 
 def _landmark_fit(problem: RangeAidedProblem, pos: np.ndarray, j: int, x0: np.ndarray):
     """(d,) landmark ``j`` by least squares on its ranges from the start's positions ``pos``
-    (P, d) held, from ``x0`` [m] (soft-L1 at KEPT_SIGMAS, as the placement search)."""
+    (P, d) held, from ``x0`` [m] (soft-L1 at level_sigmas(), as the placement search)."""
     from scipy.optimize import least_squares
 
     r = problem.ranges
@@ -165,7 +166,7 @@ def _landmark_fit(problem: RangeAidedProblem, pos: np.ndarray, j: int, x0: np.nd
     def residuals(x):
         return (np.linalg.norm(ends - x, axis=1) - dist) / sigma
 
-    return least_squares(residuals, x0, loss="soft_l1", f_scale=KEPT_SIGMAS).x
+    return least_squares(residuals, x0, loss="soft_l1", f_scale=level_sigmas()).x
 
 
 def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placement: Placement,
