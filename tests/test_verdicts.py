@@ -16,6 +16,7 @@ from rangeslam.status import Status
 from rangeslam.verdict import (
     ambiguity_check,
     consistency_check,
+    expected_mirror_gap,
     flatness_check,
     information_check,
     level_sigmas,
@@ -24,6 +25,7 @@ from rangeslam.verdict import (
     weak_moves,
 )
 from rangeslam.verdict.crlb import multilateration_crlb
+from rangeslam.verdict.judge import cost_level
 
 
 def test_consistency_chi_square_and_false_alarms(rng):
@@ -186,6 +188,34 @@ def test_mirror_gap_and_ambiguity():
     anchors = np.vstack([anchors, [1.0, 1.0, 2.0]])
     ranges = np.linalg.norm(anchors - point, axis=1)
     assert ambiguity_check(mirror_gap(point, anchors, ranges), 0.01, 1e-9, "p").passed
+
+
+def test_mirror_judged_on_the_ranges_the_point_predicts(rng):
+    """Anchors 1.5 cm off one plane: the mirror's gap on the noise-free ranges (the expected gap,
+    7.2 noise variances) is under the level, so every draw is ambiguous, though the noise gives
+    some draws (11% measured) an observed gap beyond it (those passed on the observed gap alone). With the anchors spread,
+    both gaps are far beyond the level and the point passes."""
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    anchors = np.c_[2.0 * np.cos(angles), 1.6 * np.sin(angles), 0.015 * np.cos(3 * angles + 0.5)]
+    point, sigma = np.array([0.3, -0.2, 0.25]), 0.003
+    expected = expected_mirror_gap(point, anchors)
+    truth = np.linalg.norm(anchors - point, axis=1)
+    assert 0.0 < expected < cost_level() * sigma**2
+    assert abs(expected - mirror_gap(point, anchors, truth)) < 1e-15
+    lucky = 0
+    for _ in range(200):
+        gap = mirror_gap(point, anchors, truth + sigma * rng.standard_normal(8))
+        lucky += ambiguity_check(gap, sigma, 1e-9, "p").passed
+        check = ambiguity_check(gap, sigma, 1e-9, "p", expected_gap=expected)
+        assert check.status is Status.NOT_IDENTIFIABLE
+    assert lucky > 0
+    anchors[:, 2] = rng.uniform(-1, 1, 8)
+    truth = np.linalg.norm(anchors - point, axis=1)
+    noisy = truth + sigma * rng.standard_normal(8)
+    assert ambiguity_check(
+        mirror_gap(point, anchors, noisy), sigma, 1e-9, "p",
+        expected_gap=expected_mirror_gap(point, anchors),
+    ).passed  # fmt: skip
 
 
 def test_flatness(rng):

@@ -54,6 +54,7 @@ from rangeslam.verdict import (
     Check,
     ambiguity_check,
     consistency_check,
+    expected_mirror_gap,
     first_failure,
     information_check,
     mirror_gap,
@@ -380,7 +381,13 @@ def _offset_checked(
         consistency_check(res, jac, redundancy, noise_s, range_scale, exact),
         kept,
         information_check(jac, None, sigma_s, range_scale, "the point", dim=d, rows=np.arange(d)),
-        ambiguity_check(mirror_gap(z[:d], a, r, float(z[d])), sigma_s, exact, "the point"),
+        ambiguity_check(
+            mirror_gap(z[:d], a, r, float(z[d])),
+            sigma_s,
+            exact,
+            "the point",
+            expected_gap=expected_mirror_gap(z[:d], a, float(z[d])),
+        ),
     )
     if check.passed:
         return verdict

@@ -666,7 +666,10 @@ def _verdict_problems(prob: RoomProblem, fit: JointFit) -> list[tuple[Status, st
         ),
     ]
     gap = _mirror_room_gap(final, fit.theta, prob.mics_s)
-    checks.append(ambiguity_check(gap, sigma, EXACT_RTOL, "the room"))
+    # the same on the ranges the fit predicts: the gap the data could be expected to show
+    predicted = JointWallModel(prob.mics_s, final.ranges + final.all_residuals(fit.theta), fit.use)
+    expected = _mirror_room_gap(predicted, fit.theta, prob.mics_s)
+    checks.append(ambiguity_check(gap, sigma, EXACT_RTOL, "the room", expected_gap=expected))
     return [(c.status, c.reason + "; ") for c in checks if not c.passed][:1]
 
 

@@ -5,9 +5,10 @@ same ranges, so the ranges fix every landmark only up to that reflection; a walk
 planar leaves the two sides a cost gap of a few noise variances, which the data cannot decide
 either (the EDM answer was seen to put every landmark on one side of the walk's plane). Both sides
 are tried here, landmark by landmark against the fitted trajectory (the mirror image refined
-locally, :func:`rangeslam.verdict.mirror_point`), and a landmark whose mirror image fits within
-:func:`rangeslam.verdict.ambiguity_check`'s margin is reported as ambiguous with its other
-position, rather than one side picked silently.
+locally, :func:`rangeslam.verdict.mirror_point`), and a landmark whose mirror image the data
+cannot tell apart (:func:`rangeslam.verdict.ambiguity_check`: on the ranges as observed or as the
+answer predicts them) is reported as ambiguous with its other position, rather than one side
+picked silently.
 
 Held fixed, a flat trajectory (or array) is not quite flat: least squares bends it off its plane
 by what the noise pushes it (up to FLAT_FACTOR sqrt(sigma scale), :func:`rangeslam.verdict.
@@ -26,7 +27,7 @@ import numpy as np
 
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.solvers.least_squares import refine_unfolding
-from rangeslam.verdict import ambiguity_check, flatness_check, mirror_point
+from rangeslam.verdict import ambiguity_check, expected_mirror_gap, flatness_check, mirror_point
 
 __all__ = ["LandmarkMirrors", "landmark_mirrors", "refitted_gap"]
 
@@ -53,7 +54,7 @@ def landmark_mirrors(
 ) -> LandmarkMirrors:
     """Both sides of every landmark: against the trajectory held fixed, and, where the steps
     hearing it may be flat (:func:`rangeslam.verdict.flatness_check` at ``sigma``) and that
-    fails the margin, with every point refitted (:func:`refitted_gap`).
+    passes, with every point refitted (:func:`refitted_gap`).
 
     Args:
         receivers: (M, d) the trajectory, metres.
@@ -67,6 +68,7 @@ def landmark_mirrors(
     mirrors = np.full((k, d), np.nan)
     gaps = np.full(k, np.inf)
     scale = float(np.median(ranges[observed]))
+    predicted = range_matrix(receivers, sources)  # the ranges the answer predicts
     for j in range(k):
         heard = observed[:, j]
         anchors, r = receivers[heard], ranges[heard, j]
@@ -76,12 +78,16 @@ def landmark_mirrors(
         res_own = np.linalg.norm(anchors - sources[j], axis=1) - r
         res_mirror = np.linalg.norm(anchors - mirror, axis=1) - r
         gaps[j] = float(res_mirror @ res_mirror - res_own @ res_own)
+        expected = expected_mirror_gap(sources[j], anchors)
         what = f"landmark {j}"
-        if ambiguity_check(gaps[j], sigma, exact_rms, what).passed and not (
-            flatness_check(anchors, sigma, scale, what).passed
-        ):
+        check = ambiguity_check(gaps[j], sigma, exact_rms, what, expected_gap=expected)
+        if check.passed and not flatness_check(anchors, sigma, scale, what).passed:
             gaps[j] = min(gaps[j], refitted_gap(receivers, sources, ranges, observed, j, mirror))
-        if not ambiguity_check(gaps[j], sigma, exact_rms, what).passed:
+            refitted = refitted_gap(receivers, sources, predicted, observed, j, mirror)
+            check = ambiguity_check(
+                gaps[j], sigma, exact_rms, what, expected_gap=min(expected, refitted)
+            )
+        if not check.passed:
             ambiguous[j], mirrors[j] = True, mirror
     return LandmarkMirrors(ambiguous, mirrors, gaps)
 

@@ -20,7 +20,8 @@ identifiable, consistent, outliers and reports the first that fails.
   robust (MAD) scale, and the studentised tail (:func:`tail_check`, also on its own), so that a
   fit dragged by wrong picks is caught.
 - :func:`ambiguity_check`: a second minimum (a mirror image) that fits the data as well as the
-  answer, judged by the cost difference in units of the noise.
+  answer, by the judge's test: the cost difference in units of the noise, on the data and on
+  the noise-free ranges the answer predicts (:func:`expected_mirror_gap`).
 """
 
 from __future__ import annotations
@@ -32,9 +33,8 @@ from scipy.stats import chi2, norm
 
 from rangeslam._robust import mad_sigma, studentized
 from rangeslam.status import Status
-from rangeslam.verdict.judge import cost_level
+from rangeslam.verdict.judge import cost_level, indistinguishable
 from rangeslam.verdict.thresholds import (
-    AMBIGUITY_MARGIN,
     CHI2_LEVEL,
     FLAT_FACTOR,
     NOISE_QUANTILE,
@@ -50,6 +50,7 @@ __all__ = [
     "Check",
     "ambiguity_check",
     "consistency_check",
+    "expected_mirror_gap",
     "first_failure",
     "flatness_check",
     "gauge_free_covariance",
@@ -322,19 +323,32 @@ def tail_check(
     return PASSED
 
 
-def ambiguity_check(cost_gap: float, sigma: float | None, exact_rms: float, what: str) -> Check:
-    """NOT_IDENTIFIABLE when a second minimum (e.g. the mirror image) costs at most
-    AMBIGUITY_MARGIN times the cost level (:func:`rangeslam.verdict.judge.cost_level`) noise
-    variances more than the answer.
+def ambiguity_check(
+    cost_gap: float,
+    sigma: float | None,
+    exact_rms: float,
+    what: str,
+    *,
+    expected_gap: float | None = None,
+) -> Check:
+    """NOT_IDENTIFIABLE when a second minimum (e.g. the mirror image) cannot be told from the
+    answer by the judge's test (:func:`rangeslam.verdict.judge.indistinguishable`): its cost gap
+    on the data, or the gap it shows on the ranges the answer predicts, is within the cost level
+    (:func:`rangeslam.verdict.judge.cost_level`) in noise variances.
 
-    ``cost_gap``: its sum of squared range residuals minus the answer's, metres^2; ``sigma``: the
-    range noise (given or estimated), metres; None or 0 (exact data) uses ``exact_rms``."""
-    floor = max(sigma or 0.0, exact_rms)
-    if cost_gap <= AMBIGUITY_MARGIN * cost_level() * floor**2:
+    ``cost_gap``: its sum of squared range residuals minus the answer's, metres^2;
+    ``expected_gap``: the same on the noise-free ranges the answer predicts (its own residuals
+    zero), metres^2, None when not made; ``sigma``: the range noise (given or estimated),
+    metres; None or 0 (exact data) uses ``exact_rms``."""
+    variance = max(sigma or 0.0, exact_rms) ** 2
+    expected = None if expected_gap is None else expected_gap / variance
+    if indistinguishable(cost_gap / variance, expected):
+        shown = "" if expected_gap is None else f", {expected_gap:.3g} m^2 on noise-free ranges"
         return Check(
             Status.NOT_IDENTIFIABLE,
             f"{what} and its mirror image fit the data equally well (their costs differ by "
-            f"{cost_gap:.3g} m^2, under {AMBIGUITY_MARGIN * cost_level():.3g} noise variances)",
+            f"{cost_gap:.3g} m^2{shown}; the data tell apart {cost_level():.3g} noise "
+            f"variances, {cost_level() * variance:.3g} m^2)",
         )
     return PASSED
 
@@ -409,6 +423,17 @@ def mirror_gap(
     return float(res_m @ res_m - res_p @ res_p)
 
 
+def expected_mirror_gap(
+    point: np.ndarray, anchors: np.ndarray, offset: float | None = None
+) -> float:
+    """:func:`mirror_gap` on the noise-free ranges the point predicts (||x - a|| [+ b]): the gap
+    the data could be expected to show between the point and its mirror image (the
+    noncentrality of their likelihood ratio, metres^2). Small where the anchors are nearly
+    coplanar, whatever gap the noise happened to give."""
+    predicted = np.linalg.norm(anchors - point, axis=1) + (0.0 if offset is None else offset)
+    return mirror_gap(point, anchors, predicted, offset)
+
+
 def point_check(
     point: np.ndarray,
     anchors: np.ndarray,
@@ -429,7 +454,13 @@ def point_check(
     jac = diff / np.maximum(np.linalg.norm(diff, axis=1), 1e-300)[:, None]
     return first_failure(
         information_check(jac, None, sigma if precision else None, scale, what, dim=point.size),
-        ambiguity_check(mirror_gap(point, anchors, ranges), sigma, exact_rms, what),
+        ambiguity_check(
+            mirror_gap(point, anchors, ranges),
+            sigma,
+            exact_rms,
+            what,
+            expected_gap=expected_mirror_gap(point, anchors),
+        ),
     )
 
 

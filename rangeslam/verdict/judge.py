@@ -53,6 +53,7 @@ __all__ = [
     "Judgement",
     "cost_level",
     "distance_level",
+    "indistinguishable",
     "information_distance",
     "judge",
     "search_complete",
@@ -278,17 +279,24 @@ def judge(
     return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
 
 
+def indistinguishable(gap: float, expected_gap: float | None, q_cost: float | None = None) -> bool:
+    """Whether the data cannot tell an alternative from the answer: its cost ``gap`` over the
+    answer (deviance units, noise variances for Gaussian ranges) is within ``q_cost`` (default
+    :func:`cost_level`), or its ``expected_gap`` (the gap on the data the answer predicts,
+    noise-free: the noncentrality of the likelihood ratio; None when not made) is. An expected
+    gap within the level means the test's power is under a half: an observed gap beyond it is
+    the noise's luck, not the data's evidence (a point whose mirror through nearly coplanar
+    anchors the noise-free ranges do not resolve)."""
+    q = cost_level() if q_cost is None else q_cost
+    return gap <= q or (expected_gap is not None and expected_gap <= q)
+
+
 def _told_apart(gap: float, alt: Alternative, answer_lowest: bool, q_cost: float) -> bool:
-    """Whether ``alt``'s cost ``gap`` over the lowest candidate rules it out: beyond the level on
-    the data as observed and, when the answer is the lowest (``answer_lowest``: it, or the same
-    answer) and ``alt`` carries its expected gap, on the data the answer predicts too. An expected gap within the level means the data could not be
-    expected to tell the two apart (the test's power is under a half): an observed gap beyond
-    it is the noise's luck, not the data's evidence (a point whose mirror through nearly
-    coplanar anchors the noise-free ranges do not resolve)."""
-    if gap <= q_cost:
-        return False
+    """Whether ``alt``'s cost ``gap`` over the lowest candidate rules it out
+    (:func:`indistinguishable` fails), its expected gap counted only while the answer is the
+    lowest (``answer_lowest``: it, or the same answer): the expected gap is the answer's."""
     expected = alt.expected_gap if answer_lowest else None
-    return expected is None or expected > q_cost
+    return not indistinguishable(gap, expected, q_cost)
 
 
 def _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far) -> Judgement:

@@ -8,7 +8,6 @@ another name. The README's "Verdict thresholds" table lists them with the same w
 from __future__ import annotations
 
 __all__ = [
-    "AMBIGUITY_MARGIN",
     "CHI2_LEVEL",
     "EXACT_RTOL",
     "FLAT_FACTOR",
@@ -79,11 +78,6 @@ SEARCH_BUDGET = 8
 #: Without noise_std two runs reach "the same" answer when their squared distances agree to this
 #: fraction of the squared scale.
 SAME_RTOL = 1e-5
-#: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
-#: times the cost level (:func:`rangeslam.verdict.judge.cost_level`, the CHI2_LEVEL quantile of
-#: chi-square(1)) in noise variances: the gap is measured on noisy data at the estimate, and a
-#: mirror the noise-free data could not tell apart sometimes shows a larger one there.
-AMBIGUITY_MARGIN = 2.0
 
 #: A wall found jointly by several loudspeakers (:mod:`rangeslam.acoustics.shared_walls`) needs
 #: this many echoes in all: a wall has three unknowns, so six leave three to check it (as five
