@@ -17,6 +17,7 @@ from rangeslam.verdict import (
     ambiguity_check,
     consistency_check,
     expected_mirror_gap,
+    flat_limit,
     flatness_check,
     information_check,
     level_sigmas,
@@ -216,6 +217,19 @@ def test_mirror_judged_on_the_ranges_the_point_predicts(rng):
         mirror_gap(point, anchors, noisy), sigma, 1e-9, "p",
         expected_gap=expected_mirror_gap(point, anchors),
     ).passed  # fmt: skip
+
+
+def test_flat_limit_is_the_bend_the_ranges_cannot_see():
+    """A point moved flat_limit off the plane changes its range to a point of the plane at the
+    scene's distance by the level's one-range test (level_sigmas() noise standard deviations),
+    to second order; half as far, by a quarter of it."""
+    for sigma, scale in ((1e-3, 3.0), (1e-2, 10.0)):
+        t = flat_limit(sigma, scale)
+        anchor = np.array([scale, 0.0, 0.0])
+        change = np.linalg.norm(anchor - [0.0, 0.0, t]) - scale
+        assert change == pytest.approx(level_sigmas() * sigma, rel=0.01)
+        half = np.linalg.norm(anchor - [0.0, 0.0, t / 2]) - scale
+        assert half == pytest.approx(level_sigmas() * sigma / 4, rel=0.01)
 
 
 def test_flatness(rng):

@@ -11,8 +11,8 @@ answer predicts them) is reported as ambiguous with its other position, rather t
 picked silently.
 
 Held fixed, a flat trajectory (or array) is not quite flat: least squares bends it off its plane
-by what the noise pushes it (up to FLAT_FACTOR sqrt(sigma scale), :func:`rangeslam.verdict.
-flatness_check`) to fit the landmarks on the side they are on, and the mirror image then costs
+by what the noise pushes it (up to :func:`rangeslam.verdict.flat_limit`, 2.57 sqrt(sigma
+scale)) to fit the landmarks on the side they are on, and the mirror image then costs
 tens of noise variances more against it (six coplanar microphones of the Fig. 3
 scene, 1 mm noise, three of six mirrors flagged though each fits exactly with the microphones
 refitted). So where the points hearing a landmark may be flat, a mirror that fails against

@@ -36,7 +36,6 @@ from rangeslam.status import Status
 from rangeslam.verdict.judge import cost_level, indistinguishable
 from rangeslam.verdict.thresholds import (
     CHI2_LEVEL,
-    FLAT_FACTOR,
     NOISE_QUANTILE,
     PRECISION_FRACTION,
     RANK_RTOL,
@@ -52,6 +51,7 @@ __all__ = [
     "consistency_check",
     "expected_mirror_gap",
     "first_failure",
+    "flat_limit",
     "flatness_check",
     "gauge_free_covariance",
     "information_check",
@@ -464,16 +464,26 @@ def point_check(
     )
 
 
+def flat_limit(sigma: float, scale: float) -> float:
+    """The thinnest RMS spread (metres) below which points may be flat at range noise ``sigma``
+    and scene size ``scale`` (metres): an offset t off a plane changes a range of about
+    ``scale`` by t^2 / (2 scale) (second order), which the ranges resolve beyond the level's
+    one-range test (:func:`level_sigmas` standard deviations): t = sqrt(2 level_sigmas() sigma
+    scale), 2.57 sqrt(sigma scale) at CHI2_LEVEL."""
+    return float(np.sqrt(2.0 * level_sigmas() * sigma * scale))
+
+
 def flatness_check(points: np.ndarray, sigma: float | None, scale: float, what: str) -> Check:
     """NOT_IDENTIFIABLE when ``points`` (N, d) may all lie in one hyperplane (a plane in 3-D, a
     line in 2-D): their thinnest RMS spread is within what range noise ``sigma`` can bend a flat
-    configuration by (FLAT_FACTOR sqrt(sigma scale), metres). Flat points fitted in d dimensions
-    can each fold out of the hyperplane, so the data fix them only to second order."""
+    configuration by and the ranges not tell (:func:`flat_limit`, metres). Flat points fitted in
+    d dimensions can each fold out of the hyperplane, so the data fix them only to second
+    order."""
     if not sigma:
         return PASSED
     centred = points - points.mean(axis=0)
     thinnest = float(np.linalg.svd(centred, compute_uv=False)[-1]) / np.sqrt(len(points))
-    limit = FLAT_FACTOR * float(np.sqrt(sigma * scale))
+    limit = flat_limit(sigma, scale)
     if thinnest < limit:
         kind = "plane" if points.shape[1] == 3 else "line"
         return Check(

@@ -10,7 +10,6 @@ from __future__ import annotations
 __all__ = [
     "CHI2_LEVEL",
     "EXACT_RTOL",
-    "FLAT_FACTOR",
     "JOINT_WALL_CHECKS",
     "JOINT_WALL_RANGES",
     "NOISE_QUANTILE",
@@ -62,10 +61,9 @@ RANK_RTOL = 1e-7
 #: The RMS standard deviation the information implies must be at most this fraction of the scene
 #: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
 PRECISION_FRACTION = 0.05
-#: A configuration whose thinnest RMS spread is under this multiple of sqrt(sigma * scale) may be
-#: flat: noise of sigma bends a flat configuration out of its plane by about that much (a range
-#: changes by the square of an out-of-plane offset over twice the range).
-FLAT_FACTOR = 2.0
+#: (Points may be flat while their thinnest RMS spread is within
+#: :func:`rangeslam.verdict.checks.flat_limit`: the offset off a plane whose second-order change of
+#: a range the level's one-range test cannot see; no constant of its own.)
 
 # --- one answer: restarts agree --------------------------------------------------------------
 
