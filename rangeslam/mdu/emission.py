@@ -46,13 +46,15 @@ from rangeslam.mdu.core import (
 )
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import (
-    CHI2_LEVEL,
-    EXACT_RTOL,
-    RANK_RTOL,
-    RELATIVE_RMS,
-    SAME_RTOL,
+from rangeslam.verdict.judge import (
+    Alternative,
+    CheckRecord,
+    Judgement,
+    information_distance,
+    judge,
+    same_answer,
 )
+from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RANK_RTOL, RELATIVE_RMS
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
 
@@ -242,6 +244,11 @@ class UnknownEmissionCalibration(HasStatus):
         inliers: (M, K) the arrivals used in the final fit with ``receiver_offsets=True``
             (``observed`` unless ``robust``; an event with none was dropped as a whole and its
             source and residuals are NaN); None otherwise.
+        checks: the checks of the verdict (name, statistic, level, passed, reason): the judge
+            of the starts' minima (:func:`rangeslam.verdict.judge.judge`), then the verdict;
+            empty with ``receiver_offsets=True``.
+        judged: the other starts' minima the judge compared with the answer; ``reached``:
+            starts (the answer's own counted) that reached the answer.
     """
 
     receivers: np.ndarray
@@ -259,6 +266,9 @@ class UnknownEmissionCalibration(HasStatus):
     random_starts: int
     receiver_offsets: np.ndarray | None = None
     inliers: np.ndarray | None = None
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
 
 class _OffsetUnfolding:
@@ -345,13 +355,15 @@ class EmissionCandidate:
 
 @dataclass(frozen=True)
 class EmissionSearch:
-    """The best fit, whether another start reached it, starts made and SDP failures."""
+    """The best fit, whether another start reached it, starts made, SDP failures, and every
+    start's fit (the judge's alternatives; the best among them)."""
 
     best: EmissionCandidate | None
     confirmed: bool
     attempts: int
     random_starts: int
     failures: tuple[str, ...]
+    candidates: tuple[EmissionCandidate, ...] = ()
 
 
 def parse_emission(
@@ -440,10 +452,12 @@ def emission_starts(problem: EmissionProblem, scaled: ScaledUnfolding, rng, fail
 def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> EmissionSearch:
     """Step 3: Levenberg-Marquardt over points and offsets from each start, keeping the lowest,
     until an answer is exact, or passes the residual test and is confirmed by a second start
-    (or is the best of all convex-iteration runs)."""
+    (the judge calls them the same answer, :func:`same_emission`), or is the best of all
+    convex-iteration runs. Every start's fit is kept for the judge (:func:`judge_emission`)."""
     model, failures = scaled.model, []
     exact_ssr = (EXACT_RTOL**2) * int(problem.observed.sum())
-    best, confirmed, attempts, n_random = None, False, 0, 0
+    best, confirmed, attempts, n_random, same_as_best = None, False, 0, 0, None
+    candidates: list[EmissionCandidate] = []
     for pts, from_sdp in emission_starts(problem, scaled, rng, failures):
         attempts += from_sdp
         n_random += not from_sdp
@@ -451,13 +465,17 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
         ssr = float(fit.fun @ fit.fun)
         if not np.all(np.isfinite(fit.x)):
             continue
+        cand = EmissionCandidate(ssr, fit)
+        candidates.append(cand)
         # The vote of calibrate: the lowest fit counts as confirmed when another start reached
-        # the same configuration (squared distances agreeing to SAME_RTOL, scaled units).
-        same = best is not None and _same_points(model, fit, best.fit)
+        # the same answer (the judge's test, in the information at the lowest).
+        if best is not None:
+            same_as_best = same_as_best or same_emission(problem, scaled, best)
+        same = best is not None and same_as_best(cand)
         confirmed = confirmed or same
         if best is None or ssr < best.ssr:
             confirmed = confirmed and same
-            best = EmissionCandidate(ssr, fit)
+            best, same_as_best = cand, None
         # A wrong local minimum can pass the chi-square test at 1 cm noise (measured: 1 of 40
         # 3-D draws), so a noisy answer must also be reached from a second start, or be the
         # best of all convex-iteration runs.
@@ -467,25 +485,82 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
             break
         if problem.noise_std is None and confirmed and done_sdp:
             break
-    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures))
+    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures), tuple(candidates))
 
 
-def _same_points(model: _OffsetUnfolding, fit, other) -> bool:
-    """Whether two fits are one configuration (squared distances within SAME_RTOL, scaled)."""
-    diff = _sq_dists(model.split(fit.x)[0]) - _sq_dists(model.split(other.x)[0])
-    return bool(np.max(np.abs(diff)) <= SAME_RTOL)
+def emission_sigma(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: float) -> float:
+    """The sigma of the judge's objective in scaled units (the median corrected range,
+    ``scaled.scale`` metres): the given ``noise_std`` over the scale, else the fit's
+    sqrt(``ssr`` / redundancy) (scaled sum of squares); at least the exact-data RMS,
+    EXACT_RTOL."""
+    redundancy = int(problem.observed.sum()) - problem.need
+    if problem.noise_std:
+        return max(problem.noise_std / scaled.scale, EXACT_RTOL)
+    return max(math.sqrt(ssr / redundancy) if redundancy > 0 else 0.0, EXACT_RTOL)
 
 
-def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
+def emission_alternative(model: _OffsetUnfolding, cand: EmissionCandidate, sigma: float,
+                         origin: str) -> Alternative:  # fmt: skip
+    """A fit as the judge's :class:`rangeslam.verdict.judge.Alternative`: points (M + K, d) and
+    offsets (G,) in scaled units, deviance ssr / sigma^2 (``sigma`` scaled)."""
+    pts, b = model.split(cand.fit.x)
+    return Alternative(pts, cand.ssr / sigma**2, origin, extra=b, payload=cand)
+
+
+def emission_metric(model: _OffsetUnfolding, sigma: float):
+    """``metric(lowest)`` of :func:`rangeslam.verdict.judge.judge`: delta^2 in the information
+    at ``lowest`` (the model's Jacobian over ``sigma``), the receivers what is calibrated (the
+    sources and offsets profiled out)."""
+
+    def metric(lowest: Alternative):
+        theta = np.r_[np.ravel(lowest.points), lowest.extra]
+        return information_distance(model.jacobian(theta) / sigma, interest=np.arange(model.m))
+
+    return metric
+
+
+def same_emission(problem: EmissionProblem, scaled: ScaledUnfolding, best: EmissionCandidate):
+    """The judge's same-answer test at ``best`` (:func:`rangeslam.verdict.judge.same_answer`,
+    at its sigma, :func:`emission_sigma`): a predicate of another :class:`EmissionCandidate`."""
+    model = scaled.model
+    sigma = emission_sigma(problem, scaled, best.ssr)
+    answer = emission_alternative(model, best, sigma, "the answer")
+    dof = unknowns_up_to_rigid_motion(model.m, problem.dim)
+    test = same_answer(emission_metric(model, sigma)(answer), answer, dof)
+    return lambda cand: test(emission_alternative(model, cand, sigma, "a start"))
+
+
+def judge_emission(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
+    """The search's answer against every other start's minimum by the one judge
+    (:func:`rangeslam.verdict.judge.judge`): the sum of squared range residuals over sigma^2
+    (:func:`emission_sigma`) as the deviance, delta^2 of the receivers (sources and offsets
+    profiled out). A :class:`rangeslam.verdict.judge.Judgement`; every start counts."""
+    model = scaled.model
+    sigma = emission_sigma(problem, scaled, found.best.ssr)
+    answer = emission_alternative(model, found.best, sigma, "the answer")
+    others = [
+        emission_alternative(model, c, sigma, f"start {i}")
+        for i, c in enumerate(found.candidates)
+        if c is not found.best
+    ]
+    dof = unknowns_up_to_rigid_motion(model.m, problem.dim)
+    return judge(answer, others, metric=emission_metric(model, sigma), dof=dof)
+
+
+def emission_verdict(
+    problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch, judged: Judgement
+):
     """Step 4: (status, message). INCONSISTENT (NO_AGREEMENT without noise_std) when no start
-    passed the residual test or the vote; NOT_IDENTIFIABLE without redundancy, with a
-    rank-deficient Jacobian, or with a point its mirror image fits as well."""
+    passed the residual test or, without noise_std, no second start reached the answer (the
+    judge's ``reached``); NOT_IDENTIFIABLE without redundancy, with a rank-deficient Jacobian,
+    when the judge found a rival minimum among the starts (``judged``: :func:`judge_emission`),
+    or with a point its mirror image fits as well."""
     ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
     n_obs, need, noise_std = int(problem.observed.sum()), problem.need, problem.noise_std
     redundancy = n_obs - need
     rms = math.sqrt(ssr / n_obs) * scale
     status, message = Status.CONVERGED, ""
-    vote = noise_std is None and found.confirmed and rms <= RELATIVE_RMS * scale
+    vote = noise_std is None and judged.reached >= 2 and rms <= RELATIVE_RMS * scale
     if not (emission_passes(problem, scale, ssr) or vote):
         status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
         message += f"no start passed the residual test: best RMS residual {rms:.3g} m" + (
@@ -504,6 +579,9 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
             f"the Jacobian has rank {rank} < {need}: the offsets (or points) are not determined "
             "by these ranges (e.g. far-field sources); "
         )
+    if judged.rivals:
+        status = Status.NOT_IDENTIFIABLE
+        message += judged.reason + "; "
     mirrored = mirrored_points(problem, scaled, ssr, fit)
     if mirrored:
         status = Status.NOT_IDENTIFIABLE
@@ -560,8 +638,9 @@ def mirrored_points(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: floa
     return _mirror_ambiguities(pts_s, problem.ranges.shape[0], dist, problem.observed, tol)
 
 
-def emission_result(problem, scaled, found: EmissionSearch, status, message):
-    """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame."""
+def emission_result(problem, scaled, found: EmissionSearch, status, message, judged: Judgement):
+    """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame, its checks the
+    judge's and the verdict's."""
     ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
     m, n_groups = problem.ranges.shape[0], problem.n_groups
     n_obs = int(problem.observed.sum())
@@ -587,6 +666,12 @@ def emission_result(problem, scaled, found: EmissionSearch, status, message):
         message=message,
         attempts=int(found.attempts),
         random_starts=int(found.random_starts),
+        checks=(
+            judged.check,
+            CheckRecord("verdict", math.nan, math.nan, status is Status.CONVERGED, message),
+        ),
+        judged=len(judged.comparisons),
+        reached=judged.reached,
     )
 
 
@@ -667,8 +752,9 @@ def calibrate_unknown_emission(
     found = search_emission(problem, scaled, rng)
     if found.best is None:
         raise InvalidInputError("every fit diverged: no unfolding with offsets found")
-    status, message = emission_verdict(problem, scaled, found)
-    return emission_result(problem, scaled, found, status, message)
+    judged = judge_emission(problem, scaled, found)
+    status, message = emission_verdict(problem, scaled, found, judged)
+    return emission_result(problem, scaled, found, status, message, judged)
 
 
 def clock_mode(receiver_offsets, robust, offsets0) -> bool:
@@ -723,8 +809,3 @@ def _mirror_ambiguities(
         if np.linalg.norm(fit.x - p) > 1e-6 and fit.fun @ fit.fun - here @ here <= tol:
             out.append(name)
     return out
-
-
-def _sq_dists(pts: np.ndarray) -> np.ndarray:
-    diff = pts[:, None, :] - pts[None, :, :]
-    return np.einsum("ijd,ijd->ij", diff, diff)
