@@ -19,7 +19,6 @@ __all__ = [
     "RANK_RTOL",
     "RELATIVE_RMS",
     "ROBUST_RATIO",
-    "SAME_RTOL",
     "SEARCH_BUDGET",
     "TAIL_SCALE_FLOOR",
     "WALL_CONTRADICTED_MISSING",
@@ -76,9 +75,6 @@ FLAT_FACTOR = 2.0
 #: one minimum; this budget leaves it one start more. The result says when the budget, not the
 #: rule, ended them.
 SEARCH_BUDGET = 8
-#: Without noise_std two runs reach "the same" answer when their squared distances agree to this
-#: fraction of the squared scale.
-SAME_RTOL = 1e-5
 #: :func:`rangeslam.verdict.ambiguity_check` flags a mirror whose cost gap is under this many
 #: times the cost level (:func:`rangeslam.verdict.judge.cost_level`, the CHI2_LEVEL quantile of
 #: chi-square(1)) in noise variances: the gap is measured on noisy data at the estimate, and a
