@@ -16,12 +16,12 @@ from rangeslam.mdu.core import ConvexIterationOptions
 from rangeslam.mdu.emission import (
     EmissionCandidate,
     emission_verdict,
-    judge_emission,
     parse_emission,
     scaled_unfolding,
     search_emission,
     starting_offsets,
 )
+from rangeslam.mdu.emission_judge import judge_emission
 from rangeslam.status import Status
 from rangeslam.verdict.judge import Alternative, distance_level, information_distance, same_answer
 
