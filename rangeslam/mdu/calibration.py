@@ -26,7 +26,7 @@ from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
-from rangeslam.geometry.edm import edm, range_matrix
+from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.calibration_judge import judge_calibration, objective_scale, same_calibration
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
@@ -146,10 +146,6 @@ class Candidate:
     ssr: float
     key: float
     message: str
-
-    def edm(self) -> np.ndarray:
-        """(M + K, M + K) squared distances of the fitted points."""
-        return edm(np.vstack([self.fit.receivers, self.fit.sources]))
 
 
 @dataclass(frozen=True)
