@@ -637,10 +637,7 @@ def calibrate_unknown_emission(
     (:func:`offsets_from_rank`; or ``offsets0``); (2) the unfolding of the ranges minus those
     offsets by the SDP and convex iteration of :func:`rangeslam.calibrate`; (3) Gauss-Newton
     (Levenberg-Marquardt) on the ranges over points and offsets together, analytic Jacobian; (4)
-    the residual test and vote of :func:`rangeslam.calibrate` (two starts the same answer by the
-    judge's test), every start's minimum judged against the answer
-    (:func:`rangeslam.mdu.emission_judge.judge_emission`: a rival is NOT_IDENTIFIABLE), and a
-    rank test of the Jacobian.
+    the residual test, vote and judge of :func:`rangeslam.calibrate`; a rank test of the Jacobian.
     The SDP's own offset model (:class:`rangeslam.solvers.sdp.EDMCompletionSDP` with
     ``range_model="offset"``) is not used: with every pair an offset range, its relaxation
     D = (r - c)^2 + (e - c^2) lets the offsets absorb most of the ranges (errors of metres).
