@@ -148,7 +148,7 @@ class ProfiledUnfolding:
 @dataclass(frozen=True)
 class ClockFit:
     """A profiled least-squares fit: points (M + K, d) scaled, its sum of squares, whether another
-    run reached it, and the runs made."""
+    run reached it or the stopping rule ended the search (``confirmed``), and the runs made."""
 
     theta: np.ndarray
     ssr: float
@@ -251,25 +251,26 @@ def clock_candidates(model: ProfiledUnfolding, runs: int, rng: np.random.Generat
     the minima, :meth:`_Minima.contending`; two the same by the judge's test,
     :func:`same_clock_answer` with ``sigma`` the noise in scaled units if known), or after
     ``runs`` runs; then the lowest minimum is yielded, refined, "confirmed" when a second run
-    reached it. (A yield as soon as two runs reached the lowest so far stopped one of 30 K = 11
+    reached it or the rule (not the budget) ended the runs (as calibrate's judged search). (A yield as soon as two runs reached the lowest so far stopped one of 30 K = 11
     subsets of the xtdoa data on a minimum 33 cm off, against 10 cm from the whole search;
     counting every distinct minimum, the real data's many worse ones, 24 of 46 converged runs
     at K = 11, kept the rule from ending before the 60 runs: 3.4 times the time at K = 8.)"""
     n_pts = model.m + int(model.pairs[:, 1].max()) + 1
     exact_ssr = EXACT_RTOL**2 * len(model.t)
-    seen, n = _Minima(), 0
+    seen, n, complete = _Minima(), 0, False
     for _ in range(runs):
         n += 1
         theta, ssr, converged = _fit(model, rng.uniform(-1.0, 1.0, n_pts * model.dim), SEARCH_NFEV)
         if not np.all(np.isfinite(theta)):
             continue
         seen.add(model, theta, ssr, converged, sigma)
-        if seen.best[1] <= exact_ssr or search_complete(seen.starts, seen.contending(model, sigma)):
+        complete = search_complete(seen.starts, seen.contending(model, sigma))
+        if seen.best[1] <= exact_ssr or complete:
             break
     if seen.best is None:
         yield ClockFit(np.full(n_pts * model.dim, np.nan), math.inf, False, n)
     else:
-        yield _refined(model, seen.best, seen.hits >= 2, n)
+        yield _refined(model, seen.best, seen.hits >= 2 or complete, n)
 
 
 def _refined(model: ProfiledUnfolding, best, confirmed: bool, runs: int) -> ClockFit:
