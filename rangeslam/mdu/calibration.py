@@ -26,8 +26,8 @@ from rangeslam._blas import single_blas_thread
 from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
-from rangeslam.geometry.edm import edm, range_matrix
-from rangeslam.mdu.calibration_judge import judge_calibration, objective_scale
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.mdu.calibration_judge import judge_calibration, objective_scale, same_calibration
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -58,11 +58,7 @@ from rangeslam.verdict import (
 )
 from rangeslam.verdict.breakdown import breakdown_check
 from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
-from rangeslam.verdict.thresholds import (
-    EXACT_RTOL,
-    RELATIVE_RMS,
-    SAME_RTOL,
-)
+from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -150,10 +146,6 @@ class Candidate:
     ssr: float
     key: float
     message: str
-
-    def edm(self) -> np.ndarray:
-        """(M + K, M + K) squared distances of the fitted points."""
-        return edm(np.vstack([self.fit.receivers, self.fit.sources]))
 
 
 @dataclass(frozen=True)
@@ -285,7 +277,7 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     # the Cauchy scale must be positive: for exact data (0), as when unknown, the first fit's MAD
     cauchy_scale = problem.noise_std if problem.noise_std else None
     best: Candidate | None = None
-    confirmed = False
+    confirmed, same_as_best = False, None  # the judge's same-answer test at the best
     candidates: list[Candidate] = []
     iterations = attempts = starts = 0
     for start in starting_points(problem, rng, failures):
@@ -304,11 +296,17 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
             continue
         candidates.append(cand)
         # Votes count refined fits only: raw SDP points from different weights never coincide.
-        same = problem.refine and best is not None and _same(cand, best, problem, spread(cand))
+        # Two starts reach one answer when the judge calls them the same (delta^2 in the
+        # information at the best within its confidence region).
+        if problem.refine and best is not None:
+            same_as_best = same_as_best or _same_test(best, problem)
+            same = same_as_best(_points(cand))
+        else:
+            same = False
         confirmed = confirmed or same
         if best is None or cand.key < best.key:
             confirmed = confirmed and same
-            best = cand
+            best, same_as_best = cand, None
         # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
         # so robust runs are all made and ranked by their cost over all ranges.
         if not problem.robust and _accepted(best, problem):
@@ -335,15 +333,16 @@ def reranked(cands: list[Candidate], problem: CalibrationProblem):
     on dEchorate-style picks of about 1 cm noise), where a wrong configuration that drops few
     ranges outranks the right one. ``floor`` is the least inlier spread (:func:`spread`) of a
     candidate within the breakdown rule (:func:`calibration_breakdown`), metres: every candidate
-    is ranked by its Cauchy cost at that scale, and "confirmed" means another candidate is the
-    same configuration within what 3 ``floor`` of range error makes of it."""
+    is ranked by its Cauchy cost at that scale, and "confirmed" means the judge calls another
+    candidate the same answer at that scale (:func:`same_calibration`)."""
     sound = [c for c in cands if calibration_breakdown(c, problem).passed] or cands
     # the least spread is biased low (it is a minimum); a given noise_std is the floor's floor
     floor = max(min(spread(c) for c in sound), problem.exact_rms, problem.noise_std or 0.0)
     r, observed = problem.ranges, problem.observed
     keyed = [dataclasses.replace(c, key=_cauchy_cost(c.fit, r, observed, floor)) for c in cands]
     best = min(keyed, key=lambda c: c.key)
-    confirmed = any(c is not best and _same(c, best, problem, floor) for c in keyed)
+    same_as_best = _same_test(best, problem, floor)
+    confirmed = any(c is not best and same_as_best(_points(c)) for c in keyed)
     return best, confirmed, floor
 
 
@@ -716,13 +715,19 @@ def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
     return float(np.sum(np.log1p((res / scale) ** 2)))
 
 
-def _same(a: Candidate, b: Candidate, problem: CalibrationProblem, noise: float) -> bool:
-    """Whether two candidates are one configuration: squared distances within SAME_RTOL of the
-    squared scale, and, for robust fits (whose inlier sets differ), within what 3 ``noise``
-    (metres) of distance error makes of them."""
-    scale = problem.scale
-    tol = SAME_RTOL * scale**2 + (6.0 * scale * noise if problem.robust else 0.0)
-    return bool(np.max(np.abs(a.edm() - b.edm())) <= tol)
+def _points(cand: Candidate) -> np.ndarray:
+    """(M + K, d) a candidate's receivers above its sources, metres."""
+    return np.vstack([cand.fit.receivers, cand.fit.sources])
+
+
+def _same_test(best: Candidate, problem: CalibrationProblem, floor: float | None = None):
+    """The judge's same-answer test at ``best`` (:func:`same_calibration`), at the objective's
+    sigma of that candidate (:func:`objective_scale`; a robust search's scale ``floor``, else
+    the candidate's own inlier spread): a predicate of another candidate's points."""
+    if problem.robust and floor is None:
+        floor = spread(best)
+    sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), floor)
+    return same_calibration(problem, _points(best), sigma)
 
 
 def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:

@@ -36,6 +36,7 @@ from rangeslam.verdict.judge import (
     JudgedSearch,
     information_distance,
     judge,
+    same_answer,
     search_complete,
 )
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
@@ -43,7 +44,7 @@ from rangeslam.verdict.thresholds import SEARCH_BUDGET
 if TYPE_CHECKING:
     from rangeslam.mdu.calibration import CalibrationProblem
 
-__all__ = ["judge_calibration", "objective_scale"]
+__all__ = ["judge_calibration", "objective_scale", "same_calibration"]
 
 
 def objective_scale(problem: CalibrationProblem, ssr: float, n_fit: int, floor=None) -> float:
@@ -80,6 +81,23 @@ def _information_jacobian(points: np.ndarray, problem: CalibrationProblem, sigma
         return jac
     u = unfolding_residuals(points, m, problem.ranges[observed], pairs) / sigma
     return jac * np.sqrt(2.0 / (1.0 + u**2))[:, None]
+
+
+def same_calibration(problem: CalibrationProblem, answer: np.ndarray, sigma: float):
+    """The judge's "same answer" test of a search's start against ``answer`` (M + K, d), metres,
+    at the objective's ``sigma`` (metres, :func:`objective_scale`): a predicate of another
+    start's points (M + K, d), true when its receivers lie within the answer's confidence
+    region (:func:`rangeslam.verdict.judge.same_answer`: delta^2 in the information at the
+    answer, the sources profiled out as in :func:`judge_calibration`)."""
+    m = problem.ranges.shape[0]
+    jac = _information_jacobian(answer, problem, sigma)
+    distance2 = information_distance(jac, interest=np.arange(m))
+    test = same_answer(
+        distance2,
+        Alternative(answer, 0.0, "the answer"),
+        unknowns_up_to_rigid_motion(m, problem.dim),
+    )
+    return lambda points: test(Alternative(points, 0.0, "a start"))
 
 
 def _fitted(proposal: Proposal, problem: CalibrationProblem, sigma: float) -> np.ndarray | None:

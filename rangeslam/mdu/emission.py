@@ -44,15 +44,11 @@ from rangeslam.mdu.core import (
     unfolding_check,
     unknowns_up_to_rigid_motion,
 )
+from rangeslam.mdu.emission_judge import judge_emission, same_emission
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.thresholds import (
-    CHI2_LEVEL,
-    EXACT_RTOL,
-    RANK_RTOL,
-    RELATIVE_RMS,
-    SAME_RTOL,
-)
+from rangeslam.verdict.judge import CheckRecord, Judgement
+from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RANK_RTOL, RELATIVE_RMS
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
 
@@ -242,6 +238,11 @@ class UnknownEmissionCalibration(HasStatus):
         inliers: (M, K) the arrivals used in the final fit with ``receiver_offsets=True``
             (``observed`` unless ``robust``; an event with none was dropped as a whole and its
             source and residuals are NaN); None otherwise.
+        checks: the checks of the verdict (name, statistic, level, passed, reason): the judge
+            of the starts' minima (:func:`rangeslam.verdict.judge.judge`), then the verdict;
+            empty with ``receiver_offsets=True``.
+        judged: the other starts' minima the judge compared with the answer; ``reached``:
+            starts (the answer's own counted) that reached the answer.
     """
 
     receivers: np.ndarray
@@ -259,6 +260,9 @@ class UnknownEmissionCalibration(HasStatus):
     random_starts: int
     receiver_offsets: np.ndarray | None = None
     inliers: np.ndarray | None = None
+    checks: tuple[CheckRecord, ...] = ()
+    judged: int = 0
+    reached: int = 0
 
 
 class _OffsetUnfolding:
@@ -345,13 +349,15 @@ class EmissionCandidate:
 
 @dataclass(frozen=True)
 class EmissionSearch:
-    """The best fit, whether another start reached it, starts made and SDP failures."""
+    """The best fit, whether another start reached it, starts made, SDP failures, and every
+    start's fit (the judge's alternatives; the best among them)."""
 
     best: EmissionCandidate | None
     confirmed: bool
     attempts: int
     random_starts: int
     failures: tuple[str, ...]
+    candidates: tuple[EmissionCandidate, ...] = ()
 
 
 def parse_emission(
@@ -440,10 +446,12 @@ def emission_starts(problem: EmissionProblem, scaled: ScaledUnfolding, rng, fail
 def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> EmissionSearch:
     """Step 3: Levenberg-Marquardt over points and offsets from each start, keeping the lowest,
     until an answer is exact, or passes the residual test and is confirmed by a second start
-    (or is the best of all convex-iteration runs)."""
+    (the judge calls them the same answer, :func:`same_emission`), or is the best of all
+    convex-iteration runs. Every start's fit is kept for the judge (:func:`judge_emission`)."""
     model, failures = scaled.model, []
     exact_ssr = (EXACT_RTOL**2) * int(problem.observed.sum())
-    best, confirmed, attempts, n_random = None, False, 0, 0
+    best, confirmed, attempts, n_random, same_as_best = None, False, 0, 0, None
+    candidates: list[EmissionCandidate] = []
     for pts, from_sdp in emission_starts(problem, scaled, rng, failures):
         attempts += from_sdp
         n_random += not from_sdp
@@ -451,13 +459,17 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
         ssr = float(fit.fun @ fit.fun)
         if not np.all(np.isfinite(fit.x)):
             continue
+        cand = EmissionCandidate(ssr, fit)
+        candidates.append(cand)
         # The vote of calibrate: the lowest fit counts as confirmed when another start reached
-        # the same configuration (squared distances agreeing to SAME_RTOL, scaled units).
-        same = best is not None and _same_points(model, fit, best.fit)
+        # the same answer (the judge's test, in the information at the lowest).
+        if best is not None:
+            same_as_best = same_as_best or same_emission(problem, scaled, best)
+        same = best is not None and same_as_best(cand)
         confirmed = confirmed or same
         if best is None or ssr < best.ssr:
             confirmed = confirmed and same
-            best = EmissionCandidate(ssr, fit)
+            best, same_as_best = cand, None
         # A wrong local minimum can pass the chi-square test at 1 cm noise (measured: 1 of 40
         # 3-D draws), so a noisy answer must also be reached from a second start, or be the
         # best of all convex-iteration runs.
@@ -467,25 +479,23 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
             break
         if problem.noise_std is None and confirmed and done_sdp:
             break
-    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures))
+    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures), tuple(candidates))
 
 
-def _same_points(model: _OffsetUnfolding, fit, other) -> bool:
-    """Whether two fits are one configuration (squared distances within SAME_RTOL, scaled)."""
-    diff = _sq_dists(model.split(fit.x)[0]) - _sq_dists(model.split(other.x)[0])
-    return bool(np.max(np.abs(diff)) <= SAME_RTOL)
-
-
-def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
+def emission_verdict(
+    problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch, judged: Judgement
+):
     """Step 4: (status, message). INCONSISTENT (NO_AGREEMENT without noise_std) when no start
-    passed the residual test or the vote; NOT_IDENTIFIABLE without redundancy, with a
-    rank-deficient Jacobian, or with a point its mirror image fits as well."""
+    passed the residual test or, without noise_std, no second start reached the answer (the
+    judge's ``reached``); NOT_IDENTIFIABLE without redundancy, with a rank-deficient Jacobian,
+    when the judge found a rival minimum among the starts (``judged``: :func:`judge_emission`),
+    or with a point its mirror image fits as well."""
     ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
     n_obs, need, noise_std = int(problem.observed.sum()), problem.need, problem.noise_std
     redundancy = n_obs - need
     rms = math.sqrt(ssr / n_obs) * scale
     status, message = Status.CONVERGED, ""
-    vote = noise_std is None and found.confirmed and rms <= RELATIVE_RMS * scale
+    vote = noise_std is None and judged.reached >= 2 and rms <= RELATIVE_RMS * scale
     if not (emission_passes(problem, scale, ssr) or vote):
         status = Status.INCONSISTENT if noise_std is not None else Status.NO_AGREEMENT
         message += f"no start passed the residual test: best RMS residual {rms:.3g} m" + (
@@ -504,6 +514,9 @@ def emission_verdict(problem: EmissionProblem, scaled: ScaledUnfolding, found: E
             f"the Jacobian has rank {rank} < {need}: the offsets (or points) are not determined "
             "by these ranges (e.g. far-field sources); "
         )
+    if judged.rivals:
+        status = Status.NOT_IDENTIFIABLE
+        message += judged.reason + "; "
     mirrored = mirrored_points(problem, scaled, ssr, fit)
     if mirrored:
         status = Status.NOT_IDENTIFIABLE
@@ -560,8 +573,9 @@ def mirrored_points(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: floa
     return _mirror_ambiguities(pts_s, problem.ranges.shape[0], dist, problem.observed, tol)
 
 
-def emission_result(problem, scaled, found: EmissionSearch, status, message):
-    """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame."""
+def emission_result(problem, scaled, found: EmissionSearch, status, message, judged: Judgement):
+    """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame, its checks the
+    judge's and the verdict's."""
     ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
     m, n_groups = problem.ranges.shape[0], problem.n_groups
     n_obs = int(problem.observed.sum())
@@ -587,6 +601,12 @@ def emission_result(problem, scaled, found: EmissionSearch, status, message):
         message=message,
         attempts=int(found.attempts),
         random_starts=int(found.random_starts),
+        checks=(
+            judged.check,
+            CheckRecord("verdict", math.nan, math.nan, status is Status.CONVERGED, message),
+        ),
+        judged=len(judged.comparisons),
+        reached=judged.reached,
     )
 
 
@@ -617,7 +637,7 @@ def calibrate_unknown_emission(
     (:func:`offsets_from_rank`; or ``offsets0``); (2) the unfolding of the ranges minus those
     offsets by the SDP and convex iteration of :func:`rangeslam.calibrate`; (3) Gauss-Newton
     (Levenberg-Marquardt) on the ranges over points and offsets together, analytic Jacobian; (4)
-    the residual test and vote of :func:`rangeslam.calibrate`, and a rank test of the Jacobian.
+    the residual test, vote and judge of :func:`rangeslam.calibrate`; a rank test of the Jacobian.
     The SDP's own offset model (:class:`rangeslam.solvers.sdp.EDMCompletionSDP` with
     ``range_model="offset"``) is not used: with every pair an offset range, its relaxation
     D = (r - c)^2 + (e - c^2) lets the offsets absorb most of the ranges (errors of metres).
@@ -667,8 +687,9 @@ def calibrate_unknown_emission(
     found = search_emission(problem, scaled, rng)
     if found.best is None:
         raise InvalidInputError("every fit diverged: no unfolding with offsets found")
-    status, message = emission_verdict(problem, scaled, found)
-    return emission_result(problem, scaled, found, status, message)
+    judged = judge_emission(problem, scaled, found)
+    status, message = emission_verdict(problem, scaled, found, judged)
+    return emission_result(problem, scaled, found, status, message, judged)
 
 
 def clock_mode(receiver_offsets, robust, offsets0) -> bool:
@@ -723,8 +744,3 @@ def _mirror_ambiguities(
         if np.linalg.norm(fit.x - p) > 1e-6 and fit.fun @ fit.fun - here @ here <= tol:
             out.append(name)
     return out
-
-
-def _sq_dists(pts: np.ndarray) -> np.ndarray:
-    diff = pts[:, None, :] - pts[None, :, :]
-    return np.einsum("ijd,ijd->ij", diff, diff)

@@ -56,6 +56,7 @@ __all__ = [
     "indistinguishable",
     "information_distance",
     "judge",
+    "same_answer",
     "search_complete",
     "unseen_minima",
 ]
@@ -229,6 +230,21 @@ def information_distance(
         return float(np.sum((moved_rows - fitted) ** 2))
 
     return distance2
+
+
+def same_answer(
+    distance2: Callable[[Alternative, Alternative, Sequence[int]], float],
+    answer: Alternative,
+    dof: int,
+    level: float = CHI2_LEVEL,
+) -> Callable[[Alternative], bool]:
+    """The judge's first row alone, for a search that counts the starts reaching its answer:
+    a predicate, true for a candidate whose information distance delta^2 from ``answer``
+    (``distance2`` of :func:`information_distance` in the information at ``answer``) is within
+    :func:`distance_level` of ``dof`` unknowns, i.e. inside the answer's confidence region: the
+    same answer, whatever its cost."""
+    q_far = distance_level(dof, level)
+    return lambda alt: distance2(answer, alt, ()) <= q_far
 
 
 def judge(

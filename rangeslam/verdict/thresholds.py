@@ -17,7 +17,6 @@ __all__ = [
     "RANK_RTOL",
     "RELATIVE_RMS",
     "ROBUST_RATIO",
-    "SAME_RTOL",
     "SEARCH_BUDGET",
     "TAIL_SCALE_FLOOR",
     "WALL_CONTRADICTED_MISSING",
@@ -73,9 +72,6 @@ PRECISION_FRACTION = 0.05
 #: one minimum; this budget leaves it one start more. The result says when the budget, not the
 #: rule, ended them.
 SEARCH_BUDGET = 8
-#: Without noise_std two runs reach "the same" answer when their squared distances agree to this
-#: fraction of the squared scale.
-SAME_RTOL = 1e-5
 
 #: A wall found jointly by several loudspeakers (:mod:`rangeslam.acoustics.shared_walls`) needs
 #: this many echoes in all: a wall has three unknowns, so six leave three to check it (as five
