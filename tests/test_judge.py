@@ -21,6 +21,7 @@ from rangeslam.verdict.judge import (
     distance_level,
     information_distance,
     judge,
+    random_search,
     search_complete,
     unseen_minima,
 )
@@ -280,3 +281,30 @@ def test_nuisance_points_are_profiled_out(rng):
     assert joint(a, Alternative(source_moved, 0.0, "s"), ()) > 1.0
     moved = Alternative(receiver_moved, 0.0, "r")
     assert 0.0 < marginal(a, moved, ()) <= joint(a, moved, ()) * (1 + 1e-9)
+
+
+def test_random_search_stops_by_the_rule_the_budget_or_at_least():
+    """The random starts of every estimator's search: drawn until the stopping rule ends them
+    (every start at one minimum: 7 starts with the answer, so 6 draws that fitted), a failed fit
+    counted as a draw but not as a start, at most ``budget`` draws, at least ``at_least``."""
+    answer = Alternative(np.zeros((1, 2)), 0.0, "the answer")
+
+    def draws(fail_every: int = 0):
+        j = 0
+        while True:
+            j += 1
+            failed = fail_every and j % fail_every == 0
+            yield None if failed else Alternative(np.zeros((1, 2)), 0.0, f"random start {j}")
+
+    def run(found):
+        assert all(alt is not None for alt in found)
+        return type("Seen", (), {"minima": 1})()
+
+    found, made = random_search(run, [], draws(), budget=20)
+    assert (len(found), made) == (6, 6) and search_complete(len(found) + 1, 1)
+    found, made = random_search(run, [], draws(fail_every=2), budget=20)
+    assert (len(found), made) == (6, 11)  # 6 fitted, 5 failed between them
+    found, made = random_search(run, [answer] * 3, draws(), budget=20)
+    assert (len(found), made) == (6, 3)  # the search's own starts count
+    assert random_search(run, [], draws(), budget=4)[1] == 4
+    assert random_search(run, [], draws(), budget=20, at_least=9)[1] == 9

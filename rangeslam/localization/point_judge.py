@@ -43,7 +43,7 @@ from rangeslam.verdict.judge import (
     JudgedSearch,
     distance_level,
     judge,
-    search_complete,
+    random_search,
 )
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
@@ -239,16 +239,9 @@ def judge_point(objective: PointObjective, x: np.ndarray, rng) -> JudgedSearch:
     def run(found):
         return judge(main, found, metric=metric, dof=d, counted=lambda alt: bool(alt.payload))
 
-    made = 0
-    while made < n_random and not search_complete(made + 1, run(random_made(random, made)).minima):
-        failures += [] if random[made] is not None else [f"random start {made} did not fit"]
-        made += 1
-    return JudgedSearch.of(run(alternatives + random_made(random, made)), made + 1, failures)
-
-
-def random_made(random: list, made: int) -> list[Alternative]:
-    """The first ``made`` random starts' alternatives that fitted."""
-    return [alt for alt in random[:made] if alt is not None]
+    counted, made = random_search(run, [], iter(random), budget=n_random)
+    failures += [f"random start {j} did not fit" for j in range(made) if random[j] is None]
+    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1, failures)
 
 
 def region_precision(objective: PointObjective, x: np.ndarray, limit: float) -> float:

@@ -36,8 +36,8 @@ from rangeslam.verdict.judge import (
     JudgedSearch,
     information_distance,
     judge,
+    random_search,
     same_answer,
-    search_complete,
 )
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
@@ -176,14 +176,11 @@ def judge_calibration(
         Alternative(p, _deviance(p, problem, sigma), f"search start {i}", payload=True)
         for i, p in enumerate(starts)
     ]
-    n_random = 0
-    randoms = random_proposals(problem.n_points, problem.dim, problem.scale, rng)
+    randoms = (
+        _alternative(Proposal(p.points, p.origin, without, counted=True), problem, sigma)
+        for p in random_proposals(problem.n_points, problem.dim, problem.scale, rng)
+    )
     # the answer is a start too: len(counted) + 1 starts in all
     budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
-    while n_random < budget and not search_complete(len(counted) + 1, run(counted).minima):
-        proposal = next(randoms)
-        n_random += 1
-        proposal = Proposal(proposal.points, proposal.origin, without, counted=True)
-        alt = _alternative(proposal, problem, sigma)
-        counted += [] if alt is None else [alt]
+    counted, _ = random_search(run, counted, randoms, budget=budget)
     return JudgedSearch.of(run(alternatives + counted), len(counted) + 1)

@@ -63,7 +63,7 @@ from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
     judge,
-    search_complete,
+    random_search,
 )
 from rangeslam.verdict.thresholds import RANK_RTOL, SEARCH_BUDGET
 
@@ -280,18 +280,13 @@ def random_minima(
     ``at_least`` of them, or ``budget`` were made (a failed run counts as made, its failure
     appended to ``failures``)."""
     dof = unknowns_up_to_rigid_motion(problem.ranges.shape[0], problem.dim)
-    metric, found = judge_metric(problem, sigma), list(counted)
+    metric = judge_metric(problem, sigma)
 
-    def complete() -> bool:
-        judged = judge(answer, found, metric=metric, dof=dof, counted=counted_as_start)
-        return search_complete(len(found) + 1, judged.minima)
+    def run(found: list[Alternative]):
+        return judge(answer, found, metric=metric, dof=dof, counted=counted_as_start)
 
     randoms = _random_alternatives(problem, sigma, rng, [] if failures is None else failures)
-    made = 0
-    while made < budget and (made < at_least or not complete()):
-        alt = next(randoms)
-        made += 1
-        found += [] if alt is None else [alt]
+    found, _ = random_search(run, counted, randoms, budget=budget, at_least=at_least)
     return found
 
 

@@ -29,6 +29,7 @@ every pose and landmark coordinate, less the gauge's (3 in 2-D, 6 in 3-D) when i
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,7 +47,7 @@ from rangeslam.rangeaided.poses import compose, matrix_to_quaternion, positions,
 from rangeslam.rangeaided.problem import RangeAidedProblem, tangent_width
 from rangeslam.rangeaided.start import identity_pose, landmark_start, odometry_start
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.judge import Alternative, JudgedSearch, judge, search_complete
+from rangeslam.verdict.judge import Alternative, JudgedSearch, judge, random_search
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 __all__ = [
@@ -191,17 +192,19 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
     def counted(alt: Alternative) -> bool:
         return alt.payload.counted
 
-    randoms, failures = [], []
-    while len(randoms) + len(failures) < SEARCH_BUDGET:
-        judged = judge(answer, others + randoms, metric=metric, dof=dof, counted=counted)
-        if search_complete(len(randoms) + 1, judged.minima):
-            break
-        j = len(randoms) + len(failures)
-        try:
-            start = random_start(problem, placement, gauge, rng)
-            randoms.append(candidate(problem, graph, start, f"random start {j}", True,
-                                     max_iterations))  # fmt: skip
-        except FIT_ERRORS as exc:
-            failures.append(f"random start {j}: {exc}")
-    judged = judge(answer, others + randoms, metric=metric, dof=dof, counted=counted)
-    return JudgedSearch.of(judged, len(randoms) + 1, failures)
+    def run(found: list[Alternative]):
+        return judge(answer, others + found, metric=metric, dof=dof, counted=counted)
+
+    failures: list[str] = []
+
+    def draws():
+        for j in itertools.count():
+            try:
+                start = random_start(problem, placement, gauge, rng)
+                yield candidate(problem, graph, start, f"random start {j}", True, max_iterations)
+            except FIT_ERRORS as exc:
+                failures.append(f"random start {j}: {exc}")
+                yield None
+
+    randoms, _ = random_search(run, [], draws(), budget=SEARCH_BUDGET)
+    return JudgedSearch.of(run(randoms), len(randoms) + 1, failures)

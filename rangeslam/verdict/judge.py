@@ -29,7 +29,7 @@ minima; the search of random starts stops once it does not exceed those seen by 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -56,6 +56,7 @@ __all__ = [
     "indistinguishable",
     "information_distance",
     "judge",
+    "random_search",
     "same_answer",
     "search_complete",
     "unseen_minima",
@@ -372,3 +373,27 @@ def search_complete(starts: int, minima: int) -> bool:
     """The stopping rule of the random starts: the expected number of minima
     (:func:`unseen_minima`) is within half a minimum of those seen."""
     return unseen_minima(starts, minima) <= minima + 0.5
+
+
+def random_search(
+    run: Callable[[list[Alternative]], Judgement],
+    found: Sequence[Alternative],
+    randoms: Iterator[Alternative | None],
+    *,
+    budget: int,
+    at_least: int = 0,
+) -> tuple[list[Alternative], int]:
+    """The random starts of a search, apart from its judgement: alternatives drawn from
+    ``randoms`` (an estimator's fit from a random start, None when the fit failed) and added to
+    ``found`` (the counted starts made so far beside the answer) until the stopping rule
+    (:func:`search_complete` on ``run(found)``'s distinct minima, the answer a start too) ends
+    them after ``at_least`` draws, or ``budget`` draws are made (a failed fit counts as made,
+    not as a start). Returns (the counted starts, the draws made)."""
+    found, made = list(found), 0
+    while made < budget and (
+        made < at_least or not search_complete(len(found) + 1, run(found).minima)
+    ):
+        alt = next(randoms)
+        made += 1
+        found += [] if alt is None else [alt]
+    return found, made
