@@ -23,6 +23,7 @@ from rangeslam.verdict import (
     level_sigmas,
     mirror_gap,
     rms_precision,
+    unit_turn_bound,
     weak_moves,
 )
 from rangeslam.verdict.crlb import multilateration_crlb
@@ -446,3 +447,25 @@ def test_noise_std_zero_is_exact_data_to_the_consistency_check(rng):
     out = multilaterate(anchors, noisy, noise_std=0.0)
     assert out.status is Status.INCONSISTENT, out.message
     assert "exact data" in out.message
+
+
+def test_unit_turn_bound_holds_and_is_attained(rng):
+    """The unit vector from a point to another ``distance`` away moves (chord) at most the bound
+    when the point moves by ``step``, over random moves in 2-D and 3-D; the tangent move attains
+    it; a step as long as the distance can turn it round (2)."""
+    for d in (2, 3):
+        v = rng.standard_normal((500, d))
+        dist = np.linalg.norm(v, axis=1)
+        step = rng.uniform(0.0, 1.5, 500) * dist
+        delta = rng.standard_normal((500, d))
+        delta *= (step / np.linalg.norm(delta, axis=1))[:, None]
+        moved = v + delta
+        chord = np.linalg.norm(
+            moved / np.linalg.norm(moved, axis=1)[:, None] - v / dist[:, None], axis=1
+        )
+        assert np.all(chord <= unit_turn_bound(step, dist) + 1e-12)
+    x = 0.6  # the tangent: a step of 0.8 at right angles to (1, 0) minus the along-part
+    tangent = np.array([1.0 - x**2, x * np.sqrt(1.0 - x**2)])  # |tangent - (1, 0)| = x
+    chord = np.linalg.norm(tangent / np.linalg.norm(tangent) - [1.0, 0.0])
+    assert chord == pytest.approx(float(unit_turn_bound(x, 1.0)))
+    assert unit_turn_bound(1.0, 1.0) == 2.0 and unit_turn_bound(0.0, 1.0) == 0.0

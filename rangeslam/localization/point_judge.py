@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq, minimize
 
-from rangeslam.verdict.checks import reflected
+from rangeslam.verdict.checks import reflected, unit_turn_bound
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
@@ -253,7 +253,7 @@ def region_precision(objective: PointObjective, x: np.ndarray, limit: float) -> 
 
     First Weyl's inequality on the ball of the first-order region's radius R = sqrt(q lam_max)
     (lam_max the answer's largest variance): each unit row of J turns by at most
-    R / (rho_m - R) (rho_m the distance to anchor m), so the singular values fall by at most the
+    :func:`rangeslam.verdict.unit_turn_bound` of R and rho_m (the distance to anchor m), so the singular values fall by at most the
     norm of those turns over sigma; when the bound this gives is within ``limit`` it is returned
     (an upper bound). Otherwise the region's boundary is searched (:func:`_boundary_search`).
     Infinite when the information is singular at ``x``, or the region reaches further than
@@ -267,7 +267,7 @@ def region_precision(objective: PointObjective, x: np.ndarray, limit: float) -> 
     radius = float(np.sqrt(q) / sv[-1])
     rho = np.linalg.norm(objective.anchors[rows] - x, axis=1)
     if np.all(rho > radius):
-        turn = float(np.sqrt(np.sum((radius / (rho - radius)) ** 2))) / objective.sigma
+        turn = float(np.linalg.norm(unit_turn_bound(radius, rho))) / objective.sigma
         bound = float(np.sqrt(np.sum(1.0 / (sv - turn) ** 2))) if sv[-1] > turn else np.inf
         if bound <= limit:
             return bound

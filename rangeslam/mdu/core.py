@@ -47,6 +47,7 @@ from rangeslam.verdict import (
     point_check,
     probed_failure,
     rms_precision,
+    unit_turn_bound,
     verdict_noise,
     weak_moves,
 )
@@ -557,8 +558,8 @@ def moves_that_could_fail(
     """The ``moves`` (each (p,), metres, the points' d N entries first) after which the
     receivers' precision test might fail, in their order; a move is left out when a bound shows
     it cannot. The bound, Weyl's inequality: moving ``points`` (N, d) turns the unit vector u of
-    each of the (P, 2) receiver-source ``pairs`` (i, j) by |du| <= b = min(2, 2 |delta_i -
-    delta_j| / r_ij), which changes the unit-noise range Jacobian J (rows [u, -u]) by dJ with
+    each of the (P, 2) receiver-source ``pairs`` (i, j) by |du| <= b (:func:`rangeslam.verdict.
+    unit_turn_bound` of |delta_i - delta_j| and r_ij), which changes the unit-noise range Jacobian J (rows [u, -u]) by dJ with
     spectral norm e <= sqrt(||dJ||_1 ||dJ||_inf) <= sqrt(max_i sum_(pairs of i) b * 2 sqrt(d)
     max b) (Hoelder). Every non-zero singular value s of J stays above s - e (the prior rows are
     held at the answer, the offsets' columns are fixed, the rigid motions stay null), so the
@@ -577,8 +578,8 @@ def moves_that_could_fail(
     ends = np.column_stack([pairs[:, 0], m + pairs[:, 1]])  # (P, 2) point indices
     r = np.linalg.norm(points[ends[:, 0]] - points[ends[:, 1]], axis=1)
     delta = np.stack(moves, axis=1)[: n * d].reshape(n, d, -1)  # (N, d, n_moves)
-    turn = np.linalg.norm(delta[ends[:, 0]] - delta[ends[:, 1]], axis=1)  # (P, n_moves)
-    turn = np.minimum(2.0, 2.0 * turn / r[:, None])
+    step = np.linalg.norm(delta[ends[:, 0]] - delta[ends[:, 1]], axis=1)  # (P, n_moves)
+    turn = unit_turn_bound(step, r[:, None])
     incidence = coo_matrix(
         (np.ones(2 * len(ends)), (ends.T.ravel(), np.tile(np.arange(len(ends)), 2))),
         shape=(n, len(ends)),

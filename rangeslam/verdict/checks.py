@@ -66,6 +66,7 @@ __all__ = [
     "rms_precision",
     "tail_check",
     "tail_limit",
+    "unit_turn_bound",
     "verdict_noise",
     "weak_moves",
 ]
@@ -462,6 +463,20 @@ def point_check(
             expected_gap=expected_mirror_gap(point, anchors),
         ),
     )
+
+
+def unit_turn_bound(step: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    """How far the unit vector between two points ``distance`` apart can move (the chord on the
+    unit sphere) when one moves relative to the other by ``step`` (both metres, broadcast):
+    2 sin(arcsin(step / distance) / 2) while the step is shorter than the distance (the largest
+    angle is then the tangent's), 2 (the diameter) otherwise. The row change of a range Jacobian
+    in Weyl's inequality, which bounds how far its singular values can fall
+    (:func:`rangeslam.mdu.core.moves_that_could_fail`,
+    :func:`rangeslam.localization.point_judge.region_precision`)."""
+    step, distance = np.asarray(step, dtype=float), np.asarray(distance, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(distance > step, step / distance, 1.0)
+    return np.where(distance > step, 2.0 * np.sin(np.arcsin(ratio) / 2.0), 2.0)
 
 
 def flat_limit(sigma: float, scale: float) -> float:
