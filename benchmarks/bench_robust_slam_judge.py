@@ -39,7 +39,8 @@ def walk(seed: int, m: int):
     clean = add_range_noise(range_matrix(traj, landmarks), 1e-3, rng=rng)
     ranges = clean.copy()
     cells = rng.choice(ranges.size, size=n_wrong, replace=False)
-    ranges.flat[cells] += rng.choice([-1, 1], size=n_wrong) * rng.uniform(0.3, 1.0, n_wrong)
+    moved = ranges.flat[cells] + rng.choice([-1, 1], size=n_wrong) * rng.uniform(0.3, 1.0, n_wrong)
+    ranges.flat[cells] = np.abs(moved)  # a pick moved below zero is reflected: a range stays >= 0
     steps = step_lengths(traj)
     bounds = (0.8 * steps, 1.2 * steps)
     bound = mdu_crlb(traj, landmarks, 1e-3, step_bounds=bounds).receiver_rmse
