@@ -1,0 +1,96 @@
+"""Where `slam`'s time goes, against GTSAM best-of-3 and best-of-7 on the same walks (issue 45).
+
+    python benchmarks/profile_slam.py --walks 10 --seed 98101
+
+Random non-planar walks as ``bench_edm_start.py`` draws them (M = 8 steps, 1 cm, +-20% step
+bounds, noise not given). Each part of ``slam`` is timed by wrapping its function (wall-clock,
+``time.perf_counter``): the convex-iteration search with its GTSAM refinements
+(``search_edm_runs``), the judge (``judge_slam``) split into its random starts
+(``random_minima``) and its leave-one-block-out refits (``_block_alternatives``), the verdict's
+checks (``slam_verdict``) and the result (landmark mirrors, covariances: ``slam_result``). The
+peers: ``gtsam_best_of`` from ``bench_edm_start.py`` with 3 and with 7 random starts (7 is the
+least number of starts after which Boender and Rinnooy Kan's rule ends a search whose starts all
+reached one minimum). Ratios are of medians in one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import statistics
+import sys
+import time
+
+import numpy as np
+from _common import machine, markdown_table
+from bench_edm_start import gtsam_best_of, walk_scene
+
+import rangeslam.mdu.slam  # noqa: F401  (the module, which the function of that name shadows)
+from rangeslam.mdu import slam_judge
+from rangeslam.sim.trajectories import step_lengths
+
+SLAM = sys.modules["rangeslam.mdu.slam"]
+PARTS = {
+    "search (SDP + GTSAM refinement)": (SLAM, "search_edm_runs"),
+    "judge, in all": (SLAM, "judge_slam"),
+    "judge: random starts": (slam_judge, "random_minima"),
+    "judge: block refits": (slam_judge, "_block_alternatives"),
+    "verdict checks": (SLAM, "slam_verdict"),
+    "result (mirrors, covariances)": (SLAM, "slam_result"),
+}
+
+
+def wrap_parts(spent: dict[str, float]) -> None:
+    """Replace each function of PARTS by one that adds its wall-clock seconds to ``spent``."""
+    for name, (module, attr) in PARTS.items():
+        inner = getattr(module, attr)
+
+        def timed(*args, _inner=inner, _name=name, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return _inner(*args, **kwargs)
+            finally:
+                spent[_name] = spent.get(_name, 0.0) + time.perf_counter() - t0
+
+        setattr(module, attr, timed)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--walks", type=int, default=10)
+    ap.add_argument("--seed", type=int, required=True)
+    args = ap.parse_args()
+    spent: dict[str, float] = {}
+    wrap_parts(spent)
+    rng = np.random.default_rng(args.seed)
+    rows = []
+    for i in range(args.walks):
+        traj, _, ranges = walk_scene(8, 0.01, rng)
+        steps = step_lengths(traj)
+        bounds = (0.8 * steps, 1.2 * steps)
+        spent.clear()
+        t0 = time.perf_counter()
+        out = SLAM.slam(ranges, step_bounds=bounds, rng=i)
+        total = time.perf_counter() - t0
+        peer3 = gtsam_best_of(3, ranges, bounds, 0.01, np.random.default_rng(i))[1]
+        peer7 = gtsam_best_of(7, ranges, bounds, 0.01, np.random.default_rng(i))[1]
+        starts = re.search(r"(\d+) starts reached", out.message)
+        rows.append((total, peer3, peer7, dict(spent), int(starts.group(1)) if starts else 0))
+        print(f"walk {i}: slam {total:.3f} s, best-of-3 {peer3:.3f} s, best-of-7 {peer7:.3f} s, "
+              f"{out.status.name}", flush=True)  # fmt: skip
+    med = statistics.median
+    total = med(r[0] for r in rows)
+    table = [[name, f"{med(r[3].get(name, 0.0) for r in rows):.3f}",
+              f"{med(r[3].get(name, 0.0) / r[0] for r in rows):.0%}"] for name in PARTS]  # fmt: skip
+    print(f"\n{args.walks} walks, seed {args.seed}, {machine()}\n")
+    print(markdown_table(["part", "median s", "median share of slam"], table))
+    print(
+        f"\nslam median {total:.3f} s; starts the judge counted (median) {med(r[4] for r in rows)}"
+    )
+    for k, label in ((1, "best-of-3"), (2, "best-of-7")):
+        peer = med(r[k] for r in rows)
+        print(f"GTSAM {label} median {peer:.3f} s: slam / peer {total / peer:.1f}x")
+
+
+if __name__ == "__main__":
+    main()
