@@ -6,7 +6,7 @@ Random non-planar walks as ``bench_edm_start.py`` draws them (M = 8 steps, 1 cm,
 bounds, noise not given). Each part of ``slam`` is timed by wrapping its function (wall-clock,
 ``time.perf_counter``): the convex-iteration search with its GTSAM refinements
 (``search_edm_runs``), the judge (``judge_slam``) split into its random starts
-(``random_minima``) and its leave-one-block-out refits (``_block_alternatives``), the verdict's
+(``random_minima``) and its leave-one-block-out refits (``block_alternatives``), the verdict's
 checks (``slam_verdict``) and the result (landmark mirrors, covariances: ``slam_result``). The
 peers: ``gtsam_best_of`` from ``bench_edm_start.py`` with 3 and with 7 random starts (7 is the
 least number of starts after which Boender and Rinnooy Kan's rule ends a search whose starts all
@@ -34,7 +34,7 @@ PARTS = {
     "search (SDP + GTSAM refinement)": (SLAM, "search_edm_runs"),
     "judge, in all": (SLAM, "judge_slam"),
     "judge: random starts": (slam_judge, "random_minima"),
-    "judge: block refits": (slam_judge, "_block_alternatives"),
+    "judge: block refits": (slam_judge, "block_alternatives"),
     "verdict checks": (SLAM, "slam_verdict"),
     "result (mirrors, covariances)": (SLAM, "slam_result"),
 }

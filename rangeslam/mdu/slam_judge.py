@@ -69,6 +69,7 @@ from rangeslam.verdict.thresholds import RANK_RTOL, SEARCH_BUDGET
 
 __all__ = [
     "FIT_ERRORS",
+    "block_alternatives",
     "counted_as_start",
     "judge_metric",
     "judge_slam",
@@ -228,7 +229,7 @@ def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list
         )
 
 
-def _block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
+def block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
     """The leave-one-block-out refits of the answer ``points``: without one landmark, without
     one window of max(2, M // 4) steps (module docstring); those whose GTSAM run failed are
     left out."""
@@ -299,7 +300,7 @@ def judge_slam(
     m = problem.ranges.shape[0]
     points = np.vstack([answer.receivers, answer.sources])
     main = Alternative(points, graph_deviance(problem, points, sigma), "the answer", payload=True)
-    alternatives = _block_alternatives(problem, points, sigma)
+    alternatives = block_alternatives(problem, points, sigma)
     runs_made = [
         Alternative(p, graph_deviance(problem, p, sigma), f"convex-iteration run {i}", payload=True)
         for i, p in enumerate(np.vstack([r.receivers, r.sources]) for r in runs)
