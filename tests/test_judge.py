@@ -17,6 +17,7 @@ from rangeslam.verdict.judge import (
     SAME,
     WORSE,
     Alternative,
+    ReachedLowest,
     cost_level,
     distance_level,
     information_distance,
@@ -308,3 +309,23 @@ def test_random_search_stops_by_the_rule_the_budget_or_at_least():
     assert (len(found), made) == (6, 3)  # the search's own starts count
     assert random_search(run, [], draws(), budget=4)[1] == 4
     assert random_search(run, [], draws(), budget=20, at_least=9)[1] == 9
+
+
+def test_reached_lowest_counts_the_starts_at_the_lowest():
+    """The searches' vote: a candidate that reaches the lowest adds a hit; a lower one that
+    reached the lowest before it carries the hits on, one that did not starts afresh; the same
+    test is made once per lowest. Candidates here are (cost, place); "the same" is the same
+    place."""
+    made = []
+
+    def same_at(best):
+        made.append(best)
+        return lambda cand: cand[1] == best[1]
+
+    lowest = ReachedLowest(same_at, lambda cand: cand[0])
+    assert lowest.add((5.0, "a")) is False and (lowest.hits, lowest.confirmed) == (1, False)
+    assert lowest.add((6.0, "b")) is False and lowest.hits == 1
+    assert lowest.add((5.5, "a")) is True and lowest.confirmed
+    assert lowest.add((4.0, "a")) is True and (lowest.best, lowest.hits) == ((4.0, "a"), 3)
+    assert lowest.add((3.0, "c")) is False and (lowest.hits, lowest.confirmed) == (1, False)
+    assert made == [(5.0, "a"), (4.0, "a")]  # the test at (3.0, "c") is not yet needed

@@ -57,7 +57,7 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, ReachedLowest
 from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS
 
 if TYPE_CHECKING:
@@ -276,8 +276,14 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
     failures: list[str] = []
     # the Cauchy scale must be positive: for exact data (0), as when unknown, the first fit's MAD
     cauchy_scale = problem.noise_std if problem.noise_std else None
-    best: Candidate | None = None
-    confirmed, same_as_best = False, None  # the judge's same-answer test at the best
+
+    # Votes count refined fits only: raw SDP points from different weights never coincide. Two
+    # starts reach one answer when the judge calls them the same (delta^2 in the information at
+    # the lowest within its confidence region).
+    def same_at(best: Candidate):
+        return _same_test(best, problem) if problem.refine else (lambda cand: False)
+
+    lowest = ReachedLowest(same_at, lambda c: c.key)
     candidates: list[Candidate] = []
     iterations = attempts = starts = 0
     for start in starting_points(problem, rng, failures):
@@ -295,30 +301,19 @@ def search(problem: CalibrationProblem, rng) -> SearchOutcome:
         if cand is None:
             continue
         candidates.append(cand)
-        # Votes count refined fits only: raw SDP points from different weights never coincide.
-        # Two starts reach one answer when the judge calls them the same (delta^2 in the
-        # information at the best within its confidence region).
-        if problem.refine and best is not None:
-            same_as_best = same_as_best or _same_test(best, problem)
-            same = same_as_best(_points(cand))
-        else:
-            same = False
-        confirmed = confirmed or same
-        if best is None or cand.key < best.key:
-            confirmed = confirmed and same
-            best, same_as_best = cand, None
+        lowest.add(cand)
         # A robust fit can pass the residual test on a wrong configuration by dropping ranges,
         # so robust runs are all made and ranked by their cost over all ranges.
-        if not problem.robust and _accepted(best, problem):
+        if not problem.robust and _accepted(lowest.best, problem):
             break
         # Without a noise level a wrong minimum cannot be told from noise by its residual: every
         # convex-iteration run is made, and the lowest configuration must have been reached twice.
         all_runs = attempts + len(failures) == problem.options.max_attempts
-        if problem.noise_std is None and confirmed and all_runs:
+        if problem.noise_std is None and lowest.confirmed and all_runs:
             break
         if problem.auto_robust and heavy_tail(cand, problem, (Status.OUTLIERS,)):
             break  # wrong picks: robust="auto" goes on robustly rather than search further
-    floor = None
+    floor, best, confirmed = None, lowest.best, lowest.confirmed
     if problem.robust and best is not None:  # ranked again at the noise the data show
         best, confirmed, floor = reranked(candidates, problem)
     return SearchOutcome(
@@ -342,7 +337,7 @@ def reranked(cands: list[Candidate], problem: CalibrationProblem):
     keyed = [dataclasses.replace(c, key=_cauchy_cost(c.fit, r, observed, floor)) for c in cands]
     best = min(keyed, key=lambda c: c.key)
     same_as_best = _same_test(best, problem, floor)
-    confirmed = any(c is not best and same_as_best(_points(c)) for c in keyed)
+    confirmed = any(c is not best and same_as_best(c) for c in keyed)
     return best, confirmed, floor
 
 
@@ -723,11 +718,12 @@ def _points(cand: Candidate) -> np.ndarray:
 def _same_test(best: Candidate, problem: CalibrationProblem, floor: float | None = None):
     """The judge's same-answer test at ``best`` (:func:`same_calibration`), at the objective's
     sigma of that candidate (:func:`objective_scale`; a robust search's scale ``floor``, else
-    the candidate's own inlier spread): a predicate of another candidate's points."""
+    the candidate's own inlier spread): a predicate of another candidate."""
     if problem.robust and floor is None:
         floor = spread(best)
     sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), floor)
-    return same_calibration(problem, _points(best), sigma)
+    test = same_calibration(problem, _points(best), sigma)
+    return lambda cand: test(_points(cand))
 
 
 def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:

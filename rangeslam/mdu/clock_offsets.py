@@ -58,6 +58,7 @@ from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.status import Status
 from rangeslam.verdict.judge import (
     Alternative,
+    ReachedLowest,
     cost_level,
     distance_level,
     information_distance,
@@ -188,43 +189,51 @@ def clock_distance(model: ProfiledUnfolding, theta: np.ndarray):
     return lambda other: distance2(ref, Alternative(other.reshape(-1, model.dim), 0.0, "a run"))
 
 
+def region_bound(model: ProfiledUnfolding, ssr: float, sigma: float | None = None) -> float:
+    """The confidence region of the receivers in :func:`clock_distance`'s units (unit noise):
+    :func:`rangeslam.verdict.judge.distance_level` of the receivers' unknowns times the
+    :func:`clock_sigma` of a fit of sum of squares ``ssr`` (scaled) squared."""
+    bound = distance_level(unknowns_up_to_rigid_motion(model.m, model.dim))
+    return bound * clock_sigma(model, ssr, sigma) ** 2
+
+
 def same_clock_answer(model: ProfiledUnfolding, theta: np.ndarray, ssr: float, sigma=None):
     """The judge's same-answer test at the fit ``theta`` (scaled points, (M + K) d) of sum of
     squares ``ssr`` (scaled): a predicate of another fit's points, true when its receivers lie
-    in the confidence region of ``theta``'s (delta^2, :func:`clock_distance` over the
-    :func:`clock_sigma` squared, within :func:`rangeslam.verdict.judge.distance_level` of the
-    receivers' unknowns)."""
-    bound = distance_level(unknowns_up_to_rigid_motion(model.m, model.dim))
-    bound *= clock_sigma(model, ssr, sigma) ** 2
-    distance = clock_distance(model, theta)
+    in the confidence region of ``theta``'s (:func:`clock_distance` within
+    :func:`region_bound`)."""
+    bound, distance = region_bound(model, ssr, sigma), clock_distance(model, theta)
     return lambda other: distance(other) <= bound
 
 
 @dataclass
 class _Minima:
-    """The search's record: the lowest fit ``best`` (theta, ssr), the runs that reached it
-    (``hits``), the converged runs (``starts``) and one representative of each distinct
-    minimum they reached (``reps``: :func:`clock_distance` at each), all judged at the noise
-    of the lowest (``sigma`` given, else :func:`clock_sigma` of the best)."""
+    """The search's record: the lowest fit (``lowest.best``, (theta, ssr)) and the runs that
+    reached it (:class:`rangeslam.verdict.judge.ReachedLowest`), the converged runs
+    (``starts``) and one representative of each distinct minimum they reached (``reps``:
+    (ssr, :func:`clock_distance` at it)), all judged at the noise of the lowest (``sigma``
+    given, else :func:`clock_sigma` of the best)."""
 
-    best: tuple | None = None
-    hits: int = 0
+    lowest: ReachedLowest
     starts: int = 0
     reps: list = dataclasses.field(default_factory=list)
-    same_as_best: object = None
+
+    @classmethod
+    def at(cls, model: ProfiledUnfolding, sigma: float | None) -> _Minima:
+        """An empty record of a search of ``model`` at noise ``sigma`` (scaled; None unknown)."""
+
+        def same_at(best: tuple):
+            same = same_clock_answer(model, *best, sigma)
+            return lambda fit: same(fit[0])
+
+        return cls(ReachedLowest(same_at, _ssr))
 
     def add(self, model, theta, ssr, converged, sigma) -> None:
         """One run's fit (scaled points ``theta``, sum of squares ``ssr``) counted."""
-        if self.best is None or ssr < self.best[1]:
-            reached = self.best is not None and self.same(model, theta, sigma)
-            self.best, self.same_as_best = (theta, ssr), None
-            self.hits = self.hits + 1 if reached else 1
-        elif self.same(model, theta, sigma):
-            self.hits += 1
+        self.lowest.add((theta, ssr))
         if converged:
             self.starts += 1
-            bound = distance_level(unknowns_up_to_rigid_motion(model.m, model.dim))
-            bound *= clock_sigma(model, self.best[1], sigma) ** 2
+            bound = region_bound(model, self.lowest.best[1], sigma)
             if not any(distance(theta) <= bound for _, distance in self.reps):
                 self.reps.append((ssr, clock_distance(model, theta)))
 
@@ -232,13 +241,14 @@ class _Minima:
         """Distinct minima the converged runs reached that the data do not rule out against
         the lowest: a cost gap within :func:`rangeslam.verdict.judge.cost_level` (the judge's
         same answers and rivals; its worse minima cannot become the answer)."""
-        gap = cost_level() * clock_sigma(model, self.best[1], sigma) ** 2
-        return sum(ssr - self.best[1] <= gap for ssr, _ in self.reps)
+        best_ssr = self.lowest.best[1]
+        gap = cost_level() * clock_sigma(model, best_ssr, sigma) ** 2
+        return sum(ssr - best_ssr <= gap for ssr, _ in self.reps)
 
-    def same(self, model, theta, sigma) -> bool:
-        """Whether ``theta`` reaches the best (:func:`same_clock_answer` at the best)."""
-        self.same_as_best = self.same_as_best or same_clock_answer(model, *self.best, sigma)
-        return self.same_as_best(theta)
+
+def _ssr(fit: tuple) -> float:
+    """The sum of squares of a (theta, ssr) fit."""
+    return fit[1]
 
 
 def clock_candidates(model: ProfiledUnfolding, runs: int, rng: np.random.Generator, sigma=None):
@@ -257,7 +267,7 @@ def clock_candidates(model: ProfiledUnfolding, runs: int, rng: np.random.Generat
     at K = 11, kept the rule from ending before the 60 runs: 3.4 times the time at K = 8.)"""
     n_pts = model.m + int(model.pairs[:, 1].max()) + 1
     exact_ssr = EXACT_RTOL**2 * len(model.t)
-    seen, n, complete = _Minima(), 0, False
+    seen, n, complete = _Minima.at(model, sigma), 0, False
     for _ in range(runs):
         n += 1
         theta, ssr, converged = _fit(model, rng.uniform(-1.0, 1.0, n_pts * model.dim), SEARCH_NFEV)
@@ -265,12 +275,12 @@ def clock_candidates(model: ProfiledUnfolding, runs: int, rng: np.random.Generat
             continue
         seen.add(model, theta, ssr, converged, sigma)
         complete = search_complete(seen.starts, seen.contending(model, sigma))
-        if seen.best[1] <= exact_ssr or complete:
+        if seen.lowest.best[1] <= exact_ssr or complete:
             break
-    if seen.best is None:
+    if seen.lowest.best is None:
         yield ClockFit(np.full(n_pts * model.dim, np.nan), math.inf, False, n)
     else:
-        yield _refined(model, seen.best, seen.hits >= 2 or complete, n)
+        yield _refined(model, seen.lowest.best, seen.lowest.confirmed or complete, n)
 
 
 def _refined(model: ProfiledUnfolding, best, confirmed: bool, runs: int) -> ClockFit:

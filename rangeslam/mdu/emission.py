@@ -47,7 +47,7 @@ from rangeslam.mdu.core import (
 from rangeslam.mdu.emission_judge import judge_emission, same_emission
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.judge import CheckRecord, Judgement
+from rangeslam.verdict.judge import CheckRecord, Judgement, ReachedLowest
 from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RANK_RTOL, RELATIVE_RMS
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
@@ -450,7 +450,10 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
     convex-iteration runs. Every start's fit is kept for the judge (:func:`judge_emission`)."""
     model, failures = scaled.model, []
     exact_ssr = (EXACT_RTOL**2) * int(problem.observed.sum())
-    best, confirmed, attempts, n_random, same_as_best = None, False, 0, 0, None
+    attempts, n_random = 0, 0
+    # the vote of calibrate: the lowest fit is confirmed when another start reached the same
+    # answer (the judge's test, in the information at the lowest)
+    lowest = ReachedLowest(lambda best: same_emission(problem, scaled, best), lambda c: c.ssr)
     candidates: list[EmissionCandidate] = []
     for pts, from_sdp in emission_starts(problem, scaled, rng, failures):
         attempts += from_sdp
@@ -461,15 +464,8 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
             continue
         cand = EmissionCandidate(ssr, fit)
         candidates.append(cand)
-        # The vote of calibrate: the lowest fit counts as confirmed when another start reached
-        # the same answer (the judge's test, in the information at the lowest).
-        if best is not None:
-            same_as_best = same_as_best or same_emission(problem, scaled, best)
-        same = best is not None and same_as_best(cand)
-        confirmed = confirmed or same
-        if best is None or ssr < best.ssr:
-            confirmed = confirmed and same
-            best, same_as_best = cand, None
+        lowest.add(cand)
+        best, confirmed = lowest.best, lowest.confirmed
         # A wrong local minimum can pass the chi-square test at 1 cm noise (measured: 1 of 40
         # 3-D draws), so a noisy answer must also be reached from a second start, or be the
         # best of all convex-iteration runs.
@@ -479,7 +475,9 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
             break
         if problem.noise_std is None and confirmed and done_sdp:
             break
-    return EmissionSearch(best, confirmed, attempts, n_random, tuple(failures), tuple(candidates))
+    return EmissionSearch(
+        lowest.best, lowest.confirmed, attempts, n_random, tuple(failures), tuple(candidates)
+    )
 
 
 def emission_verdict(

@@ -51,6 +51,7 @@ __all__ = [
     "Comparison",
     "JudgedSearch",
     "Judgement",
+    "ReachedLowest",
     "cost_level",
     "distance_level",
     "indistinguishable",
@@ -294,6 +295,42 @@ def judge(
         comparisons.append(Comparison(alt, gap, far, kind))
     minima = _distinct_minima(lowest, comparisons, counted, distance2, q_far)
     return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
+
+
+@dataclass
+class ReachedLowest:
+    """A search's lowest candidate so far and how many of its candidates reached it (``hits``,
+    the lowest's own counted), by the judge's same-answer test: ``same_at(best)`` gives the
+    predicate of another candidate at ``best`` (e.g. :func:`same_answer` in the information at
+    it, made once per lowest), ``key`` a candidate's cost. A lower candidate that reached the
+    lowest before it carries its hits on. ``confirmed``: a second candidate reached the lowest."""
+
+    same_at: Callable[[object], Callable[[object], bool]]
+    key: Callable[[object], float]
+    best: object = None
+    hits: int = 0
+    test: Callable[[object], bool] | None = None
+
+    def add(self, cand: object) -> bool:
+        """Count ``cand``; whether it reached the lowest before it."""
+        same = self.best is not None and self.same_as_best(cand)
+        if self.best is None or self.key(cand) < self.key(self.best):
+            self.best, self.test = cand, None
+            self.hits = self.hits + 1 if same else 1
+        elif same:
+            self.hits += 1
+        return same
+
+    def same_as_best(self, cand: object) -> bool:
+        """The same-answer test of ``cand`` at the lowest."""
+        if self.test is None:
+            self.test = self.same_at(self.best)
+        return self.test(cand)
+
+    @property
+    def confirmed(self) -> bool:
+        """Whether a second candidate reached the lowest."""
+        return self.hits >= 2
 
 
 def indistinguishable(gap: float, expected_gap: float | None, q_cost: float | None = None) -> bool:
