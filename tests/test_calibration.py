@@ -1,5 +1,7 @@
 """Zero-knowledge calibration (Problem 2, MDU): the Fig. 3 criteria and the API."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -310,3 +312,53 @@ def test_a_robust_answer_past_its_breakdown_point_is_outliers():
     assert breakdown_check(kept, observed, 100, judge_sources=False).passed
     check = breakdown_check(kept, observed, 100, judge_sources=True, names=("step", "landmark"))
     assert check.reason.startswith("landmark 5: only 3 of its 6 ranges")
+
+
+def _moved_outcome(rng):
+    """A Fig. 3 scene at 1 mm and its search, the best candidate's receiver 0 moved 0.5 m (a
+    worse minimum the judge's block refits climb out of): (problem, outcome, the unmoved best)."""
+    from rangeslam.mdu import calibration as cal
+
+    scene = fig3_scene(rng)
+    ranges = add_range_noise(scene.ranges, 1e-3, rng=rng)
+    mask = np.ones(ranges.shape, dtype=bool)
+    problem = cal.parse_calibration(
+        ranges, mask, 3, 1e-3, True, False, 0, cal.ConvexIterationOptions()
+    )
+    outcome = cal.search(problem, rng)
+    best = outcome.best
+    pts = np.vstack([best.fit.receivers, best.fit.sources])
+    pts[0] += 0.5
+    moved = dataclasses.replace(best, fit=dataclasses.replace(best.fit, receivers=pts[:6]))
+    return problem, dataclasses.replace(outcome, best=moved, candidates=[moved]), best
+
+
+def test_a_replacement_is_judged_in_its_turn(rng):
+    """Issue 42: the judge's lower minimum replaces the answer, and the judgement reported is
+    the replacement's own (its lowest the answer itself or the same answer), so the verdict
+    speaks of the answer returned; the answer is back at the search's minimum."""
+    from rangeslam.mdu import calibration as cal
+    from rangeslam.verdict.judge import LOWER
+
+    problem, outcome, unmoved = _moved_outcome(rng)
+    replaced, judged = cal.judged_outcome(outcome, problem, rng)
+    assert replaced.best is not outcome.best
+    first = judged.judgement.comparisons[0] if judged.judgement.replaced else None
+    assert first is None or first.kind != LOWER
+    status, message = cal.judged_status(judged, replaced.best, problem, "")
+    assert status is Status.CONVERGED, message
+    back = align(replaced.best.fit.receivers, unmoved.fit.receivers, reflection=True)
+    assert back.rmse < 1e-3  # back at the search's minimum
+
+
+def test_an_answer_its_judge_finds_lower_than_is_not_converged(rng, monkeypatch):
+    """When the fit from the judge's lowest falls back to the worse answer (here forced), the
+    judge finds the lower minimum again: NO_AGREEMENT, never CONVERGED on the worse one."""
+    from rangeslam.mdu import calibration as cal
+
+    problem, outcome, _ = _moved_outcome(rng)
+    monkeypatch.setattr(cal, "fit_start", lambda *a, **k: outcome.best)
+    kept, judged = cal.judged_outcome(outcome, problem, rng)
+    assert kept.best.fit is outcome.best.fit
+    status, message = cal.judged_status(judged, kept.best, problem, "")
+    assert status is Status.NO_AGREEMENT and "lower minimum" in message, message

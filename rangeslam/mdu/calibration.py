@@ -57,8 +57,15 @@ from rangeslam.verdict import (
     verdict_noise,
 )
 from rangeslam.verdict.breakdown import breakdown_check
-from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, ReachedLowest
-from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS
+from rangeslam.verdict.judge import (
+    LOWER,
+    SAME,
+    CheckRecord,
+    JudgedSearch,
+    ReachedLowest,
+    cost_level,
+)
+from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS, SEARCH_BUDGET
 
 if TYPE_CHECKING:
     from rangeslam.solvers.sdp import EDMCompletion
@@ -673,31 +680,39 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
 def judged_outcome(
     outcome: SearchOutcome, problem: CalibrationProblem, rng
 ) -> tuple[SearchOutcome, JudgedSearch]:
-    """The search's answer judged against every alternative (:func:`judge_calibration`); a
-    lower one replaces it (fitted as the search fits a start), the message saying where it came
-    from."""
+    """The search's answer judged against every alternative (:func:`judge_calibration`). A
+    lower one is judged in turn, its own alternatives (the refits without each block among them)
+    generated from it: a descent over minima, on while each judgement's lowest is lower than the
+    last one's by more than the level (:func:`rangeslam.verdict.judge.cost_level`), at most
+    SEARCH_BUDGET judgements. The last lowest, when not the search's answer, replaces it (fitted
+    as the search fits a start, the message saying where it came from)."""
     best = outcome.best
-    n_fit = int(best.inliers.sum())
-    sigma = objective_scale(problem, best.ssr, n_fit, outcome.noise_floor)
-    answer = np.vstack([best.fit.receivers, best.fit.sources])
+    sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), outcome.noise_floor)
+    answer = _points(best)
+    starts = [_points(c) for c in outcome.candidates if c is not best]
     inliers = best.inliers if problem.robust else None
-    starts = [np.vstack([c.fit.receivers, c.fit.sources]) for c in outcome.candidates]
-    starts = [p for c, p in zip(outcome.candidates, starts, strict=True) if c is not best]
-    judged = judge_calibration(problem, answer, sigma, rng, inliers=inliers, starts=starts)
-    lowest, displaced = judged.judgement.answer, judged.judgement.comparisons
-    if lowest.points is answer:
+    points, floor, hops = answer, float("inf"), []
+    for _ in range(SEARCH_BUDGET):
+        judged = judge_calibration(problem, points, sigma, rng, inliers=inliers, starts=starts)
+        lowest = judged.judgement.answer
+        if lowest.points is points or lowest.deviance >= floor - cost_level():
+            break
+        floor, points = lowest.deviance, lowest.points
+        first = judged.judgement.comparisons[0]  # the judged points, against the lower ones
+        if first.kind != SAME:
+            hops.append(f"{lowest.origin} reached a lower minimum (by {first.delta_cost:.3g} "
+                        "noise variances)")  # fmt: skip
+    if judged.judgement.answer.points is answer:
         return outcome, judged
-    cand = fit_start(Start(lowest.points, None), problem, sigma if problem.robust else None, rng)
+    cand = fit_start(
+        Start(judged.judgement.answer.points, None), problem, sigma if problem.robust else None, rng
+    )
     if cand is None:
         return outcome, judged
-    first = displaced[0]  # the search's answer, against the lower one
-    note = (
-        ""
-        if first.kind == SAME
-        else f"{lowest.origin} reached a lower minimum than the search's answer (by "
-        f"{first.delta_cost:.3g} noise variances), which replaced it; "
-    )
+    note = f"{', then '.join(hops)}: it replaced the search's answer; " if hops else ""
     cand = dataclasses.replace(cand, message=best.message + note)
+    # the answer reported is the one judged: the replacement's own fit, judged once more
+    judged = judge_calibration(problem, _points(cand), sigma, rng, inliers=inliers, starts=starts)
     return dataclasses.replace(outcome, best=cand), judged
 
 
@@ -758,14 +773,22 @@ def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
 def judged_status(
     judged: JudgedSearch, best: Candidate, problem: CalibrationProblem, message: str
 ) -> tuple[Status, str]:
-    """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT for
-    a robust calibration without a noise level whose search the budget, not the stopping rule,
-    ended (its inlier residuals pass against their own spread wherever it dropped the ranges a
+    """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT when
+    the judge still found a minimum lower than the answer (told apart from it: the search's fit
+    from the lowest did not keep it), or for a robust calibration without a noise level whose
+    search the budget, not the stopping rule, ended (its inlier residuals pass against their own spread wherever it dropped the ranges a
     wrong minimum misses, as a robust answer once had to be reached twice); else CONVERGED."""
     if not judged.judgement.check.passed:
         note = _sources_note(best, problem)
         return judged.judgement.status, message + "; ".join(
             filter(None, (judged.judgement.reason, note))
+        )
+    lower = judged.judgement.comparisons[0] if judged.judgement.replaced else None
+    if lower is not None and lower.kind == LOWER:
+        return Status.NO_AGREEMENT, message + (
+            f"{judged.judgement.answer.origin} reached a lower minimum than the answer (by "
+            f"{lower.delta_cost:.3g} noise variances) that the search's fit from it did not "
+            f"keep; {_sources_note(best, problem)}"
         )
     if problem.robust and not problem.noise_std and not judged.complete:
         return Status.NO_AGREEMENT, message + (
