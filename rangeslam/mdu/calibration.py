@@ -702,11 +702,9 @@ def judged_outcome(
         if first.kind != SAME:
             hops.append(f"{lowest.origin} reached a lower minimum (by {first.delta_cost:.3g} "
                         "noise variances)")  # fmt: skip
-    if judged.judgement.answer.points is answer:
+    if lowest.points is answer:
         return outcome, judged
-    cand = fit_start(
-        Start(judged.judgement.answer.points, None), problem, sigma if problem.robust else None, rng
-    )
+    cand = fit_start(Start(lowest.points, None), problem, sigma if problem.robust else None, rng)
     if cand is None:
         return outcome, judged
     note = f"{', then '.join(hops)}: it replaced the search's answer; " if hops else ""
@@ -776,8 +774,9 @@ def judged_status(
     """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT when
     the judge still found a minimum lower than the answer (told apart from it: the search's fit
     from the lowest did not keep it), or for a robust calibration without a noise level whose
-    search the budget, not the stopping rule, ended (its inlier residuals pass against their own spread wherever it dropped the ranges a
-    wrong minimum misses, as a robust answer once had to be reached twice); else CONVERGED."""
+    search the budget, not the stopping rule, ended (its inlier residuals pass against their
+    own spread wherever it dropped the ranges a wrong minimum misses, as a robust answer once
+    had to be reached twice); else CONVERGED."""
     if not judged.judgement.check.passed:
         note = _sources_note(best, problem)
         return judged.judgement.status, message + "; ".join(
