@@ -683,28 +683,32 @@ def judged_outcome(
     """The search's answer judged against every alternative (:func:`judge_calibration`). A
     lower one is judged in turn, its own alternatives (the refits without each block among them)
     generated from it: a descent over minima, on while each judgement's lowest is lower than the
-    last one's by more than the level (:func:`rangeslam.verdict.judge.cost_level`), at most
-    SEARCH_BUDGET judgements. The last lowest, when not the search's answer, replaces it (fitted
-    as the search fits a start, the message saying where it came from)."""
+    points it judged by more than the level (:func:`rangeslam.verdict.judge.cost_level`), at
+    most SEARCH_BUDGET judgements; within the level the judged points stay (a lower point there
+    is the same answer, or a rival the judgement reports). The last points judged, when not the
+    search's answer, replace it (fitted as the search fits a start, the message saying where
+    they came from)."""
     best = outcome.best
     sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), outcome.noise_floor)
     answer = _points(best)
     starts = [_points(c) for c in outcome.candidates if c is not best]
     inliers = best.inliers if problem.robust else None
-    points, floor, hops = answer, float("inf"), []
+    points, hops = answer, []
     for _ in range(SEARCH_BUDGET):
         judged = judge_calibration(problem, points, sigma, rng, inliers=inliers, starts=starts)
         lowest = judged.judgement.answer
-        if lowest.points is points or lowest.deviance >= floor - cost_level():
+        if lowest.points is points:
             break
-        floor, points = lowest.deviance, lowest.points
         first = judged.judgement.comparisons[0]  # the judged points, against the lower ones
+        if first.delta_cost <= cost_level():
+            break  # within the level: the judged points stay (a rival or ambiguity is reported)
+        points = lowest.points
         if first.kind != SAME:
             hops.append(f"{lowest.origin} reached a lower minimum (by {first.delta_cost:.3g} "
                         "noise variances)")  # fmt: skip
-    if lowest.points is answer:
+    if points is answer:
         return outcome, judged
-    cand = fit_start(Start(lowest.points, None), problem, sigma if problem.robust else None, rng)
+    cand = fit_start(Start(points, None), problem, sigma if problem.robust else None, rng)
     if cand is None:
         return outcome, judged
     note = f"{', then '.join(hops)}: it replaced the search's answer; " if hops else ""
