@@ -4,8 +4,10 @@ Multidimensional unfolding (eq. 4): receivers x_m (M, d) and sources s_k (K, d),
 to observed ranges r_mk by minimising sum over observed (m, k) of rho((||x_m - s_k|| - r_mk)^2).
 This is the maximum-likelihood estimate under Gaussian range noise (rho = identity) and the step
 after the SDP of eq. (10), which fits squared distances and carries a rank penalty. The gauge (a
-rigid motion) stays free: Levenberg-Marquardt's damping handles the rank-deficient Jacobian, and
-the result is returned in the frame of the starting point.
+rigid motion) is fixed by d (d + 1) / 2 linear rows that vanish exactly at the configuration's
+Procrustes alignment with the starting point (:func:`gauge_rows`): they change no minimum of the
+ranges, let MINPACK's Levenberg-Marquardt take a problem with fewer ranges than coordinates, and
+return the result in the frame of the start.
 """
 
 from __future__ import annotations
@@ -20,7 +22,10 @@ from rangeslam._validation import as_mask, as_points, as_ranges, frozen
 from rangeslam.errors import InvalidInputError
 from rangeslam.status import HasStatus, Status
 
-__all__ = ["UnfoldingFit", "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
+__all__ = [
+    "UnfoldingFit",
+    "gauge_rows",
+    "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 #: Unknowns (points x d) from which the fit runs scipy's trust-region method on a sparse
@@ -88,6 +93,29 @@ def sparse_unfolding_jacobian(points: np.ndarray, m: int, pairs: np.ndarray) -> 
     return csr_matrix((np.hstack([u, -u]).ravel(), cols.ravel(), indptr), shape=(len(pairs), n * d))
 
 
+def gauge_rows(start: np.ndarray) -> np.ndarray:
+    """(d (d + 1) / 2, N d) the gauge-fixing rows G at ``start`` (N, d): G (theta - start) is the
+    displacement of the centroid (d rows) and sum_i (start_i - c) x (p_i - c), c the start's
+    centroid (d (d - 1) / 2 rows: the cross product, a scalar in 2-D). Both vanish where the
+    points p are at their Procrustes alignment with the start (the stationarity of the best
+    rotation), which a rigid motion of any configuration reaches: the rows fix the gauge
+    without moving a minimum of the ranges."""
+    n, d = start.shape
+    q = start - start.mean(axis=0)
+    translation = np.tile(np.eye(d), (1, n))
+    if d == 2:
+        rotation = np.column_stack([-q[:, 1], q[:, 0]]).reshape(1, -1)
+    else:  # the rows of [q_i]_x, point after point
+        zero = np.zeros(n)
+        skew = np.stack([
+            np.stack([zero, -q[:, 2], q[:, 1]], axis=1),
+            np.stack([q[:, 2], zero, -q[:, 0]], axis=1),
+            np.stack([-q[:, 1], q[:, 0], zero], axis=1),
+        ])  # fmt: skip
+        rotation = skew.reshape(3, -1)
+    return np.vstack([translation, rotation])
+
+
 def refine_unfolding(
     receivers: np.ndarray,
     sources: np.ndarray,
@@ -133,10 +161,20 @@ def refine_unfolding(
 
     tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
     large = start.size >= SPARSE_UNKNOWNS
-    # MINPACK's LM needs at least as many residuals as unknowns; the gauge (a rigid motion) makes
-    # fewer enough, and the trust-region method takes those.
-    if loss == "linear" and len(pairs) >= start.size and not large:
-        fit = least_squares(fun, start.ravel(), jac=jac, method="lm", max_nfev=max_nfev, **tols)
+    gauge = gauge_rows(start)
+    # MINPACK's LM needs at least as many residuals as unknowns: the gauge rows make up the
+    # rigid motion; fewer still (a point ranged to fewer than d others) goes to trust regions.
+    if loss == "linear" and len(pairs) + len(gauge) >= start.size and not large:
+        theta0 = start.ravel()
+        fit = least_squares(
+            lambda theta: np.concatenate([fun(theta), gauge @ (theta - theta0)]),
+            theta0,
+            jac=lambda theta: np.vstack([jac(theta), gauge]),
+            method="lm",
+            max_nfev=max_nfev,
+            **tols,
+        )
+        fit.fun = fit.fun[: len(pairs)]
     else:
         sparse_jac = {
             "jac": lambda theta: sparse_unfolding_jacobian(theta.reshape(-1, d), m, pairs),
