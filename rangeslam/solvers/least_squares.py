@@ -25,7 +25,10 @@ from rangeslam.status import HasStatus, Status
 __all__ = [
     "UnfoldingFit",
     "gauge_rows",
-    "refine_unfolding", "unfolding_jacobian", "unfolding_residuals"]
+    "refine_unfolding",
+    "unfolding_jacobian",
+    "unfolding_residuals",
+]
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 #: Unknowns (points x d) from which the fit runs scipy's trust-region method on a sparse
