@@ -338,6 +338,7 @@ def test_a_replacement_is_judged_in_its_turn(rng):
     the replacement's own (its lowest the answer itself or the same answer), so the verdict
     speaks of the answer returned; the answer is back at the search's minimum."""
     from rangeslam.mdu import calibration as cal
+    from rangeslam.mdu import calibration_judge
     from rangeslam.verdict.judge import LOWER
 
     problem, outcome, unmoved = _moved_outcome(rng)
@@ -345,7 +346,7 @@ def test_a_replacement_is_judged_in_its_turn(rng):
     assert replaced.best is not outcome.best
     first = judged.judgement.comparisons[0] if judged.judgement.replaced else None
     assert first is None or first.kind != LOWER
-    status, message = cal.judged_status(judged, replaced.best, problem, "")
+    status, message = calibration_judge.judged_status(judged, replaced.best, problem, "")
     assert status is Status.CONVERGED, message
     back = align(replaced.best.fit.receivers, unmoved.fit.receivers, reflection=True)
     assert back.rmse < 1e-3  # back at the search's minimum
@@ -355,10 +356,11 @@ def test_an_answer_its_judge_finds_lower_than_is_not_converged(rng, monkeypatch)
     """When the fit from the judge's lowest falls back to the worse answer (here forced), the
     judge finds the lower minimum again: NO_AGREEMENT, never CONVERGED on the worse one."""
     from rangeslam.mdu import calibration as cal
+    from rangeslam.mdu import calibration_judge
 
     problem, outcome, _ = _moved_outcome(rng)
     monkeypatch.setattr(cal, "fit_start", lambda *a, **k: outcome.best)
     kept, judged = cal.judged_outcome(outcome, problem, rng)
     assert kept.best.fit is outcome.best.fit
-    status, message = cal.judged_status(judged, kept.best, problem, "")
+    status, message = calibration_judge.judged_status(judged, kept.best, problem, "")
     assert status is Status.NO_AGREEMENT and "lower minimum" in message, message

@@ -161,9 +161,10 @@ def _add_bench(sub) -> None:
         "fig3",
         parents=[common],
         help="zero-knowledge array calibration against the CRLB (paper's Fig. 3)",
-        description="Fig. 3: 8 microphones and 7 sources, ranges between them with noise, the "
-        "array calibrated with no known position (Problem 2); error against the CRLB per noise "
-        "level.",
+        description="Fig. 3: 6 microphones in a 1 m cube and 6 sources (a loudspeaker and its 5 "
+        "first-order images nearest the array), ranges between them with noise, the array "
+        "calibrated with no known position (Problem 2); error against the oracle and the CRLB "
+        "per noise level.",
         formatter_class=DefaultsHelpFormatter,
     )
     fig3.add_argument(

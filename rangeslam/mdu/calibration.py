@@ -27,7 +27,12 @@ from rangeslam._robust import MAD_TO_STD, robust_mode
 from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.mdu.calibration_judge import judge_calibration, objective_scale, same_calibration
+from rangeslam.mdu.calibration_judge import (
+    judge_calibration,
+    judged_status,
+    objective_scale,
+    same_calibration,
+)
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
     MAX_RANDOM_STARTS,
@@ -36,7 +41,6 @@ from rangeslam.mdu.core import (
     canonical_frame,
     checked_options,
     passes_residual_test,
-    sources_verdict,
     unfolding_check,
     unknowns_up_to_rigid_motion,
     validated_ranges,
@@ -58,7 +62,6 @@ from rangeslam.verdict import (
 )
 from rangeslam.verdict.breakdown import breakdown_check
 from rangeslam.verdict.judge import (
-    LOWER,
     SAME,
     CheckRecord,
     JudgedSearch,
@@ -519,37 +522,37 @@ def calibrate(
         dim: 2 or 3.
         mask: (M, K) boolean, True where observed; None means all observed.
         noise_std: standard deviation of the range noise, metres, if known; None: unknown;
-            0: exact data (every test then allows round-off only, 1e-8 of the median range). An
-            answer is accepted when its sum of squared residuals passes a chi-square test at the
-            CHI2_LEVEL (:mod:`rangeslam.verdict.thresholds`) or is exact. Without it, all ``max_attempts`` runs are made
-            (slower) and the lowest-residual configuration is accepted when two starts reached it
-            and its RMS residual is under 2% of the median range; a wrong local minimum that wins
-            this vote is then reported as converged, so pass ``noise_std`` when you know it.
+            0: exact data (every test then allows round-off only, 1e-8 of the median range). With
+            it the search stops at the first start whose sum of squared residuals passes the
+            chi-square test at CHI2_LEVEL (:mod:`rangeslam.verdict.thresholds`); without it
+            every convex-iteration run is made, the noise is estimated from the answer's
+            residuals (their RMS at most RELATIVE_RMS of the median range, no heavy tail), and
+            the judge's levels are in that estimate's units: pass ``noise_std`` when you know it.
         refine: refine the SDP's points by least squares on the ranges (Gaussian ML). Without it
             the SDP's points are returned and "exact" means within 1e-4 of the scale.
-        robust: for wrong echo picks. The SDP fits with an L1 loss instead of s-stress; each
-            run is refined with a Cauchy loss (scale ``noise_std``, or 1.4826 MAD of the first
-            fit's residuals), then ranges whose studentized residual exceeds 3 sigma (sigma =
-            ``noise_std`` or a MAD estimate) are dropped and the rest refit by least squares,
-            until the set is stable. Runs are ranked by their Cauchy cost over all ranges; the
-            best one's inliers are then fitted from up to 30 random points, and a lower minimum
-            found there is refitted robustly. A robust answer is converged only when two
-            starts reached it: dropping ranges lets a wrong configuration pass the residual
-            test, so one start's answer is NO_AGREEMENT. True or "cauchy": always robust.
-            ``"auto"`` (the default): least squares on all ranges first; as soon as a fit's
-            residuals carry a heavy tail (wrong picks), or when the search ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, the robust fit (the message
-            says so), provided there are at least as many redundant ranges as unknowns (with
-            fewer, wrong picks are reported, not searched for). ``False`` or None: never robust.
-            (The values of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`; "huber" and
-            "tukey" are refused.)
-        max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I with the fit weight times 1,
-            10, 0.1 and 100, then from random Z cycling the same weights.
+        robust: for wrong echo picks. The SDP fits with an L1 loss; each run is refined with a
+            Cauchy loss (scale ``noise_std``, or 1.4826 MAD of the first fit's residuals), ranges
+            beyond 3 sigma are dropped and the rest refit by least squares until the set is
+            stable; runs are ranked, and the judge compares every alternative, by the Cauchy
+            cost over all ranges. Without ``noise_std``, a robust answer whose search the budget
+            (SEARCH_BUDGET), not the stopping rule, ended is NO_AGREEMENT (dropping ranges lets
+            a wrong configuration pass). True or "cauchy": always robust. ``"auto"`` (default):
+            least squares first; robust once a fit's residuals carry a heavy tail or the search
+            ends INCONSISTENT, OUTLIERS or NO_AGREEMENT (the message says so), given at least as
+            many redundant ranges as unknowns. ``False`` or None: never robust ("huber" and
+            "tukey", of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`, are refused).
+        max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I
+            with the fit weight times 1, 10, 0.1 and 100, then from random Z cycling the same
+            weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
-            (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with ``refine``).
+            (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with
+            ``refine``); the judge's random starts are at most this many too.
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per run (1 to MAX_SDP_ITERATIONS); None: 50, 3 if robust.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
             fraction of its trace (it also stops when the gap stalls).
+        edm_start: "cheap" (default): each least-squares run also stops once its rank-d
+            embedding settles (:data:`rangeslam.mdu.core.EMBEDDING_RTOL`); "full": to the gap.
         rng: numpy Generator (or seed) for the random restarts.
 
     Size: above :data:`rangeslam.mdu.subsets.MAX_SDP_POINTS` receivers plus sources, the SDP
@@ -680,14 +683,12 @@ def solve_calibration(problem: CalibrationProblem, rng: np.random.Generator) -> 
 def judged_outcome(
     outcome: SearchOutcome, problem: CalibrationProblem, rng
 ) -> tuple[SearchOutcome, JudgedSearch]:
-    """The search's answer judged against every alternative (:func:`judge_calibration`). A
-    lower one is judged in turn, its own alternatives (the refits without each block among them)
-    generated from it: a descent over minima, on while each judgement's lowest is lower than the
-    points it judged by more than the level (:func:`rangeslam.verdict.judge.cost_level`), at
-    most SEARCH_BUDGET judgements; within the level the judged points stay (a lower point there
-    is the same answer, or a rival the judgement reports). The last points judged, when not the
-    search's answer, replace it (fitted as the search fits a start, the message saying where
-    they came from)."""
+    """The search's answer judged against every alternative (:func:`judge_calibration`); the
+    judgement's answer is its lowest. A lowest below the judged points by more than the level
+    (:func:`rangeslam.verdict.judge.cost_level`) is judged in turn, its own alternatives (the
+    refits without each block among them) generated from it: a descent over minima, at most
+    SEARCH_BUDGET judgements. The last lowest, when not the search's answer, replaces it (fitted
+    as the search fits a start, the message saying where it came from)."""
     best = outcome.best
     sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), outcome.noise_floor)
     answer = _points(best)
@@ -699,13 +700,13 @@ def judged_outcome(
         lowest = judged.judgement.answer
         if lowest.points is points:
             break
-        first = judged.judgement.comparisons[0]  # the judged points, against the lower ones
-        if first.delta_cost <= cost_level():
-            break  # within the level: the judged points stay (a rival or ambiguity is reported)
+        first = judged.judgement.comparisons[0]  # the judged points, against the lowest
         points = lowest.points
         if first.kind != SAME:
             hops.append(f"{lowest.origin} reached a lower minimum (by {first.delta_cost:.3g} "
                         "noise variances)")  # fmt: skip
+        if first.delta_cost <= cost_level():
+            break  # within the level: every alternative was compared with the lowest already
     if points is answer:
         return outcome, judged
     cand = fit_start(Start(points, None), problem, sigma if problem.robust else None, rng)
@@ -713,8 +714,12 @@ def judged_outcome(
         return outcome, judged
     note = f"{', then '.join(hops)}: it replaced the search's answer; " if hops else ""
     cand = dataclasses.replace(cand, message=best.message + note)
-    # the answer reported is the one judged: the replacement's own fit, judged once more
-    judged = judge_calibration(problem, _points(cand), sigma, rng, inliers=inliers, starts=starts)
+    # the answer reported is the one judged: the last judgement's answer is the lowest; the
+    # replacement's own fit is judged once more unless it is that least-squares minimum again
+    if problem.robust or not same_calibration(problem, points, sigma)(_points(cand)):
+        judged = judge_calibration(
+            problem, _points(cand), sigma, rng, inliers=inliers, starts=starts
+        )
     return dataclasses.replace(outcome, best=cand), judged
 
 
@@ -756,47 +761,3 @@ def spread(cand: Candidate) -> float:
     n_in = int(cand.inliers.sum())
     dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
     return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0
-
-
-def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
-    """The note on the sources the receivers leave undetermined (their mirror images,
-    :func:`rangeslam.mdu.core.sources_verdict`), for a verdict that ends before the checks make
-    it."""
-    n_in = int(best.inliers.sum())
-    redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
-    sigma = verdict_noise(
-        problem.noise_std, noise_upper_bound(best.ssr, redundancy), problem.exact_rms
-    )
-    fit = best.fit
-    return sources_verdict(fit.receivers, fit.sources, problem.ranges, best.inliers, sigma,
-                           problem.exact_rms, "none")[1]  # fmt: skip
-
-
-def judged_status(
-    judged: JudgedSearch, best: Candidate, problem: CalibrationProblem, message: str
-) -> tuple[Status, str]:
-    """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT when
-    the judge still found a minimum lower than the answer (told apart from it: the search's fit
-    from the lowest did not keep it), or for a robust calibration without a noise level whose
-    search the budget, not the stopping rule, ended (its inlier residuals pass against their
-    own spread wherever it dropped the ranges a wrong minimum misses, as a robust answer once
-    had to be reached twice); else CONVERGED."""
-    if not judged.judgement.check.passed:
-        note = _sources_note(best, problem)
-        return judged.judgement.status, message + "; ".join(
-            filter(None, (judged.judgement.reason, note))
-        )
-    lower = judged.judgement.comparisons[0] if judged.judgement.replaced else None
-    if lower is not None and lower.kind == LOWER:
-        return Status.NO_AGREEMENT, message + (
-            f"{judged.judgement.answer.origin} reached a lower minimum than the answer (by "
-            f"{lower.delta_cost:.3g} noise variances) that the search's fit from it did not "
-            f"keep; {_sources_note(best, problem)}"
-        )
-    if problem.robust and not problem.noise_std and not judged.complete:
-        return Status.NO_AGREEMENT, message + (
-            "the search ended before its stopping rule, minima no start reached still expected: "
-            "a robust fit without noise_std may drop the ranges a wrong minimum misses (pass "
-            f"noise_std, or raise max_attempts); {_sources_note(best, problem)}"
-        )
-    return Status.CONVERGED, message

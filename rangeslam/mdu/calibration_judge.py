@@ -25,13 +25,16 @@ from rangeslam.mdu.alternatives import (
     mirror_proposals,
     random_proposals,
 )
-from rangeslam.mdu.core import unknowns_up_to_rigid_motion
+from rangeslam.mdu.core import sources_verdict, unknowns_up_to_rigid_motion
 from rangeslam.solvers.least_squares import (
     refine_unfolding,
     unfolding_jacobian,
     unfolding_residuals,
 )
+from rangeslam.status import Status
+from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.judge import (
+    LOWER,
     Alternative,
     JudgedSearch,
     information_distance,
@@ -42,9 +45,15 @@ from rangeslam.verdict.judge import (
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 if TYPE_CHECKING:
-    from rangeslam.mdu.calibration import CalibrationProblem
+    from rangeslam.mdu.calibration import CalibrationProblem, Candidate
 
-__all__ = ["judge_calibration", "objective_scale", "same_calibration"]
+__all__ = [
+    "judge_calibration",
+    "judged_status",
+    "objective_scale",
+    "same_calibration",
+    "sources_note",
+]
 
 
 def objective_scale(problem: CalibrationProblem, ssr: float, n_fit: int, floor=None) -> float:
@@ -184,3 +193,47 @@ def judge_calibration(
     budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
     counted, _ = random_search(run, counted, randoms, budget=budget)
     return JudgedSearch.of(run(alternatives + counted), len(counted) + 1)
+
+
+def sources_note(best: Candidate, problem: CalibrationProblem) -> str:
+    """The note on the sources the receivers leave undetermined (their mirror images,
+    :func:`rangeslam.mdu.core.sources_verdict`), for a verdict that ends before the checks make
+    it."""
+    n_in = int(best.inliers.sum())
+    redundancy = n_in - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    sigma = verdict_noise(
+        problem.noise_std, noise_upper_bound(best.ssr, redundancy), problem.exact_rms
+    )
+    fit = best.fit
+    return sources_verdict(fit.receivers, fit.sources, problem.ranges, best.inliers, sigma,
+                           problem.exact_rms, "none")[1]  # fmt: skip
+
+
+def judged_status(
+    judged: JudgedSearch, best: Candidate, problem: CalibrationProblem, message: str
+) -> tuple[Status, str]:
+    """The judge's part of the verdict: NOT_IDENTIFIABLE for a rival minimum; NO_AGREEMENT when
+    the judge still found a minimum lower than the answer (told apart from it: the search's fit
+    from the lowest did not keep it), or for a robust calibration without a noise level whose
+    search the budget, not the stopping rule, ended (its inlier residuals pass against their
+    own spread wherever it dropped the ranges a wrong minimum misses, as a robust answer once
+    had to be reached twice); else CONVERGED."""
+    if not judged.judgement.check.passed:
+        note = sources_note(best, problem)
+        return judged.judgement.status, message + "; ".join(
+            filter(None, (judged.judgement.reason, note))
+        )
+    lower = judged.judgement.comparisons[0] if judged.judgement.replaced else None
+    if lower is not None and lower.kind == LOWER:
+        return Status.NO_AGREEMENT, message + (
+            f"{judged.judgement.answer.origin} reached a lower minimum than the answer (by "
+            f"{lower.delta_cost:.3g} noise variances) that the search's fit from it did not "
+            f"keep; {sources_note(best, problem)}"
+        )
+    if problem.robust and not problem.noise_std and not judged.complete:
+        return Status.NO_AGREEMENT, message + (
+            "the search ended before its stopping rule, minima no start reached still expected: "
+            "a robust fit without noise_std may drop the ranges a wrong minimum misses (pass "
+            f"noise_std, or raise max_attempts); {sources_note(best, problem)}"
+        )
+    return Status.CONVERGED, message

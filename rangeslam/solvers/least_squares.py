@@ -119,6 +119,51 @@ def gauge_rows(start: np.ndarray) -> np.ndarray:
     return np.vstack([translation, rotation])
 
 
+def _least_squares(start, m, r, pairs, loss, f_scale, max_nfev):
+    """scipy's fit of the scaled problem from ``start`` (N, d): MINPACK's LM with the gauge rows
+    (:func:`gauge_rows`) for a small Gaussian fit, else trust regions (sparse from
+    SPARSE_UNKNOWNS unknowns on); its ``fun`` holds the range residuals only."""
+    d = start.shape[1]
+
+    def fun(theta: np.ndarray) -> np.ndarray:
+        return unfolding_residuals(theta.reshape(-1, d), m, r, pairs)
+
+    def jac(theta: np.ndarray) -> np.ndarray:
+        return unfolding_jacobian(theta.reshape(-1, d), m, pairs)
+
+    tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
+    large = start.size >= SPARSE_UNKNOWNS
+    gauge, theta0 = gauge_rows(start), start.ravel()
+    # MINPACK's LM needs at least as many residuals as unknowns: the gauge rows make up the
+    # rigid motion; fewer still (a point ranged to fewer than d others) goes to trust regions.
+    if loss == "linear" and len(pairs) + len(gauge) >= start.size and not large:
+        fit = least_squares(
+            lambda theta: np.concatenate([fun(theta), gauge @ (theta - theta0)]),
+            theta0,
+            jac=lambda theta: np.vstack([jac(theta), gauge]),
+            method="lm",
+            max_nfev=max_nfev,
+            **tols,
+        )
+        fit.fun = fit.fun[: len(pairs)]
+        return fit
+    sparse_jac = {
+        "jac": lambda theta: sparse_unfolding_jacobian(theta.reshape(-1, d), m, pairs),
+        "tr_solver": "lsmr",
+    }
+    return least_squares(
+        fun,
+        theta0,
+        **(sparse_jac if large else {"jac": jac}),
+        method="trf",
+        loss=loss,
+        x_scale="jac",
+        f_scale=f_scale,
+        max_nfev=max_nfev,
+        **tols,
+    )
+
+
 def refine_unfolding(
     receivers: np.ndarray,
     sources: np.ndarray,
@@ -132,8 +177,9 @@ def refine_unfolding(
     """Least-squares unfolding started at ``receivers`` (M, d), ``sources`` (K, d).
 
     ``ranges`` (M, K) metres, ``mask`` (M, K) True for the ranges to fit. ``loss`` is scipy's
-    robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt; the others by a trust-region
-    reflective method, as is the Gaussian case with fewer ranges than coordinates, and every case
+    robust loss ("linear" is Gaussian ML, solved by Levenberg-Marquardt with the gauge fixed; the
+    others by a trust-region reflective method, as is the Gaussian case with fewer ranges than
+    coordinates beyond the gauge, and every case
     from :data:`SPARSE_UNKNOWNS` unknowns on, there on a sparse Jacobian with LSMR steps),
     ``loss_scale`` its inlier scale in metres. The problem is scaled to unit median range before
     scipy sees it.
@@ -156,44 +202,7 @@ def refine_unfolding(
     r = ranges[mask] / scale
     start = np.vstack([receivers, sources]) / scale
 
-    def fun(theta: np.ndarray) -> np.ndarray:
-        return unfolding_residuals(theta.reshape(-1, d), m, r, pairs)
-
-    def jac(theta: np.ndarray) -> np.ndarray:
-        return unfolding_jacobian(theta.reshape(-1, d), m, pairs)
-
-    tols = {"xtol": 1e-12, "ftol": 1e-12, "gtol": 1e-12}
-    large = start.size >= SPARSE_UNKNOWNS
-    gauge = gauge_rows(start)
-    # MINPACK's LM needs at least as many residuals as unknowns: the gauge rows make up the
-    # rigid motion; fewer still (a point ranged to fewer than d others) goes to trust regions.
-    if loss == "linear" and len(pairs) + len(gauge) >= start.size and not large:
-        theta0 = start.ravel()
-        fit = least_squares(
-            lambda theta: np.concatenate([fun(theta), gauge @ (theta - theta0)]),
-            theta0,
-            jac=lambda theta: np.vstack([jac(theta), gauge]),
-            method="lm",
-            max_nfev=max_nfev,
-            **tols,
-        )
-        fit.fun = fit.fun[: len(pairs)]
-    else:
-        sparse_jac = {
-            "jac": lambda theta: sparse_unfolding_jacobian(theta.reshape(-1, d), m, pairs),
-            "tr_solver": "lsmr",
-        }
-        fit = least_squares(
-            fun,
-            start.ravel(),
-            **(sparse_jac if large else {"jac": jac}),
-            method="trf",
-            loss=loss,
-            x_scale="jac",
-            f_scale=loss_scale / scale,
-            max_nfev=max_nfev,
-            **tols,
-        )
+    fit = _least_squares(start, m, r, pairs, loss, loss_scale / scale, max_nfev)
     points = fit.x.reshape(-1, d) * scale
     residuals = np.full(mask.shape, np.nan)
     residuals[mask] = fit.fun * scale
