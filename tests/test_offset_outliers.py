@@ -138,3 +138,36 @@ def test_guided_subsets_widen_from_the_best():
     later = np.concatenate([next(draws) for _ in range(400)])
     assert 0 not in later and set(later) == set(range(1, k))
     assert all(len(set(next(draws))) == n for _ in range(5))
+
+
+def test_the_consensus_calls_two_clean_subsets_the_same_answer(rng):
+    """Issue 42: the consensus's vote is the judge's same-answer test (no score or spread
+    tolerance of its own). Two disjoint subsets of 8 clean events are independent data: their
+    receivers agree within the region of the sum of their covariances. Where the second
+    subset's events were heard with receiver 0 moved 10 cm (100 sigma), its answer is another."""
+    from rangeslam.mdu.offset_outliers import SubsetAnswer, same_subset_answer
+
+    m, k = 12, 16
+    x, s = rng.uniform(0, 1, (m, 3)) * ROOM, rng.uniform(0, 1, (k, 3)) * ROOM
+    offsets = rng.uniform(-3, 3, m)[:, None] + rng.uniform(-3, 3, k)[None, :]
+    noise = SIGMA * rng.standard_normal((m, k))
+    moved = x.copy()
+    moved[0] += [0.1, 0.0, 0.0]
+    observed = np.ones((m, k), dtype=bool)
+    for heard_at, agrees in ((x, True), (moved, False)):
+        t = range_matrix(x, s) + offsets + noise
+        t[:, 8:] = (range_matrix(heard_at, s) + offsets + noise)[:, 8:]
+        answers = []
+        for cols in (np.arange(8), np.arange(8, 16)):
+            sub = calibrate_unknown_emission(
+                t[:, cols], np.arange(8), receiver_offsets=True, rng=rng
+            )
+            truth = x if cols[0] == 0 else heard_at
+            # the right minimum (a wrong one is metres off; 8 events determine it weakly)
+            assert align(sub.receivers, truth, reflection=True).errors.max() < 100 * SIGMA
+            answers.append(
+                SubsetAnswer(cols, sub.receivers, sub.receiver_offsets, sub.sources, 0.0, None)
+            )
+        same_at = same_subset_answer(t, observed, 3)
+        assert same_at(answers[0])(answers[1]) is agrees
+        assert same_at(answers[1])(answers[0]) is agrees

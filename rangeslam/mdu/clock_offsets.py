@@ -593,7 +593,7 @@ def _too_few_inliers(problem: ClockProblem, use: np.ndarray, kept: np.ndarray) -
 
 def _robust_calibration(problem: ClockProblem, rng) -> UnknownEmissionCalibration:
     """The robust run (:mod:`rangeslam.mdu.offset_outliers`) and its verdict (without
-    ``noise_std``, the vote is the consensus's: :data:`offset_outliers.VOTES` subsets agreed)."""
+    ``noise_std``, the vote is the consensus's: a second subset reached its answer)."""
     from rangeslam.mdu.offset_outliers import robust_status
 
     with one_blas_thread():

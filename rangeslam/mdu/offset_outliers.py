@@ -13,7 +13,8 @@ Here they are found without that mark, in three steps:
    their offsets) places every event of the data by a robust pseudorange multilateration
    (:func:`rangeslam.localization.pseudorange.multilaterate_with_offset`: one source and one
    offset per event), and is scored by the median |residual| over all arrivals. The search ends
-   when :data:`VOTES` subsets reached the lowest score, or after ``hypotheses`` subsets.
+   when a second subset reached the lowest-scored answer (the judge's same-answer test,
+   :func:`same_subset_answer`), or after ``hypotheses`` subsets.
 2. Growth: with the best answer's receivers, every event is placed again with the threshold
    :func:`~rangeslam.verdict.checks.level_sigmas` robust standard deviations (1.4826 MAD of the residuals, or ``noise_std``);
    the arrivals within it are inliers, and an event keeps its place only when a majority of its
@@ -34,17 +35,20 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rangeslam._robust import MAD_TO_STD
 from rangeslam.errors import DegenerateGeometryError, InvalidInputError
 from rangeslam.geometry.alignment import align
 from rangeslam.localization.pseudorange import multilaterate_with_offset
+from rangeslam.mdu.core import unknowns_up_to_rigid_motion
 from rangeslam.status import Status
 from rangeslam.verdict.checks import level_sigmas
+from rangeslam.verdict.judge import ReachedLowest, distance_level
+from rangeslam.verdict.thresholds import RANK_RTOL
 
 __all__ = [
     "SUBSET_EVENTS",
-    "VOTES",
     "Consensus",
     "EventPlacement",
     "consensus_search",
@@ -52,7 +56,10 @@ __all__ = [
     "guided_subsets",
     "min_event_inliers",
     "place_events",
+    "pseudo_inverse",
     "rank_events",
+    "receiver_covariance",
+    "same_subset_answer",
 ]
 
 #: Events in a consensus subset: K = 8 of the xtdoa data gave a median microphone error of 9 cm
@@ -62,14 +69,6 @@ SUBSET_EVENTS = 8
 #: Search runs of the plain estimator on a subset (its default is 60: a subset is only a start;
 #: a subset holding outliers runs them all, 0.3-0.4 s a run on the xtdoa data, measured).
 SUBSET_RUNS = 10
-#: Subsets that must reach the lowest score (within SAME_SCORE relative) with the same receivers
-#: (mean distance after a rigid alignment within SAME_RECEIVERS of their RMS spread) to end the
-#: search. The score alone does not tell answers apart: each event has 4 unknowns for 12 arrivals,
-#: so wrong receivers also leave a median |residual| of a few cm (xtdoa data, seed 0: two wrong
-#: answers 1.3 m off ended the search after 3 subsets when only the scores were compared).
-VOTES = 2
-SAME_SCORE = 0.1
-SAME_RECEIVERS = 0.05
 #: Random subsets of d + 2 receivers per event placement (of C(12, 5) = 792 for the xtdoa data):
 #: with 3 of 12 arrivals wrong, a subset of 5 is clean with probability 0.16, and 50 draws miss
 #: every clean one with probability 2e-4.
@@ -101,7 +100,7 @@ class EventPlacement:
 class Consensus:
     """The best consensus answer: receivers (M, d) and their offsets (M,), metres, its score
     (median |residual| over all arrivals, metres), the placement of every event, the subsets
-    tried, and whether :data:`VOTES` subsets reached it."""
+    tried, and whether a second subset reached it (:func:`same_subset_answer`)."""
 
     receivers: np.ndarray
     receiver_offsets: np.ndarray
@@ -199,6 +198,75 @@ def guided_subsets(ranked: np.ndarray, observed: np.ndarray, dim: int, n: int, r
             pool = min(pool + 1, len(usable))
 
 
+@dataclass(frozen=True)
+class SubsetAnswer:
+    """One consensus subset's answer: the event columns it was solved on (``cols``), its
+    receivers (M, d) and their offsets (M,), its sources (len(cols), d), metres, its score and
+    the placement of every event (:class:`Consensus`)."""
+
+    cols: NDArray[np.intp]
+    receivers: np.ndarray
+    receiver_offsets: np.ndarray
+    sources: np.ndarray
+    score: float
+    placement: EventPlacement
+
+
+def receiver_covariance(arrivals: np.ndarray, observed: np.ndarray, answer: SubsetAnswer, dim):
+    """(M d, M d) covariance of a subset answer's receivers (row-major, metres^2): the inverse of
+    their information in the subset's own events (the offsets eliminated, the sources profiled
+    out: the Schur complement), at the noise its residuals imply
+    (:func:`rangeslam.mdu.clock_offsets.clock_sigma`); a pseudo-inverse off the rigid motions
+    (eigenvalues below RANK_RTOL of the largest)."""
+    from rangeslam.mdu.clock_offsets import ProfiledUnfolding, clock_sigma, spread_from_arrivals
+
+    r, obs = arrivals[:, answer.cols], observed[:, answer.cols]
+    scale = spread_from_arrivals(r, obs)
+    model = ProfiledUnfolding(r, obs, np.arange(len(answer.cols)), dim, scale)
+    theta = np.vstack([answer.receivers, answer.sources]).ravel() / scale
+    sigma = clock_sigma(model, float(np.sum(model.residuals(theta) ** 2))) * scale
+    jac = model.jacobian(theta) / sigma  # the scale cancels: residual and points both scaled
+    n_rec = answer.receivers.size
+    mine, nuisance = jac[:, :n_rec], jac[:, n_rec:]
+    marginal = mine - nuisance @ np.linalg.lstsq(nuisance, mine, rcond=None)[0]
+    return pseudo_inverse(marginal.T @ marginal)
+
+
+def pseudo_inverse(matrix: np.ndarray) -> np.ndarray:
+    """The pseudo-inverse of a symmetric positive semi-definite ``matrix`` by ``eigh``,
+    eigenvalues below RANK_RTOL of the largest taken as zero (the gauge)."""
+    values, vectors = np.linalg.eigh(matrix)
+    keep = values > RANK_RTOL * values.max()
+    return (vectors[:, keep] / values[keep]) @ vectors[:, keep].T
+
+
+def same_subset_answer(arrivals: np.ndarray, observed: np.ndarray, dim: int):
+    """The judge's same-answer test for consensus subsets (:class:`rangeslam.verdict.judge.
+    ReachedLowest`'s ``same_at``): at a subset's answer ``best``, a predicate of another
+    subset's answer, true when its receivers, moved onto ``best``'s by the best rigid motion,
+    lie within :func:`rangeslam.verdict.judge.distance_level` (the receivers' unknowns up to a
+    rigid motion) in delta^2 = step^T (C_best + C_other)^+ step: two subsets are independent
+    data, so their answers differ with the sum of their covariances
+    (:func:`receiver_covariance`, the other's rotated into ``best``'s frame). arrivals, observed:
+    (M, K) of all events."""
+    m = observed.shape[0]
+    level = distance_level(unknowns_up_to_rigid_motion(m, dim))
+
+    def same_at(best: SubsetAnswer):
+        mine = receiver_covariance(arrivals, observed, best, dim)
+
+        def same(other: SubsetAnswer) -> bool:
+            moved = align(other.receivers, best.receivers, reflection=True)
+            turn = np.kron(np.eye(m), moved.rotation)
+            theirs = turn @ receiver_covariance(arrivals, observed, other, dim) @ turn.T
+            step = (moved.aligned - best.receivers).ravel()
+            return float(step @ pseudo_inverse(mine + theirs) @ step) <= level
+
+        return same
+
+    return same_at
+
+
 def consensus_search(
     arrivals: np.ndarray,
     observed: np.ndarray,
@@ -207,12 +275,13 @@ def consensus_search(
     rng: np.random.Generator,
 ) -> Consensus:
     """Step 1 (module docstring): the subset answer with the lowest median |residual| over all
-    arrivals, once :data:`VOTES` subsets reached it (or after ``hypotheses`` subsets; with at
-    most :data:`SUBSET_EVENTS` events, the one subset of all). arrivals, observed: (M, K).
-    Raises InvalidInputError when no subset could be solved."""
+    arrivals, once a second subset reached it (:func:`same_subset_answer`; or after
+    ``hypotheses`` subsets; with at most :data:`SUBSET_EVENTS` events, the one subset of all).
+    arrivals, observed: (M, K). Raises InvalidInputError when no subset could be solved."""
     from rangeslam.mdu.clock_offsets import calibrate_with_clock_offsets
 
-    best, hits, n = None, 0, 0
+    lowest = ReachedLowest(same_subset_answer(arrivals, observed, dim), lambda a: a.score)
+    n = 0
     few = observed.shape[1] <= SUBSET_EVENTS  # the one subset of all: nothing to rank
     ranked = np.arange(observed.shape[1]) if few else rank_events(arrivals, observed, dim, rng)
     for cols in guided_subsets(ranked, observed, dim, SUBSET_EVENTS, rng):
@@ -228,30 +297,21 @@ def consensus_search(
             placement = place_events(
                 sub.receivers, sub.receiver_offsets, arrivals, observed, None, rng
             )
-            score = _score(placement, observed)
-            if best is not None and _same_answer(sub.receivers, score, best):
-                hits += 1
-            elif best is None or score < best.score:
-                best, hits = Consensus(sub.receivers, sub.receiver_offsets, score, placement, n), 1
-        if hits >= VOTES or n >= hypotheses or few:
+            answer = SubsetAnswer(
+                cols, sub.receivers, sub.receiver_offsets, sub.sources,
+                _score(placement, observed), placement,
+            )  # fmt: skip
+            lowest.add(answer)
+        if lowest.confirmed or n >= hypotheses or few:
             break
+    best = lowest.best
     if best is None:
         raise InvalidInputError(
             f"no subset of {SUBSET_EVENTS} events could be solved in {n} tries: too few arrivals"
         )
     return Consensus(
-        best.receivers, best.receiver_offsets, best.score, best.placement, n, hits >= VOTES
+        best.receivers, best.receiver_offsets, best.score, best.placement, n, lowest.confirmed
     )
-
-
-def _same_answer(receivers: np.ndarray, score: float, best: Consensus) -> bool:
-    """Whether a subset's answer is ``best`` again: score within SAME_SCORE relative, receivers
-    within SAME_RECEIVERS of their spread after a rigid alignment (reflection allowed)."""
-    if abs(score - best.score) > SAME_SCORE * best.score:
-        return False
-    spread = float(np.sqrt(np.mean(np.sum((best.receivers - best.receivers.mean(0)) ** 2, 1))))
-    gap = align(receivers, best.receivers, reflection=True).errors.mean()
-    return bool(gap <= SAME_RECEIVERS * spread)
 
 
 def grow_inliers(
