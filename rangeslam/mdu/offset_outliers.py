@@ -56,7 +56,6 @@ __all__ = [
     "guided_subsets",
     "min_event_inliers",
     "place_events",
-    "pseudo_inverse",
     "rank_events",
     "receiver_covariance",
     "same_subset_answer",
@@ -217,27 +216,21 @@ def receiver_covariance(arrivals: np.ndarray, observed: np.ndarray, answer: Subs
     their information in the subset's own events (the offsets eliminated, the sources profiled
     out: the Schur complement), at the noise its residuals imply
     (:func:`rangeslam.mdu.clock_offsets.clock_sigma`); a pseudo-inverse off the rigid motions
-    (eigenvalues below RANK_RTOL of the largest)."""
+    (eigenvalues below RANK_RTOL of the largest). Not finite when the answer's sources are not."""
     from rangeslam.mdu.clock_offsets import ProfiledUnfolding, clock_sigma, spread_from_arrivals
 
+    n_rec = answer.receivers.size
+    if not (np.all(np.isfinite(answer.receivers)) and np.all(np.isfinite(answer.sources))):
+        return np.full((n_rec, n_rec), np.nan)
     r, obs = arrivals[:, answer.cols], observed[:, answer.cols]
     scale = spread_from_arrivals(r, obs)
     model = ProfiledUnfolding(r, obs, np.arange(len(answer.cols)), dim, scale)
     theta = np.vstack([answer.receivers, answer.sources]).ravel() / scale
     sigma = clock_sigma(model, float(np.sum(model.residuals(theta) ** 2))) * scale
     jac = model.jacobian(theta) / sigma  # the scale cancels: residual and points both scaled
-    n_rec = answer.receivers.size
     mine, nuisance = jac[:, :n_rec], jac[:, n_rec:]
     marginal = mine - nuisance @ np.linalg.lstsq(nuisance, mine, rcond=None)[0]
-    return pseudo_inverse(marginal.T @ marginal)
-
-
-def pseudo_inverse(matrix: np.ndarray) -> np.ndarray:
-    """The pseudo-inverse of a symmetric positive semi-definite ``matrix`` by ``eigh``,
-    eigenvalues below RANK_RTOL of the largest taken as zero (the gauge)."""
-    values, vectors = np.linalg.eigh(matrix)
-    keep = values > RANK_RTOL * values.max()
-    return (vectors[:, keep] / values[keep]) @ vectors[:, keep].T
+    return np.linalg.pinv(marginal.T @ marginal, rcond=RANK_RTOL, hermitian=True)
 
 
 def same_subset_answer(arrivals: np.ndarray, observed: np.ndarray, dim: int):
@@ -259,8 +252,11 @@ def same_subset_answer(arrivals: np.ndarray, observed: np.ndarray, dim: int):
             moved = align(other.receivers, best.receivers, reflection=True)
             turn = np.kron(np.eye(m), moved.rotation)
             theirs = turn @ receiver_covariance(arrivals, observed, other, dim) @ turn.T
+            if not (np.all(np.isfinite(mine)) and np.all(np.isfinite(theirs))):
+                return False  # an answer without a covariance reaches nothing
             step = (moved.aligned - best.receivers).ravel()
-            return float(step @ pseudo_inverse(mine + theirs) @ step) <= level
+            spread = np.linalg.pinv(mine + theirs, rcond=RANK_RTOL, hermitian=True)
+            return float(step @ spread @ step) <= level
 
         return same
 
