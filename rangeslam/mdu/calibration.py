@@ -3,10 +3,12 @@
 Multidimensional unfolding (MDU, eq. 9): the M x K ranges between receivers (microphones) and
 sources (a loudspeaker and its image sources, or acoustic events) are the off-diagonal block of an
 (M + K) x (M + K) EDM. :func:`calibrate` completes it with Dattorro's convex iteration (eq. 10,
-:mod:`rangeslam.solvers.sdp`), embeds it in ``dim`` dimensions, refines the points by least squares on the
-ranges (:mod:`rangeslam.solvers.least_squares`) and checks the answer against the noise. The problem has local
-minima (the convex iteration can stall at a wrong rank-d point), so a failed attempt is restarted
-from a random direction Z until an answer passes the check; the result says whether one did.
+:mod:`rangeslam.solvers.sdp`), embeds it in ``dim`` dimensions and refines the points by least
+squares on the ranges (:mod:`rangeslam.solvers.least_squares`). The problem has local minima (the
+convex iteration can stall at a wrong rank-d point), so the iteration is run again from other
+weights and random directions Z (until an answer passes the residual test, or every run without
+a noise level); the judge (:mod:`rangeslam.mdu.calibration_judge`) then compares the answer with
+every alternative, and the verdict checks it against the noise.
 
 Everything is recovered up to a rigid motion *and a reflection* (ranges cannot tell handedness).
 The result is expressed with the receivers' centroid at the origin and their principal axes along
