@@ -379,3 +379,4 @@ def test_cheap_runs_stop_once_settled_and_reach_the_full_schedule_minimum(rng):
     assert cheap.status is full.status, (cheap.message, full.message)
     ssr = [float(np.nansum(c.residuals**2)) for c in (cheap, full)]
     assert ssr[0] <= ssr[1] * (1 + 1e-6) + 1e-18
+    assert align(cheap.receivers, full.receivers, reflection=True).errors.max() < 1e-6

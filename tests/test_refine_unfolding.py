@@ -45,18 +45,20 @@ def test_gauge_rows_vanish_at_the_procrustes_alignment(seed, n, d):
     spin[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
     centre = start.mean(0)
     spun = (moved - centre) @ spin.T + centre
-    assert np.abs(rows @ (spun - start).ravel()).max() > 0
+    # to first order the rotation row moves by angle * sum |q_i|^2 over the spun plane's axes
+    q = start - centre
+    assert np.abs(rows[d:] @ (spun - start).ravel()).max() > 0.5 * angle * np.sum(q[:, :2] ** 2)
 
 
 @pytest.mark.parametrize("d", [2, 3])
 def test_exact_recovery_with_fewer_ranges_than_coordinates(rng, d):
-    """Fig. 3's pattern (6 x 6 = 36 ranges for 36 coordinates in 3-D; 6 x 4 = 24 for 20 in
-    2-D): noise-free ranges are fitted exactly from a perturbed truth, up to a rigid motion."""
-    if d == 3:
-        scene = fig3_scene(rng)
-        receivers, sources = scene.mics, scene.sources
-    else:
-        receivers, sources = rng.uniform(0, 3, (6, 2)), rng.uniform(0, 3, (4, 2))
+    """Fewer ranges than coordinates, more than the coordinates beyond the rigid motion (the
+    gauge rows' case, which MINPACK's LM takes): 5 x 5 = 25 ranges for 30 coordinates in 3-D,
+    3 x 5 = 15 for 16 in 2-D. Noise-free ranges are fitted exactly from a perturbed truth, up to
+    a rigid motion."""
+    shape = (5, 5) if d == 3 else (3, 5)
+    receivers = rng.uniform(0, 3, (shape[0], d))
+    sources = rng.uniform(0, 3, (shape[1], d))
     ranges = range_matrix(receivers, sources)
     mask = np.ones(ranges.shape, dtype=bool)
     fit = refine_unfolding(
@@ -65,6 +67,7 @@ def test_exact_recovery_with_fewer_ranges_than_coordinates(rng, d):
         ranges,
         mask,
     )
+    assert ranges.size < (sum(shape)) * d
     assert fit.converged
     assert fit.rms < 1e-9
     assert align(fit.receivers, receivers, reflection=True).errors.max() < 1e-7

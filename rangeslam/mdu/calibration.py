@@ -236,8 +236,12 @@ def starting_points(problem: CalibrationProblem, rng, failures: list[str]):
     """Yield :class:`Start`: the convex-iteration runs (eq. 10), then, with ``refine`` and not
     ``robust``, up to ``random_starts`` random points (not when every SDP run failed)."""
     loss = "l1" if problem.robust else "l2"
+    # refined least-squares runs are starts of the judge: each stops once its embedding settles
+    # (the same answers as runs to the gap on 30 Fig. 3 scenes, benchmarks/README.md); without
+    # ``refine`` the SDP's points are the answer, and robust runs make 3 solves
+    settle = problem.refine and not problem.robust
     for completion in core_runs(problem.ranges, problem.observed, problem.dim, problem.options,
-                                rng, failures, loss=loss):  # fmt: skip
+                                rng, failures, loss=loss, every_run_settles=settle):  # fmt: skip
         yield Start(completion.points, completion)
     if len(failures) == problem.options.max_attempts:
         return  # the SDP failed every time: raise below rather than guess
@@ -696,11 +700,12 @@ def judged_outcome(
     answer = _points(best)
     starts = [_points(c) for c in outcome.candidates if c is not best]
     inliers = best.inliers if problem.robust else None
-    points, hops = answer, []
+    points, hops, settled = answer, [], False
     for _ in range(SEARCH_BUDGET):
         judged = judge_calibration(problem, points, sigma, rng, inliers=inliers, starts=starts)
         lowest = judged.judgement.answer
         if lowest.points is points:
+            settled = True
             break
         first = judged.judgement.comparisons[0]  # the judged points, against the lowest
         points = lowest.points
@@ -708,7 +713,10 @@ def judged_outcome(
             hops.append(f"{lowest.origin} reached a lower minimum (by {first.delta_cost:.3g} "
                         "noise variances)")  # fmt: skip
         if first.delta_cost <= cost_level():
-            break  # within the level: every alternative was compared with the lowest already
+            # within the level: the last judgement compared every alternative with the lowest
+            # (those generated from the judged points: the same answer or a rival of it)
+            settled = True
+            break
     if points is answer:
         return outcome, judged
     cand = fit_start(Start(points, None), problem, sigma if problem.robust else None, rng)
@@ -717,8 +725,10 @@ def judged_outcome(
     note = f"{', then '.join(hops)}: it replaced the search's answer; " if hops else ""
     cand = dataclasses.replace(cand, message=best.message + note)
     # the answer reported is the one judged: the last judgement's answer is the lowest; the
-    # replacement's own fit is judged once more unless it is that least-squares minimum again
-    if problem.robust or not same_calibration(problem, points, sigma)(_points(cand)):
+    # replacement's own fit is judged once more unless the descent settled there and the fit is
+    # that least-squares minimum again
+    same = settled and not problem.robust
+    if not (same and same_calibration(problem, points, sigma)(_points(cand))):
         judged = judge_calibration(
             problem, _points(cand), sigma, rng, inliers=inliers, starts=starts
         )

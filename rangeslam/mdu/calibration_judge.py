@@ -52,7 +52,6 @@ __all__ = [
     "judged_status",
     "objective_scale",
     "same_calibration",
-    "sources_note",
 ]
 
 
@@ -195,7 +194,7 @@ def judge_calibration(
     return JudgedSearch.of(run(alternatives + counted), len(counted) + 1)
 
 
-def sources_note(best: Candidate, problem: CalibrationProblem) -> str:
+def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
     """The note on the sources the receivers leave undetermined (their mirror images,
     :func:`rangeslam.mdu.core.sources_verdict`), for a verdict that ends before the checks make
     it."""
@@ -219,7 +218,7 @@ def judged_status(
     own spread wherever it dropped the ranges a wrong minimum misses, as a robust answer once
     had to be reached twice); else CONVERGED."""
     if not judged.judgement.check.passed:
-        note = sources_note(best, problem)
+        note = _sources_note(best, problem)
         return judged.judgement.status, message + "; ".join(
             filter(None, (judged.judgement.reason, note))
         )
@@ -228,12 +227,12 @@ def judged_status(
         return Status.NO_AGREEMENT, message + (
             f"{judged.judgement.answer.origin} reached a lower minimum than the answer (by "
             f"{lower.delta_cost:.3g} noise variances) that the search's fit from it did not "
-            f"keep; {sources_note(best, problem)}"
+            f"keep; {_sources_note(best, problem)}"
         )
     if problem.robust and not problem.noise_std and not judged.complete:
         return Status.NO_AGREEMENT, message + (
             "the search ended before its stopping rule, minima no start reached still expected: "
             "a robust fit without noise_std may drop the ranges a wrong minimum misses (pass "
-            f"noise_std, or raise max_attempts); {sources_note(best, problem)}"
+            f"noise_std, or raise max_attempts); {_sources_note(best, problem)}"
         )
     return Status.CONVERGED, message

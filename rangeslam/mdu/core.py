@@ -215,7 +215,8 @@ class ConvexIterationOptions:
         start: one of :data:`EDM_STARTS`: "full" (the older schedule: every run to
             ``gap_tol`` or a stall) or "cheap" (the estimator stops at the first run its verdict
             accepts, and the first run also stops once its rank-d embedding has settled: see
-            :data:`EMBEDDING_RTOL`).
+            :data:`EMBEDDING_RTOL`; with ``every_run_settles`` of
+            :func:`convex_iteration_runs`, every run does).
     """
 
     max_attempts: int = 8

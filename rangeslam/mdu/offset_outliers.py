@@ -51,6 +51,7 @@ __all__ = [
     "SUBSET_EVENTS",
     "Consensus",
     "EventPlacement",
+    "SubsetAnswer",
     "consensus_search",
     "grow_inliers",
     "guided_subsets",

@@ -290,23 +290,22 @@ def keyframe_runs(
 def core_runs(
     ranges: np.ndarray, observed: np.ndarray, dim: int, options: ConvexIterationOptions,
     rng: np.random.Generator, failures: list[str], *, loss: str = "l2",
+    every_run_settles: bool = False,
 ):  # fmt: skip
     """Yield the convex-iteration runs (eq. 10) of an unfolding's ranges (M, K) with pattern
     ``observed`` (M, K) on a core of it (:class:`CalibrationCore`), expanded to every point; a
     run whose expansion fails is lost like a failed SDP (its reason appended to ``failures``).
-    ``loss``: the SDP's ("l1" for robust runs)."""
+    ``loss``: the SDP's ("l1" for robust runs); ``every_run_settles``: every run stops once its
+    embedding settles (:func:`rangeslam.mdu.core.convex_iteration_runs`)."""
     from rangeslam.solvers.sdp import EDMCompletionSDP  # cvxpy only where an SDP is solved
 
     core = CalibrationCore.choose(observed, dim, rng)
     block = np.ix_(core.receivers, core.sources)
     w = mdu_mask(observed[block])
     sdp = EDMCompletionSDP(w, loss=loss)
-    # least-squares runs are starts of calibrate's judge: each stops once its embedding settles
-    # (the same answers as runs to the gap on 30 Fig. 3 scenes, benchmarks/README.md); robust
-    # runs make 3 solves and run them all
     runs = convex_iteration_runs(
         sdp, mdu_edm(ranges[block]), w, dim, options=options, rng=rng, failures=failures,
-        every_run_settles=loss == "l2",
+        every_run_settles=every_run_settles,
     )  # fmt: skip
     for completion in runs:
         if not core.is_subset:

@@ -135,7 +135,8 @@ def _least_squares(start, m, r, pairs, loss, f_scale, max_nfev):
     large = start.size >= SPARSE_UNKNOWNS
     gauge, theta0 = gauge_rows(start), start.ravel()
     # MINPACK's LM needs at least as many residuals as unknowns: the gauge rows make up the
-    # rigid motion; fewer still (a point ranged to fewer than d others) goes to trust regions.
+    # rigid motion; fewer than N d - d (d + 1) / 2 ranges go to trust regions. fit.cost, jac
+    # and grad keep the gauge rows (zero at the solution); only fun is cut to the ranges.
     if loss == "linear" and len(pairs) + len(gauge) >= start.size and not large:
         fit = least_squares(
             lambda theta: np.concatenate([fun(theta), gauge @ (theta - theta0)]),
