@@ -21,7 +21,7 @@ import sys
 import time
 
 import numpy as np
-from _common import machine, markdown_table
+from _common import machine, markdown_table, wrap_parts
 from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
 
 import rangeslam.mdu.calibration  # noqa: F401  (the module, which the function shadows)
@@ -41,25 +41,10 @@ PARTS = {
 }
 
 
-def wrap_parts(spent: dict[str, float]) -> None:
-    """Replace each function of PARTS by one that adds its wall-clock seconds to ``spent``."""
-    for name, (owner, attr) in PARTS.items():
-        inner = getattr(owner, attr)
-
-        def timed(*args, _inner=inner, _name=name, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return _inner(*args, **kwargs)
-            finally:
-                spent[_name] = spent.get(_name, 0.0) + time.perf_counter() - t0
-
-        setattr(owner, attr, timed)
-
-
 def profile(scenes: int, seed: int, given: bool) -> tuple[list[tuple], list[str]]:
     """(total s, parts, SDP solves) of each scene's calibration, and its statuses."""
     spent: dict[str, float] = {}
-    wrap_parts(spent)
+    unwrap = wrap_parts(PARTS, spent)
     rng = np.random.default_rng(seed)
     rows, statuses = [], []
     for i in range(scenes):
@@ -70,8 +55,7 @@ def profile(scenes: int, seed: int, given: bool) -> tuple[list[tuple], list[str]
         out = CAL.calibrate(ranges, dim=3, noise_std=1e-3 if given else None, rng=i)
         rows.append((time.perf_counter() - t0, dict(spent), out.iterations))
         statuses.append(out.status.name)
-    for _, (owner, attr) in PARTS.items():  # unwrap for the next setting
-        setattr(owner, attr, getattr(owner, attr).__kwdefaults__["_inner"])
+    unwrap()  # the originals again for the next setting
     return rows, statuses
 
 

@@ -22,7 +22,7 @@ import sys
 import time
 
 import numpy as np
-from _common import machine, markdown_table
+from _common import machine, markdown_table, wrap_parts
 from bench_edm_start import gtsam_best_of, walk_scene
 
 import rangeslam.mdu.slam  # noqa: F401  (the module, which the function of that name shadows)
@@ -40,28 +40,13 @@ PARTS = {
 }
 
 
-def wrap_parts(spent: dict[str, float]) -> None:
-    """Replace each function of PARTS by one that adds its wall-clock seconds to ``spent``."""
-    for name, (module, attr) in PARTS.items():
-        inner = getattr(module, attr)
-
-        def timed(*args, _inner=inner, _name=name, **kwargs):
-            t0 = time.perf_counter()
-            try:
-                return _inner(*args, **kwargs)
-            finally:
-                spent[_name] = spent.get(_name, 0.0) + time.perf_counter() - t0
-
-        setattr(module, attr, timed)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--walks", type=int, default=10)
     ap.add_argument("--seed", type=int, required=True)
     args = ap.parse_args()
     spent: dict[str, float] = {}
-    wrap_parts(spent)
+    wrap_parts(PARTS, spent)
     rng = np.random.default_rng(args.seed)
     rows = []
     for i in range(args.walks):
