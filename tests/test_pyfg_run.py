@@ -226,11 +226,15 @@ def test_cli_run_on_the_cora_files(tmp_path, name):
     assert summary["ape_mean_m"] <= summary["odometry_ape_mean_m"] + 1e-9
 
 
+BEACON_LOG_METHODS = ("edm+gtsam", "edm+isam2", "ekf", "gtsam-example")
+
+
 def test_bench_pyfg_table(rng, tmp_path, capsys):
     """`rangeslam bench pyfg`: a row per file and method; gtsam's first poses come from the data,
     the odometry baseline's and gtsam-reference-start's from the reference (named in the
-    table); edm+gtsam runs on a one-robot 2-D beacon log and says why it does not on two
-    robots; the table, CSV and JSON are written."""
+    table); the beacon-log methods (edm+gtsam, edm+isam2, ekf, gtsam-example) run on a one-robot
+    2-D beacon log and each says why it does not on two robots; the table, CSV and JSON are
+    written."""
     from rangeslam.beacons import simulate_beacon_run
 
     run = simulate_beacon_run(rng, n_steps=400)
@@ -243,12 +247,16 @@ def test_bench_pyfg_table(rng, tmp_path, capsys):
     assert [(r["file"], r["method"]) for r in rows] == [
         (f, m)
         for f in ("one", "two")
-        for m in ("odometry", "gtsam", "gtsam-reference-start", "edm+gtsam")
+        for m in ("odometry", "gtsam", "gtsam-reference-start", *BEACON_LOG_METHODS)
     ]
     by = {(r["file"], r["method"]): r for r in rows}
-    assert by["two", "edm+gtsam"]["status"] == "not run"
-    assert "2 robots" in by["two", "edm+gtsam"]["message"]
-    assert by["one", "edm+gtsam"]["ape_mean_m"] >= 0
+    for m in BEACON_LOG_METHODS:
+        assert by["two", m]["status"] == "not run"
+        assert "2 robots" in by["two", m]["message"]
+        assert by["one", m]["status"] != "not run"
+        assert np.isfinite(by["one", m]["ape_mean_m"])
+    for m in ("edm+gtsam", "edm+isam2"):  # the EDM start reads the ranges: below dead reckoning
+        assert by["one", m]["ape_mean_m"] < by["one", "odometry"]["ape_mean_m"], m
     assert by["two", "gtsam"]["ape_rmse_m"] < by["two", "odometry"]["ape_rmse_m"]
     table = (out / "pyfg_bench.md").read_text()
     assert "| two | gtsam | data | CONVERGED |" in table

@@ -14,10 +14,14 @@ Methods (:data:`PYFG_METHODS`, a registry: a peer is one entry):
   robot's reference first pose (CORA's odometry-start protocol: the truth places the robots
   relative to each other; for comparison only);
 - ``edm+gtsam``: :func:`rangeslam.beacons.beacon_slam` (EDM windows, stitching, GTSAM with the
-  range calibration unknown), where the problem is a one-robot 2-D beacon log
-  (:meth:`RangeOdometry.from_problem <rangeslam.beacons.RangeOdometry.from_problem>`); it uses
-  noise derived from the data, not the file's, and no reference pose. Elsewhere: not run, and
-  the row says why.
+  range calibration unknown), ``edm+isam2`` (:func:`rangeslam.beacons.beacon_slam_incremental`,
+  the same start, iSAM2), ``ekf`` (:func:`rangeslam.baselines.ekf_range_odometry`, filterpy) and
+  ``gtsam-example`` (:func:`rangeslam.baselines.gtsam_range_example`, GTSAM's
+  RangeISAMExample), where the problem is a one-robot 2-D beacon log
+  (:meth:`RangeOdometry.from_problem <rangeslam.beacons.RangeOdometry.from_problem>`: unicycle
+  odometry, ranges to landmarks only); they derive their noise from the data, not from the
+  file, and read no reference pose. Elsewhere: not run, and the row says why (their model
+  does not hold several robots, 3-D, sideways odometry or ranges between robots).
 
 APE: one rigid motion (no scale) fitted to all poses carries every robot and landmark (evo's
 ``-a`` on the joint trajectory). Times are wall times on this machine; CORA's published times
@@ -76,15 +80,48 @@ def _gtsam_reference_start(problem):
             res.message)  # fmt: skip
 
 
-def _edm_gtsam(problem):
-    from rangeslam.beacons import RangeOdometry, beacon_slam
+def _beacon_log_method(run):
+    """A method of the beacon-log family as a PYFG_METHODS entry: ``run(data)`` on the problem as
+    a :class:`rangeslam.beacons.RangeOdometry` (InvalidInputError, naming why, where it is
+    not one: the row then says "not run" and the reason). Each starts at the origin facing +x
+    (robot A's first pose, the gauge of the other rows) and derives its noise from the data,
+    not from the file."""
 
-    data = RangeOdometry.from_problem(problem)  # InvalidInputError: not a beacon log
-    t0 = time.perf_counter()
-    res = beacon_slam(data)
-    seconds = time.perf_counter() - t0
-    placed = np.where(np.isfinite(res.beacons), res.beacons, np.nan)
-    return res.poses, placed, res.status.name, seconds, "data", None, res.message
+    def method(problem):
+        from rangeslam.beacons import RangeOdometry
+
+        data = RangeOdometry.from_problem(problem)
+        t0 = time.perf_counter()
+        res = run(data)
+        seconds = time.perf_counter() - t0
+        placed = np.where(np.isfinite(res.beacons), res.beacons, np.nan)
+        return res.poses, placed, res.status.name, seconds, "data", None, res.message
+
+    return method
+
+
+def _edm_gtsam(data):
+    from rangeslam.beacons import beacon_slam
+
+    return beacon_slam(data)
+
+
+def _edm_isam2(data):
+    from rangeslam.beacons import beacon_slam_incremental
+
+    return beacon_slam_incremental(data)
+
+
+def _ekf(data):
+    from rangeslam.baselines import ekf_range_odometry
+
+    return ekf_range_odometry(data, rng=np.random.default_rng(0))
+
+
+def _gtsam_example(data):
+    from rangeslam.baselines import gtsam_range_example
+
+    return gtsam_range_example(data, rng=np.random.default_rng(0))
 
 
 #: name -> function(problem) -> (poses, landmarks, status, seconds, first poses from ("data",
@@ -93,7 +130,10 @@ PYFG_METHODS = {
     "odometry": _odometry,
     "gtsam": _gtsam,
     "gtsam-reference-start": _gtsam_reference_start,
-    "edm+gtsam": _edm_gtsam,
+    "edm+gtsam": _beacon_log_method(_edm_gtsam),
+    "edm+isam2": _beacon_log_method(_edm_isam2),
+    "ekf": _beacon_log_method(_ekf),
+    "gtsam-example": _beacon_log_method(_gtsam_example),
 }
 
 
