@@ -179,3 +179,71 @@ def test_file_priors_fix_the_gauge(rng):
     assert res.status is Status.CONVERGED, res.message
     np.testing.assert_allclose(res.poses[rows], p.truth_poses[rows], atol=0.05)
     assert np.max(np.linalg.norm(positions(res.poses) - positions(p.truth_poses), axis=1)) < 0.6
+
+
+def _answer_and_graph(p: RangeAidedProblem):
+    """(graph, the answer as an Alternative) as solve_gtsam makes them, from the truth's first
+    poses."""
+    from rangeslam.rangeaided.gtsam_solve import build_graph
+    from rangeslam.rangeaided.rivals import candidate
+    from rangeslam.rangeaided.start import landmark_start, odometry_start
+
+    poses, _ = odometry_start(p, p.truth_poses[[0, p.robot_rows(1)[0]]])
+    graph, _ = build_graph(p, poses)
+    return graph, candidate(p, graph, (poses, landmark_start(p, poses)), "answer", True, 200)
+
+
+def test_judge_work_budget_cuts_far_runs_and_finishes_near_ones(rng):
+    """The judge's Levenberg-Marquardt work is SEARCH_BUDGET times the answer's iterations. A run
+    capped by what is left while still far above the answer's cost is dropped, in words; one
+    capped within the cost level (here the answer's minimum, moved 1 cm) is run on to its
+    minimum, its iterations counted in full."""
+    from rangeslam.rangeaided.rivals import WorkBudget
+    from rangeslam.verdict.thresholds import SEARCH_BUDGET
+
+    p = two_robots(rng)
+    graph, answer = _answer_and_graph(p)
+    budget = WorkBudget(answer, 200)
+    assert budget.total == SEARCH_BUDGET * answer.payload.iterations
+    assert str(budget.total) in budget.words()
+    budget.left = 1
+    far = (p.truth_poses + np.array([5.0, -3.0, 2.0]), p.truth_landmarks + 4.0)
+    assert budget.run(p, graph, far, "far start", True) is None
+    assert budget.left <= 0 and budget.cut[0].startswith("far start: cut by the budget after 1")
+    budget.left = 1
+    fit = answer.payload
+    near = (fit.poses + rng.normal(0, 0.01, fit.poses.shape), fit.marks)
+    alt = budget.run(p, graph, near, "near start", True)
+    assert alt is not None and alt.payload.iterations > 1
+    assert alt.deviance == pytest.approx(answer.deviance, abs=1e-3)
+    assert budget.left == 1 - alt.payload.iterations
+
+
+def test_judge_search_ends_within_its_budget(rng, monkeypatch):
+    """Every first run of a candidate is capped by what is left of the budget, so together they
+    stay within it (a run on of a candidate within the level comes on top); the search's check
+    names the budget when it, not the stopping rule, ended the starts."""
+    import rangeslam.rangeaided.gtsam_solve as gtsam_solve
+    import rangeslam.rangeaided.rivals as rivals
+
+    runs = []
+    original = rivals.candidate
+
+    def counted(problem, graph, start, origin, counted, max_iterations):
+        alt = original(problem, graph, start, origin, counted, max_iterations)
+        runs.append((origin, alt.payload.iterations))
+        return alt
+
+    monkeypatch.setattr(rivals, "candidate", counted)
+    monkeypatch.setattr(gtsam_solve, "candidate", counted)
+    res = solve_gtsam(two_robots(rng, n=80))
+    assert runs[0][0] == "the answer"
+    seen, first_runs = set(), []
+    for origin, iterations in runs[1:]:
+        if origin not in seen:
+            first_runs.append(iterations)
+        seen.add(origin)
+    assert len(first_runs) >= 2
+    assert sum(first_runs) <= rivals.SEARCH_BUDGET * max(runs[0][1], 1)
+    search = next(c for c in res.checks if c.name == "search complete")
+    assert search.passed or "Levenberg-Marquardt iterations" in search.reason, search.reason

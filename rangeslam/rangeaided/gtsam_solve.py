@@ -246,7 +246,8 @@ def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, itera
       *below* it (stated noise conservative, as in CORA's files) pass; the message says by how
       much.
     - "search complete": the stopping rule, not the budget, ended the random starts (reported;
-      the status does not depend on it, as in slam).
+      the status does not depend on it, as in slam). The budget is of work
+      (:class:`rangeslam.rangeaided.rivals.WorkBudget`); the candidates it cut are named.
     The precision of the answer (a gauge-free covariance) is not judged.
     """
     rng_w = _whitened(graph, values, groups.ranges)
@@ -275,6 +276,9 @@ def judge(problem: RangeAidedProblem, graph, groups: FactorGroups, values, itera
     text = f"{reason}; {detail}" if reason else detail
     if search is not None:
         text += "; " + search.words()
+        if search.failures:
+            text += (f"; {len(search.failures)} candidates not judged (the first: "
+                     f"{search.failures[0]})")  # fmt: skip
     message = status_message(status, text + "; precision not judged")
     return status, message, stats, tuple(c for c, _ in checks)
 

@@ -8,7 +8,7 @@ of every factor, Gaussian):
 - the placement search's next-best distinct placement of each searched robot
   (:class:`rangeslam.rangeaided.placement.Placement` ``options``), the others as in the answer;
 - random starts, counted by the Boender-Rinnooy Kan stopping rule
-  (:func:`rangeslam.verdict.judge.search_complete`) or ended by SEARCH_BUDGET: each searched
+  (:func:`rangeslam.verdict.judge.search_complete`) or ended by the budget: each searched
   robot placed from a random heading and offset (:func:`place_robots` ``random_start``: its
   rigid least squares from there), the odometry chains as measured, landmarks not observed
   relative to a pose uniform in the box of the start's positions widened by the median range,
@@ -17,6 +17,13 @@ of every factor, Gaussian):
   minutes a start).
   (Perturbing every odometry step by its stated covariance as well made LM from such a start
   take 100-160 iterations, 45-60 s each, on TIERS; left out.)
+
+The budget (:class:`WorkBudget`) is of work, not of draws: the candidates' Levenberg-Marquardt
+iterations together, at most SEARCH_BUDGET times the answer's own (the work of SEARCH_BUDGET
+fits like the one judged, so the judge costs what a few fits cost whatever the size: on a
+10,000-pose file, LM from a wrong placement runs 100-190 iterations into a far worse minimum).
+A run the budget cuts while it is still far above the answer is no candidate (named in the
+search's failures); one already within the level is run to its minimum.
 
 The distance: delta^2 = ||J dx||^2 with J the whitened Jacobian of the graph at the lowest
 candidate (GTSAM's linearisation, without the gauge prior) and dx the other candidate's
@@ -47,11 +54,18 @@ from rangeslam.rangeaided.poses import compose, matrix_to_quaternion, positions,
 from rangeslam.rangeaided.problem import RangeAidedProblem, tangent_width
 from rangeslam.rangeaided.start import identity_pose, landmark_start, odometry_start
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.judge import Alternative, JudgedSearch, judge, random_search
+from rangeslam.verdict.judge import (
+    Alternative,
+    JudgedSearch,
+    cost_level,
+    judge,
+    random_search,
+)
 from rangeslam.verdict.thresholds import SEARCH_BUDGET
 
 __all__ = [
     "Fit",
+    "WorkBudget",
     "candidate",
     "information_metric",
     "judge_answer",
@@ -170,9 +184,52 @@ def _landmark_fit(problem: RangeAidedProblem, pos: np.ndarray, j: int, x0: np.nd
     return least_squares(residuals, x0, loss="soft_l1", f_scale=level_sigmas()).x
 
 
+class WorkBudget:
+    """The judge's Levenberg-Marquardt iterations: at most ``SEARCH_BUDGET`` times the answer's
+    own (the work of SEARCH_BUDGET fits like the one judged). A candidate's LM is capped at
+    what is left; a capped run that is not yet within :func:`cost_level` of the answer's cost
+    is no minimum and no rival so far: it is dropped, in words (``cut``). One that is within
+    the level, or lower, is run on to its minimum whatever that costs: its place decides."""
+
+    def __init__(self, answer: Alternative, max_iterations: int):
+        self.total = SEARCH_BUDGET * max(answer.payload.iterations, 1)
+        self.left = self.total
+        self.answer = answer
+        self.max_iterations = max_iterations
+        self.cut: list[str] = []
+
+    def words(self) -> str:
+        """The budget, for the search's message."""
+        return (f"the budget (SEARCH_BUDGET fits' Levenberg-Marquardt iterations: {self.total}, "
+                f"{self.answer.payload.iterations} the answer's)")  # fmt: skip
+
+    def run(self, problem: RangeAidedProblem, graph, start, origin: str, counted: bool
+            ) -> Alternative | None:  # fmt: skip
+        """:func:`candidate` within the budget; None when it is cut (module docstring)."""
+        cap = min(self.max_iterations, self.left)
+        alt = candidate(problem, graph, start, origin, counted, cap)
+        self.left -= alt.payload.iterations
+        if cap == self.max_iterations or alt.payload.iterations < cap:
+            return alt
+        gap = alt.deviance - self.answer.deviance
+        if gap > cost_level():
+            self.cut.append(f"{origin}: cut by the budget after {cap} iterations, "
+                            f"{gap:.3g} noise variances above the answer")  # fmt: skip
+            return None
+        more = candidate(problem, graph, (alt.payload.poses, alt.payload.marks), origin, counted,
+                         self.max_iterations - cap)  # fmt: skip
+        self.left -= more.payload.iterations
+        fit = more.payload
+        whole = Fit(fit.poses, fit.marks, fit.values, cap + fit.iterations, counted)
+        return Alternative(more.points, more.deviance, origin, payload=whole)
+
+
 def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placement: Placement,
                  gauge: int | None, rng, max_iterations: int) -> JudgedSearch:  # fmt: skip
-    """The answer against the candidates of the module docstring, by the one judge."""
+    """The answer against the candidates of the module docstring, by the one judge, within
+    the :class:`WorkBudget`."""
+    budget = WorkBudget(answer, max_iterations)
+    failures: list[str] = []
     others = []
     for r, options in enumerate(placement.options):
         for option in options[:1]:
@@ -180,11 +237,16 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
             first[r] = option
             poses, _ = odometry_start(problem, first)
             start = (poses, landmark_start(problem, poses))
-            try:
-                others.append(candidate(problem, graph, start, f"robot {problem.robots[r]}'s "
-                                        "next placement", False, max_iterations))  # fmt: skip
-            except FIT_ERRORS:
+            origin = f"robot {problem.robots[r]}'s next placement"
+            if budget.left <= 0:
+                failures.append(f"{origin}: not run, the budget spent")
                 continue
+            try:
+                alt = budget.run(problem, graph, start, origin, False)
+            except FIT_ERRORS as exc:
+                failures.append(f"{origin}: {exc}")
+                continue
+            others += [] if alt is None else [alt]
     metric = information_metric(graph, gauge)
     k = tangent_width(problem.dim)
     dof = problem.n_poses * k + problem.n_landmarks * problem.dim - (k if gauge is not None else 0)
@@ -195,16 +257,16 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
     def run(found: list[Alternative]):
         return judge(answer, others + found, metric=metric, dof=dof, counted=counted)
 
-    failures: list[str] = []
-
     def draws():
         for j in itertools.count():
+            if budget.left <= 0:
+                return
             try:
                 start = random_start(problem, placement, gauge, rng)
-                yield candidate(problem, graph, start, f"random start {j}", True, max_iterations)
+                yield budget.run(problem, graph, start, f"random start {j}", True)
             except FIT_ERRORS as exc:
                 failures.append(f"random start {j}: {exc}")
                 yield None
 
     randoms, _ = random_search(run, [], draws(), budget=SEARCH_BUDGET)
-    return JudgedSearch.of(run(randoms), len(randoms) + 1, failures)
+    return JudgedSearch.of(run(randoms), len(randoms) + 1, failures + budget.cut, budget.words())

@@ -42,6 +42,7 @@ from rangeslam.verdict.thresholds import CHI2_LEVEL
 
 __all__ = [
     "AMBIGUITY",
+    "DRAWS_BUDGET",
     "LOWER",
     "RIVAL",
     "SAME",
@@ -140,25 +141,32 @@ class Judgement:
         return tuple(c for c in self.comparisons if c.kind == AMBIGUITY)
 
 
+#: The budget of a search of random starts, in words: SEARCH_BUDGET draws.
+DRAWS_BUDGET = "the budget (SEARCH_BUDGET)"
+
+
 @dataclass(frozen=True)
 class JudgedSearch:
     """A judgement and the search behind it: ``starts`` (the search's own and random ones, the
     answer's included), ``complete`` whether the stopping rule ended them (else the budget did),
     ``expected`` minima by the rule (:func:`unseen_minima`), ``failures`` the fits that failed
-    (in words)."""
+    or were cut short (in words)."""
 
     judgement: Judgement
     starts: int
     complete: bool
     expected: float
     failures: tuple[str, ...] = ()
+    budget: str = DRAWS_BUDGET  # the budget that ends the search when the rule does not, in words
 
     @classmethod
-    def of(cls, judgement: Judgement, starts: int, failures=()) -> JudgedSearch:
-        """The record of ``judgement`` after ``starts`` starts, the rule asked once more."""
+    def of(cls, judgement: Judgement, starts: int, failures=(), budget: str = DRAWS_BUDGET
+           ) -> JudgedSearch:  # fmt: skip
+        """The record of ``judgement`` after ``starts`` starts, the rule asked once more;
+        ``budget``: the search's budget in words."""
         complete = search_complete(starts, judgement.minima)
         expected = unseen_minima(starts, judgement.minima)
-        return cls(judgement, starts, complete, expected, tuple(failures))
+        return cls(judgement, starts, complete, expected, tuple(failures), budget)
 
     def record(self) -> CheckRecord:
         """The stopping rule as a check: the expected number of minima against those seen plus
@@ -170,7 +178,7 @@ class JudgedSearch:
     def words(self) -> str:
         """The search in words, for the message."""
         j = self.judgement
-        rule = "the stopping rule" if self.complete else "the budget (SEARCH_BUDGET)"
+        rule = "the stopping rule" if self.complete else self.budget
         return (
             f"{len(j.comparisons)} alternatives judged; {self.starts} starts reached "
             f"{j.minima} distinct minima ({j.reached} the answer; expected {self.expected:.3g} "
@@ -425,12 +433,16 @@ def random_search(
     ``found`` (the counted starts made so far beside the answer) until the stopping rule
     (:func:`search_complete` on ``run(found)``'s distinct minima, the answer a start too) ends
     them after ``at_least`` draws, or ``budget`` draws are made (a failed fit counts as made,
-    not as a start). Returns (the counted starts, the draws made)."""
+    not as a start), or ``randoms`` ends (a generator with a budget of work of its own).
+    Returns (the counted starts, the draws made)."""
     found, made = list(found), 0
     while made < budget and (
         made < at_least or not search_complete(len(found) + 1, run(found).minima)
     ):
-        alt = next(randoms)
+        try:
+            alt = next(randoms)
+        except StopIteration:
+            break
         made += 1
         found += [] if alt is None else [alt]
     return found, made
