@@ -109,31 +109,76 @@ def test_problem_is_built_once_and_reused(rng):
     np.testing.assert_allclose(b.edm, 4 * a.edm, rtol=1e-4, atol=1e-6)
 
 
+def _breaks(monkeypatch, *names):
+    """The named solvers' cvxpy interfaces raise SolverError (both solve paths go through them)."""
+    from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+    from cvxpy.reductions.solvers.conic_solvers.scs_conif import SCS
+
+    def fails(self, *args, **kwargs):
+        raise cp.error.SolverError("simulated failure")
+
+    for cls in (CLARABEL, SCS):
+        if cls.__name__ in names:
+            monkeypatch.setattr(cls, "solve_via_data", fails)
+
+
 def test_fallback_solver_is_used_and_recorded(rng, monkeypatch):
     x = rng.uniform(-1, 1, (6, 2))
     mask = ~np.eye(6, dtype=bool)
-    original = cp.Problem.solve
-
-    def clarabel_breaks(self, *args, solver=None, **kwargs):
-        if solver == "CLARABEL":
-            raise cp.error.SolverError("simulated failure")
-        return original(self, *args, solver=solver, **kwargs)
-
-    monkeypatch.setattr(cp.Problem, "solve", clarabel_breaks)
+    _breaks(monkeypatch, "CLARABEL")
     out = complete_edm(edm(x), mask, 2, method="trace_min", fit_weight=100.0)
     assert out.solver == "SCS"
     np.testing.assert_allclose(out.edm, edm(x), atol=1e-3 * edm(x).max())
 
 
 def test_solver_failure_raises_with_the_statuses(rng, monkeypatch):
-    def always_fails(self, *args, **kwargs):
-        raise cp.error.SolverError("simulated failure")
-
-    monkeypatch.setattr(cp.Problem, "solve", always_fails)
+    _breaks(monkeypatch, "CLARABEL", "SCS")
     x = rng.uniform(-1, 1, (6, 2))
     with pytest.raises(SolverError, match=r"CLARABEL: error.*SCS: error") as info:
         complete_edm(edm(x), ~np.eye(6, dtype=bool), 2)
     assert "simulated failure" in info.value.status
+
+
+@pytest.mark.filterwarnings("ignore:Solution may be inaccurate")
+@pytest.mark.parametrize("variant", ["l2", "l1", "affine ranges", "bounds"])
+def test_conic_data_path_is_cvxpys_own_solve(rng, variant):
+    """Each solve hands Clarabel conic data compiled once per set_data, q moved with Z: the Gram
+    matrix is cvxpy's own solve of the same Parameters (Problem.solve), for every form of the
+    problem, across directions Z and after new data."""
+    x, mask, groups = _unfolding_with_ranges(rng)
+    n = len(x)
+    build = {"loss": "l1"} if variant == "l1" else {}
+    if variant == "affine ranges":
+        build = {"range_groups": groups, "range_model": "affine"}
+    data = {}
+    if variant == "bounds":
+        build = {"bounded_pairs": np.array([[0, 1], [1, 2]])}
+        true = np.linalg.norm(x[[0, 1]] - x[[1, 2]], axis=1)
+        data = {"bounds": (0.9 * true, 1.1 * true)}
+    problem = EDMCompletionSDP(mask, **build)
+    options = {"tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7}  # the package's, for Clarabel
+    if variant == "affine ranges":
+        options["static_regularization_constant"] = 1e-7
+    compared = 0
+    for scale in (1.0, 1.7):
+        problem.set_data(edm(scale * x) + rng.normal(0, 1e-3, (n, n)) * mask, **data)
+        z = np.eye(n)
+        for _ in range(3):  # trace minimisation, then the convex iteration's directions
+            g, status, solver = problem.solve(z)
+            assert solver == "CLARABEL" and status in ("optimal", "optimal_inaccurate")
+            value = problem._problem.objective.value
+            z = low_rank_direction(g, 2)
+            try:  # these SDPs are rank-deficient: Clarabel's own path fails now and then
+                problem._problem.solve(solver="CLARABEL", **options)
+            except cp.error.SolverError:
+                continue
+            own = 0.5 * (problem._gram.value + problem._gram.value.T) * problem.scale**2
+            # the same optimum to the solver's accuracy (a wrong q would move the value by the
+            # size of <Z, G> itself); an l1 fit's G need not be unique, its value is
+            assert value == pytest.approx(problem._problem.value, rel=1e-4, abs=1e-9)
+            np.testing.assert_allclose(g, own, atol=1e-2 * np.abs(own).max())
+            compared += 1
+    assert compared >= 3
 
 
 def test_zero_weight_is_the_same_as_a_missing_pair(rng):

@@ -189,7 +189,9 @@ class EDMCompletionSDP:
         self.solver = solver
         self.solver_options = dict(solver_options or {})
         self._gram = cp.Variable((n, n), PSD=True)
-        self._z = cp.Parameter((n, n), symmetric=True, name="Z")
+        # Z is set symmetric; a plain (n, n) Parameter keeps its own column in the compiled
+        # problem (a symmetric one is re-parametrised), which the conic-data path reads
+        self._z = cp.Parameter((n, n), name="Z")
         self._w = cp.Parameter(len(pairs), nonneg=True, name="weights")
         self._wd = cp.Parameter(len(pairs), name="weighted_data")
         k_of_g = self._pair_map(pairs) @ cp.vec(self._gram, order="C")  # K(G) on the pairs
@@ -230,6 +232,8 @@ class EDMCompletionSDP:
         if not self._problem.is_dpp():  # a programming error: re-solves would re-compile
             raise RuntimeError("the EDM completion problem is not DPP")
         self.scale = 1.0
+        self._conic = None  # the conic data of the loaded data (set_data), built on first solve
+        self._z_to_q = None  # (x, N^2) how Z enters the conic objective q (the compiled problem's)
 
     def _calibration_terms(self, residual, range_groups: ArrayLike, range_model: str):
         """Residual minus the calibrated squared ranges a r^2 - 2 c r + e of each group."""
@@ -313,6 +317,7 @@ class EDMCompletionSDP:
         ``weights`` (N, N), optional, multiplies each pair's residual (e.g. 0 drops an outlier);
         ``bounds`` = (lower, upper) distances (P,) for the bounded pairs, in the caller's units.
         """
+        self._conic = None  # the conic data change with the data
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         d = np.asarray(edm_matrix, dtype=float)[i, j]
         w = np.full(len(d), np.sqrt(fit_weight) if self.loss == "l2" else fit_weight)
@@ -371,7 +376,17 @@ class EDMCompletionSDP:
         """
         self._z.value = 0.5 * (z + z.T)
         statuses = []
-        attempts = [(self.solver, {})]
+        primary = {**_solver_options(self.solver, self.n_groups > 0), **self.solver_options}
+        try:
+            solved = self._solve_conic(primary)
+        except cp.error.SolverError as exc:
+            statuses.append(f"{self.solver}: error ({str(exc).splitlines()[0]})")
+            solved = None
+        if solved is not None:
+            return solved
+        if not statuses:
+            statuses.append(f"{self.solver}: {self._problem.status}")
+        attempts = []
         if (
             self.solver == "CLARABEL"
             and "static_regularization_constant" not in self.solver_options
@@ -406,6 +421,40 @@ class EDMCompletionSDP:
                 return 0.5 * (g + g.T) * self.scale**2, status, name
             statuses.append(f"{label}: {status}")
         raise SolverError("EDM completion SDP failed", status="; ".join(statuses))
+
+    def _solve_conic(self, options: dict) -> tuple[np.ndarray, str, str] | None:
+        """Step (i) by the primary solver on conic data compiled once per :meth:`set_data`: only
+        the objective's q moves with Z (q = q_data + M vec(Z)), so each solve hands the solver
+        its data through cvxpy's solving chain (the solver's own cache updates q in place)
+        without applying every Parameter again. (G, status, solver), or None when the status
+        is not usable (:meth:`solve` then tries its other attempts)."""
+        z = self._z.value
+        if self._conic is None:
+            data, chain, inverse = self._problem.get_problem_data(self.solver, solver_opts=options)
+            if self._z_to_q is None:
+                compiled = data[cp.settings.PARAM_PROB]
+                col = compiled.param_id_to_col[self._z.id]
+                self._z_to_q = compiled.q[:-1, col : col + self.n * self.n]
+            q_data = data[cp.settings.C] - self._z_to_q @ z.ravel(order="F")
+            self._conic = (data, chain, inverse, q_data)
+        data, chain, inverse, q_data = self._conic
+        data[cp.settings.C] = q_data + self._z_to_q @ z.ravel(order="F")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the status is checked below
+                raw = chain.solve_via_data(self._problem, data, warm_start=True,
+                                           solver_opts=options)  # fmt: skip
+                self._problem.unpack_results(raw, chain, inverse)
+        except MemoryError as exc:
+            raise SolverError(
+                f"EDM completion SDP of {self.n} points ran out of memory",
+                status=f"{self.solver}: out of memory",
+            ) from exc
+        status = self._problem.status
+        if status in _USABLE.get(self.solver, ("optimal",)) and self._gram.value is not None:
+            g = self._gram.value
+            return 0.5 * (g + g.T) * self.scale**2, status, self.solver
+        return None
 
 
 def _solver_options(name: str, calibrated: bool = False) -> dict:
