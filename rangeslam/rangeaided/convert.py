@@ -102,7 +102,8 @@ def range_odometry_from_problem(problem: RangeAidedProblem) -> RangeOdometry:
     n = problem.n_poses
     reasons = []
     if problem.dim != 2 or len(problem.robots) != 1:
-        reasons.append(f"{problem.dim}-D with {len(problem.robots)} robots (one, in 2-D)")
+        robots = f"{len(problem.robots)} robot" + ("s" if len(problem.robots) > 1 else "")
+        reasons.append(f"{problem.dim}-D with {robots} (one, in 2-D)")
     if len(o.time) != n - 1 or np.any(o.pose_b != o.pose_a + 1) or np.any(np.diff(o.pose_a) != 1):
         reasons.append("the odometry is not one step from each pose to the next, in order")
     elif np.any(o.values[:, 1] != 0):

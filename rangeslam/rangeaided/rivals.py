@@ -229,7 +229,7 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
     """The answer against the candidates of the module docstring, by the one judge, within
     the :class:`WorkBudget`."""
     budget = WorkBudget(answer, max_iterations)
-    failures: list[str] = []
+    failures = budget.cut  # the runs cut, failed or not run, in the order they came
     others = []
     for r, options in enumerate(placement.options):
         for option in options[:1]:
@@ -269,4 +269,4 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
                 yield None
 
     randoms, _ = random_search(run, [], draws(), budget=SEARCH_BUDGET)
-    return JudgedSearch.of(run(randoms), len(randoms) + 1, failures + budget.cut, budget.words())
+    return JudgedSearch.of(run(randoms), len(randoms) + 1, failures, budget.words())
