@@ -7,9 +7,10 @@ Methods (:data:`PYFG_METHODS`, a registry: a peer is one entry):
 - ``odometry``: dead reckoning from each robot's reference first pose, ranges unused (a
   baseline: the reference places the robots, so it is read here, for the table only);
 - ``gtsam``: :func:`rangeslam.rangeaided.gtsam_solve.solve_gtsam` as ``rangeslam run`` runs it:
-  the first poses from the data (robot A's at the origin, the others placed from the ranges and
-  observations they share), GTSAM's Levenberg-Marquardt, the judge of alternative answers; the
-  reference is not read;
+  started from the EDM windows where the file is a beacon log ("EDM windows" in the table), else
+  from the odometry with the first poses from the data (robot A's at the origin, the others
+  placed from the ranges and observations they share); GTSAM's Levenberg-Marquardt on the
+  file's graph, the judge of alternative answers; the reference is not read;
 - ``gtsam-reference-start``: the same graph and judge, started from the odometry with each
   robot's reference first pose (CORA's odometry-start protocol: the truth places the robots
   relative to each other; for comparison only);
@@ -62,7 +63,8 @@ def _gtsam(problem):
     from rangeslam.rangeaided.gtsam_solve import solve_gtsam
 
     res = solve_gtsam(problem)
-    return (res.poses, res.landmarks, res.status.name, res.seconds, "data", res.judge_seconds,
+    first = "EDM windows" if "EDM windows" in res.method else "data"
+    return (res.poses, res.landmarks, res.status.name, res.seconds, first, res.judge_seconds,
             res.message)  # fmt: skip
 
 

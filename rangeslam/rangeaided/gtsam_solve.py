@@ -1,8 +1,9 @@
 """GTSAM for a range-aided SLAM problem: Pose2 / Pose3 between factors with the problem's
 covariances, range factors pose-landmark and pose-pose, bearing-range factors for 2-D relative
-landmark observations, priors; Levenberg-Marquardt from the odometry start with each robot's
-first pose from the data (:func:`rangeslam.rangeaided.placement.place_robots`; the reference
-values are never read), then the verdict: the residual checks (:func:`judge`) and the one judge
+landmark observations, priors; Levenberg-Marquardt from the EDM windows where the problem is a
+beacon log (:mod:`rangeslam.rangeaided.edm_start`), else from the odometry start with each
+robot's first pose from the data (:func:`rangeslam.rangeaided.placement.place_robots`; the
+reference values are never read), then the verdict: the residual checks (:func:`judge`) and the one judge
 of alternative answers (:func:`rangeslam.rangeaided.rivals.judge_answer`).
 
 Keys: ``x`` + pose row, ``l`` + landmark row. GTSAM's Pose3 tangent is (rotation, translation);
@@ -20,7 +21,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from rangeslam._robust import mad_sigma
-from rangeslam.errors import InvalidInputError
+from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.rangeaided.edm_start import edm_start, edm_start_refusal
 from rangeslam.rangeaided.gtsam_values import MAX_ITERATIONS, gtsam_pose, to_values
 from rangeslam.rangeaided.placement import Placement, place_robots
 from rangeslam.rangeaided.poses import positions
@@ -34,6 +36,7 @@ from rangeslam.verdict.thresholds import CHI2_LEVEL
 
 __all__ = [
     "GAUGE_SIGMA",
+    "INITIALISATIONS",
     "MAX_ITERATIONS",
     "FactorGroups",
     "RangeAidedResult",
@@ -45,6 +48,8 @@ __all__ = [
     "solve_gtsam",
 ]
 
+#: The starts :func:`solve_gtsam` knows (its ``initialisation``).
+INITIALISATIONS = ("auto", "edm", "odometry")
 #: Standard deviation (m and rad) of the prior that fixes the gauge at the first robot's first
 #: pose when the problem has no priors.
 GAUGE_SIGMA = 1e-6
@@ -334,6 +339,7 @@ def solve_gtsam(
     *,
     first_poses=None,
     start: tuple[np.ndarray, np.ndarray] | None = None,
+    initialisation: str = "auto",
     max_iterations: int = MAX_ITERATIONS,
     rng=None,
 ) -> RangeAidedResult:
@@ -348,6 +354,11 @@ def solve_gtsam(
             others free (the judge's random starts still try other placements). Default: placed
             from the data (:func:`rangeslam.rangeaided.placement.place_robots`).
         start: (poses (P, w), landmarks (L, d)) to start from instead of the odometry.
+        initialisation: without ``start``: "edm" the EDM-windows start of a beacon log
+            (:func:`rangeslam.rangeaided.edm_start.edm_start`; InvalidInputError naming why
+            when the problem is not one), "odometry" dead reckoning from the first poses, or
+            "auto" (default): "edm" where the problem allows it, else "odometry"; an EDM start
+            that places no landmark is then replaced by the odometry one, and the method says so.
         max_iterations: Levenberg-Marquardt's limit; reaching it is SOLVER_FAILED.
         rng: numpy Generator or seed of the placement search's and the judge's random starts
             (default seed 0: the same answer on every run).
@@ -361,14 +372,15 @@ def solve_gtsam(
         raise InvalidInputError(
             f"problem must be a RangeAidedProblem; got {type(problem).__name__}"
         )
+    if initialisation not in INITIALISATIONS:
+        raise InvalidInputError(
+            f"initialisation must be one of {INITIALISATIONS}; got {initialisation!r}"
+        )
     rng = np.random.default_rng(0 if rng is None else rng)
     t0 = time.perf_counter()
     if start is None:
         placement = place_robots(problem, first=first_poses, rng=rng)
-        poses, _ = odometry_start(problem, placement.first)
-        marks = landmark_start(problem, poses)
-        given = first_poses is not None
-        method = "gtsam, first poses " + ("given" if given else "from the data")
+        poses, marks, method = _start(problem, placement, initialisation, first_poses is not None)
     else:
         poses, marks = (np.asarray(a, dtype=float) for a in start)
         placement = place_robots(problem, first=poses[[problem.robot_rows(r)[0] for r in
@@ -393,6 +405,27 @@ def solve_gtsam(
         judge_seconds=time.perf_counter() - t0 - seconds,
         alternatives=len(search.judgement.comparisons),
     )  # fmt: skip
+
+
+def _start(problem: RangeAidedProblem, placement: Placement, initialisation: str, given: bool
+           ) -> tuple[np.ndarray, np.ndarray, str]:  # fmt: skip
+    """(poses, landmarks, method in words) of the start ``initialisation`` names (solve_gtsam)."""
+    first = "first poses " + ("given" if given else "from the data")
+    use_edm = initialisation == "edm" or (
+        initialisation == "auto" and not edm_start_refusal(problem)
+    )
+    if use_edm:
+        try:
+            found = edm_start(problem, placement.first[0])
+            return found.poses, found.marks, f"gtsam from the EDM windows ({found.notes[0]})"
+        except SolverError as exc:
+            if initialisation == "edm":
+                raise
+            why = f"; the EDM windows placed no landmark ({exc}): started from the odometry"
+    else:
+        why = ""
+    poses, _ = odometry_start(problem, placement.first)
+    return poses, landmark_start(problem, poses), f"gtsam, {first}{why}"
 
 
 def dead_reckoning_result(problem: RangeAidedProblem, *, first_poses=None) -> RangeAidedResult:
