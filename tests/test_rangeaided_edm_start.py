@@ -81,9 +81,9 @@ def _split(problem):
 
 
 def test_start_is_chosen_and_named(rng):
-    """The start "auto" takes the EDM windows on a beacon log and the odometry on what is not one (two
-    robots); "odometry" is dead reckoning from the first poses; "edm" on a problem without that
-    start is refused, naming why; an unknown name is refused."""
+    """The start "auto" takes the EDM windows on a beacon log and the odometry on what is not
+    one (two robots); "odometry" is dead reckoning from the first poses; "edm" on a problem
+    without that start is refused, naming why; an unknown name is refused."""
     problem, _ = _log(rng)
     assert solve_gtsam(problem, initialisation="odometry").method == (
         "gtsam, first poses from the data"
