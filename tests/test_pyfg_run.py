@@ -203,14 +203,18 @@ def test_cli_run_bad_pyfg_exits_2(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["factor_graph_small", "plaza1", "mrclam5a", "single_drone"])
+@pytest.mark.parametrize(
+    "name", ["factor_graph_small", "plaza1", "mrclam5a", "tiers", "single_drone"]
+)
 def test_cli_run_on_the_cora_files(tmp_path, name):
     """`rangeslam run` on each of CORA's files writes one TUM file per robot that evo reads;
-    GTSAM with the first poses from the data ends below odometry alone's APE (dead reckoning
-    from the same first poses) on every file (measured: Plaza1 0.255 vs 1.335 m mean, MR.CLAM 5a
-    0.158 vs 0.220, TIERS 0.036 vs 0.076 with the reference's first poses, drone 0.509 vs
-    0.854). TIERS is left to `rangeslam bench pyfg` (benchmarks/README.md): its judge's random
-    placements take about 7 minutes, more than the slow suite's budget for one file."""
+    GTSAM (from the EDM windows on Plaza1, else from the first poses from the data) ends below
+    odometry alone's APE (dead reckoning from the same first poses) on every file but TIERS
+    (measured: Plaza1 0.255 vs 1.335 m mean, MR.CLAM 5a 0.158 vs 0.220, drone 0.509 vs 0.854).
+    On TIERS the dead reckoning from the first poses the data place is 0.030 m, GTSAM on the
+    file's graph 0.036 m (0.076 m from the reference's first poses): its odometry drifts less
+    than the file's ranges, at their stated noise, pull (benchmarks/README.md). TIERS's judge
+    takes about 10 s within its budget of work (7 minutes with a budget of draws)."""
     file_interface = pytest.importorskip("evo.tools.file_interface")
     try:
         path = data_path(f"pyfg/{name}.pyfg")
@@ -223,7 +227,8 @@ def test_cli_run_on_the_cora_files(tmp_path, name):
     for r in range(len(problem.robots)):
         traj = file_interface.read_tum_trajectory_file(str(out / tum_name("run_trajectory", r)))
         assert traj.num_poses == len(problem.robot_rows(r))
-    assert summary["ape_mean_m"] <= summary["odometry_ape_mean_m"] + 1e-9
+    if name != "tiers":
+        assert summary["ape_mean_m"] <= summary["odometry_ape_mean_m"] + 1e-9
 
 
 BEACON_LOG_METHODS = ("edm+gtsam", "edm+isam2", "ekf", "gtsam-example")
