@@ -267,3 +267,24 @@ def test_bench_pyfg_table(rng, tmp_path, capsys):
     assert "| two | gtsam | data | CONVERGED |" in table
     assert "| two | gtsam-reference-start | reference |" in table
     assert by["two", "gtsam"]["judge_seconds"] > 0
+
+
+def test_baselines_take_a_range_aided_problem(rng):
+    """The EKF, GTSAM's example and dead reckoning take a RangeAidedProblem that is a beacon log
+    as they take its RangeOdometry (the same answer), and refuse one that is not, naming why."""
+    from rangeslam.baselines import ekf_range_odometry, gtsam_range_example, odometry_only
+    from rangeslam.beacons import RangeOdometry, simulate_beacon_run
+    from rangeslam.errors import InvalidInputError
+
+    run = simulate_beacon_run(rng, n_steps=300)
+    problem = run.data.to_problem(truth_poses=run.poses, truth_beacons=run.beacons)
+    data = RangeOdometry.from_problem(problem)
+    for method in (ekf_range_odometry, gtsam_range_example, odometry_only):
+        kwargs = {} if method is odometry_only else {"rng": np.random.default_rng(7)}
+        a = method(problem, **kwargs)
+        kwargs = {} if method is odometry_only else {"rng": np.random.default_rng(7)}
+        b = method(data, **kwargs)
+        np.testing.assert_array_equal(a.poses, b.poses)
+        assert a.status is b.status
+        with pytest.raises(InvalidInputError, match="2 robots"):
+            method(synthetic(rng, n=20), **kwargs)

@@ -90,6 +90,7 @@ from rangeslam.beacons.options import RANGE_CALIBRATIONS
 from rangeslam.beacons.result import BeaconSlamResult, as_calibration
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
+from rangeslam.rangeaided.problem import RangeAidedProblem
 from rangeslam.status import Status
 from rangeslam.verdict.checks import consistency_check
 from rangeslam.verdict.thresholds import CHI2_LEVEL
@@ -228,7 +229,7 @@ class _EkfState:
 
 
 def ekf_range_odometry(
-    data: RangeOdometry | PlazaDataset,
+    data: RangeOdometry | PlazaDataset | RangeAidedProblem,
     *,
     start_pose: ArrayLike | None = None,
     range_sigma: float | None = None,
@@ -248,7 +249,9 @@ def ekf_range_odometry(
 
     Args:
         data: the odometry and ranges as :func:`rangeslam.beacons.beacon_slam` takes them
-            (:class:`~rangeslam.beacons.RangeOdometry`), or a CMU Plaza data set
+            (:class:`~rangeslam.beacons.RangeOdometry`), a range-aided problem that is a beacon
+            log (:class:`~rangeslam.rangeaided.RangeAidedProblem`, e.g. a PyFG file: one robot
+            in 2-D; InvalidInputError naming why where it is not), or a CMU Plaza data set
             (:func:`rangeslam.datasets.plaza`) or one built like it.
         start_pose: (3,) x, y [m], heading [rad] of pose 0, taken as exact; default
             ``data.truth[0]`` for a Plaza set (the only use of ground truth, to fix the gauge),

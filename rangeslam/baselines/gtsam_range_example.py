@@ -42,6 +42,7 @@ from rangeslam.beacons.known import check_known_positions, known_priors
 from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
+from rangeslam.rangeaided.problem import RangeAidedProblem
 from rangeslam.solvers.robust_kernels import robust_noise_model
 from rangeslam.status import Status
 
@@ -74,7 +75,7 @@ _FACTORIZATIONS = ("QR", "CHOLESKY")
 
 
 def gtsam_range_example(
-    data: RangeOdometry | PlazaDataset,
+    data: RangeOdometry | PlazaDataset | RangeAidedProblem,
     *,
     rng: np.random.Generator,
     start_pose: ArrayLike | None = None,
@@ -89,7 +90,9 @@ def gtsam_range_example(
 
     Args:
         data: the odometry and ranges as :func:`rangeslam.beacons.beacon_slam` takes them
-            (:class:`~rangeslam.beacons.RangeOdometry`), or a CMU Plaza data set
+            (:class:`~rangeslam.beacons.RangeOdometry`), a range-aided problem that is a beacon
+            log (:class:`~rangeslam.rangeaided.RangeAidedProblem`, e.g. a PyFG file: one robot
+            in 2-D; InvalidInputError naming why where it is not), or a CMU Plaza data set
             (:func:`rangeslam.datasets.plaza`).
         rng: draws the beacons' starting points, each standard normal (metres).
         start_pose: (3,) x, y [m], heading [rad] of the prior on pose 0; default ``data.truth[0]``

@@ -17,19 +17,22 @@ from rangeslam.beacons.data import RangeOdometry, dead_reckoning
 from rangeslam.beacons.result import BeaconSlamResult
 from rangeslam.datasets import PlazaDataset
 from rangeslam.errors import InvalidInputError
+from rangeslam.rangeaided.problem import RangeAidedProblem
 from rangeslam.status import Status
 
 __all__ = ["BaselineData", "baseline_data", "odometry_only"]
 
 
 def odometry_only(
-    data: RangeOdometry | PlazaDataset, *, start_pose: ArrayLike | None = None
+    data: RangeOdometry | PlazaDataset | RangeAidedProblem, *, start_pose: ArrayLike | None = None
 ) -> BeaconSlamResult:
     """Dead reckoning of ``data``'s odometry from ``start_pose`` (move, then turn).
 
     Args:
         data: the odometry and ranges, as :func:`rangeslam.beacons.beacon_slam` takes them
-            (:class:`~rangeslam.beacons.RangeOdometry`), or a CMU Plaza data set
+            (:class:`~rangeslam.beacons.RangeOdometry`), a range-aided problem that is a beacon
+            log (:class:`~rangeslam.rangeaided.RangeAidedProblem`, e.g. a PyFG file: one robot
+            in 2-D; InvalidInputError naming why where it is not), or a CMU Plaza data set
             (:func:`rangeslam.datasets.plaza`).
         start_pose: (3,) x, y [m], heading [rad] of pose 0; default ``data.truth[0]`` for a Plaza
             set (the true start, as GTSAM's RangeISAMExample_plaza2 hard-codes it), the origin
@@ -73,10 +76,15 @@ class BaselineData:
     start: np.ndarray
 
 
-def baseline_data(data: RangeOdometry | PlazaDataset, start_pose: ArrayLike | None) -> BaselineData:
+def baseline_data(data, start_pose: ArrayLike | None) -> BaselineData:
     """The fields a baseline uses, and the (3,) start pose (default: a Plaza set's first ground
-    truth pose, the origin facing +x for a RangeOdometry). A Plaza set is read as it is (not
+    truth pose, the origin facing +x for a RangeOdometry). ``data``: a RangeOdometry, a
+    PlazaDataset, or a :class:`rangeslam.rangeaided.RangeAidedProblem` that is a beacon log
+    (:meth:`RangeOdometry.from_problem`: InvalidInputError naming why where it is not: several
+    robots, 3-D, sideways odometry, ranges between robots). A Plaza set is read as it is (not
     validated again: a NaN put into its odometry reaches the filter, which reports it)."""
+    if isinstance(data, RangeAidedProblem):
+        data = RangeOdometry.from_problem(data)
     if isinstance(data, RangeOdometry):
         start = np.zeros(3) if start_pose is None else as_point(start_pose, "start_pose", dim=3)
         return BaselineData(
