@@ -37,7 +37,7 @@ from rangeslam.localization.room_reconstruction import (
     sphere_intersections,
 )
 from rangeslam.status import Status
-from rangeslam.verdict.judge import LOWER, Alternative, judge
+from rangeslam.verdict.judge import LOWER, RIVAL, Alternative, cost_level, judge
 
 __all__ = ["column_alternatives", "judge_room", "msac_deviance"]
 
@@ -131,10 +131,14 @@ def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Statu
 
     judgement = judge(answer, alternatives, metric=metric, dof=fit.theta.size)
     own = next((c for c in judgement.comparisons if c.alternative is answer), None)
+    lowest = judgement.answer.origin  # the answer is judged against the lowest candidate
     if own is not None and own.kind == LOWER:  # the answer is worse by more than the level
-        return [(Status.OUTLIERS, f"{judgement.answer.origin} fits the data better (robust cost "
-                 f"lower by {own.delta_cost:.3g} noise variances): the fit kept the wrong "
-                 "ranges; ")]  # fmt: skip
+        return [(Status.OUTLIERS, f"{lowest} fits the data better (robust cost lower by "
+                 f"{own.delta_cost:.3g} noise variances): the fit kept the wrong ranges; ")]  # fmt: skip
+    if own is not None and own.kind == RIVAL:  # said from the answer's side
+        return [(Status.NOT_IDENTIFIABLE, f"{lowest} fits the data as well (cost gap "
+                 f"{own.delta_cost:.3g} <= {cost_level():.3g} noise variances) at information "
+                 f"distance {own.distance2:.3g}: the data do not decide between them; ")]  # fmt: skip
     if judgement.status is not Status.CONVERGED:
         return [(judgement.status, judgement.reason + "; ")]
     return []
