@@ -78,16 +78,18 @@ def test_fixed_threshold_of_three_samples(data):
 def test_single_loudspeakers_locate_themselves(data, seed):
     """Alone, each loudspeaker is located (0: within 3 cm; 1: within 8 cm, its calibrated height being
     about 5 cm off its own ranges). Loudspeaker 1's north echoes are all mis-picked, so alone it
-    cannot verify the north wall: the result either converges or names that wall (measured: 3 of 5
-    seeds converge); never another failure."""
-    for j, limit in ((0, 0.03), (1, 0.08)):
+    cannot verify the north wall (wall 3); loudspeaker 0's echoes off wall 0 left out by the fit
+    place that wall 17 cm away with as many ranges within the threshold (17 of 30 against the
+    answer's 18). Each result either converges or names one of those walls, as a rival or as the
+    better place (the judge, rangeslam.localization.room_judge); never another failure. Measured
+    over seeds 0-5: loudspeaker 0 converged 3 times, wall 0 named 3 times; loudspeaker 1
+    converged 4 times, wall 3 named twice."""
+    for j, limit, wall in ((0, 0.03, "wall 0:"), (1, 0.08, "wall 3:")):
         res = reconstruct_room(data.mics, data.ranges(j), rng=seed)
         assert np.linalg.norm(res.sources[0] - data.sources[j]) <= limit
-        if j == 0:
-            assert res.converged, res.message
-        elif not res.converged:
-            assert res.status is Status.OUTLIERS, res.message
-            assert res.message.startswith("wall 3:"), res.message
+        if not res.converged:
+            assert res.status in (Status.OUTLIERS, Status.NOT_IDENTIFIABLE), res.message
+            assert res.message.startswith(wall), res.message
 
 
 @pytest.mark.slow

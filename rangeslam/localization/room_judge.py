@@ -99,9 +99,9 @@ def column_alternatives(model: JointWallModel, theta: np.ndarray, kept: np.ndarr
             continue
         refit = _with_point(model, theta, j, c, _refit_point(model, j, c, best[1], thr))
         cand = refit if refit is not None else _with_point(model, theta, j, c, best[1])
-        what = f"loudspeaker {j}" if c == 0 else f"wall {c - 1} (loudspeaker {j}'s echoes)"
-        yield Alternative(cand.reshape(-1, d), msac_deviance(model, cand, thr, sigma),
-                          f"{what} placed by the ranges the fit left out")  # fmt: skip
+        what = (f"loudspeaker {j}: the place its direct paths the fit left out give" if c == 0
+                else f"wall {c - 1}: the place loudspeaker {j}'s echoes the fit left out give")  # fmt: skip
+        yield Alternative(cand.reshape(-1, d), msac_deviance(model, cand, thr, sigma), what)
 
 
 def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Status, str]]:
