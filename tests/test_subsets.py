@@ -147,14 +147,20 @@ def test_core_unreachable_point_takes_the_whole_problem():
     assert not core.is_subset
 
 
-def test_sdp_out_of_memory_is_the_packages_error():
-    """An allocation failure inside the solver becomes SolverError naming the size."""
+@pytest.mark.parametrize("where", ["compile", "solve"])
+def test_sdp_out_of_memory_is_the_packages_error(where):
+    """An allocation failure in cvxpy's compilation or inside the solver becomes SolverError
+    naming the size."""
+    from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+
     w = np.ones((6, 6), bool)
     problem = EDMCompletionSDP(w)
-    with (
-        mock.patch.object(problem._problem, "solve", side_effect=MemoryError),
-        pytest.raises(SolverError, match="6 points ran out of memory"),
-    ):
+    target = (
+        mock.patch.object(problem._problem, "get_problem_data", side_effect=MemoryError)
+        if where == "compile"
+        else mock.patch.object(CLARABEL, "solve_via_data", side_effect=MemoryError)
+    )
+    with target, pytest.raises(SolverError, match="6 points ran out of memory"):
         complete_edm(np.ones((6, 6)) - np.eye(6), w, 2, problem=problem)
 
 

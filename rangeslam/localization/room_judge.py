@@ -14,9 +14,12 @@ within the threshold, is the column's alternative. Random wrong ranges cohere wi
 three of them fix a point, and a fourth rarely agrees. A second true wall hidden in the dropped
 echoes does.
 
-Every candidate is scored on the robust fit's own objective over every observed range: the
-truncated quadratic (MSAC) sum of min(r^2, thr^2) / sigma^2, with ``thr`` the fit's inlier
-bound and ``sigma`` its noise scale. The distance is ||J (theta' - theta)||^2 / sigma^2 with J
+Every candidate is scored on one robust objective over every observed range: the truncated
+quadratic (MSAC) sum of min(r^2, thr^2) / sigma^2, with ``thr`` the fit's inlier bound and
+``sigma`` its noise scale. (The fit itself chooses its inliers by studentized residuals, so a
+range it dropped may count as within the bound here: the objective is the same for every
+candidate, the answer's included.) The subsets are all d-subsets of a column's dropped ranges:
+220 at most for 12 microphones in 3-D; a large array would want them drawn. The distance is ||J (theta' - theta)||^2 / sigma^2 with J
 the Jacobian of the lowest candidate's kept ranges (the microphones are known: no gauge). Then
 :func:`rangeslam.verdict.judge.judge`: a lower alternative means the fit kept the wrong ranges
 (OUTLIERS), an equal one far off a rival (NOT_IDENTIFIABLE).

@@ -21,8 +21,10 @@ Between two such passes every loudspeaker is located again from all its ranges: 
 is a direct path from the microphone mirrored in that wall, ||m - R_k(s)|| = ||R_k(m) - s||, so a
 direct path whose picks are mostly wrong is outvoted by the echoes.
 
-Breakdown: a loudspeaker with half or more of all its ranges inconsistent with the fit is reported
-(``converged`` False), never returned as good.
+Breakdown: whether the ranges the robust fit left out place a loudspeaker or a wall elsewhere,
+as well or better, is the one judge's question (:mod:`rangeslam.localization.room_judge`): a
+rival is NOT_IDENTIFIABLE, a better place OUTLIERS, never returned as good. A wall or a direct
+path kept at d + 1 ranges (more observed) is determined, unverified: OUTLIERS.
 
 Walls are parametrised in the optimiser by w_k = o_k n_k in coordinates centred on the microphones
 (a plane not through the origin, unoriented, d numbers); since the microphones are inside the room,

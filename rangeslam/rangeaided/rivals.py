@@ -18,7 +18,7 @@ of every factor, Gaussian):
   (Perturbing every odometry step by its stated covariance as well made LM from such a start
   take 100-160 iterations, 45-60 s each, on TIERS; left out.)
 
-The budget (:class:`WorkBudget`) is of work, not of draws: the candidates' Levenberg-Marquardt
+The budget (:class:`WorkBudget`) is of work as well as of draws: the candidates' Levenberg-Marquardt
 iterations together, at most SEARCH_BUDGET times the answer's own (the work of SEARCH_BUDGET
 fits like the one judged, so the judge costs what a few fits cost whatever the size: on a
 10,000-pose file, LM from a wrong placement runs 100-190 iterations into a far worse minimum).
@@ -196,16 +196,21 @@ class WorkBudget:
         self.left = self.total
         self.answer = answer
         self.max_iterations = max_iterations
-        self.cut: list[str] = []
+        self.cut: list[str] = []  # candidates cut, not run or failed, in words, in order
 
     def words(self) -> str:
-        """The budget, for the search's message."""
-        return (f"the budget (SEARCH_BUDGET fits' Levenberg-Marquardt iterations: {self.total}, "
-                f"{self.answer.payload.iterations} the answer's)")  # fmt: skip
+        """The budget, for the search's message: SEARCH_BUDGET draws, or the work."""
+        return (f"the budget (SEARCH_BUDGET draws, or SEARCH_BUDGET fits' Levenberg-Marquardt "
+                f"iterations: {self.total}, {self.answer.payload.iterations} the answer's; "
+                f"{self.total - self.left} spent)")  # fmt: skip
 
     def run(self, problem: RangeAidedProblem, graph, start, origin: str, counted: bool
             ) -> Alternative | None:  # fmt: skip
-        """:func:`candidate` within the budget; None when it is cut (module docstring)."""
+        """:func:`candidate` within the budget; None when it is cut, or not run when nothing is
+        left (module docstring); either is noted in ``cut``."""
+        if self.left <= 0:
+            self.cut.append(f"{origin}: not run, the budget spent")
+            return None
         cap = min(self.max_iterations, self.left)
         alt = candidate(problem, graph, start, origin, counted, cap)
         self.left -= alt.payload.iterations
@@ -238,9 +243,6 @@ def judge_answer(problem: RangeAidedProblem, graph, answer: Alternative, placeme
             poses, _ = odometry_start(problem, first)
             start = (poses, landmark_start(problem, poses))
             origin = f"robot {problem.robots[r]}'s next placement"
-            if budget.left <= 0:
-                failures.append(f"{origin}: not run, the budget spent")
-                continue
             try:
                 alt = budget.run(problem, graph, start, origin, False)
             except FIT_ERRORS as exc:

@@ -377,6 +377,8 @@ class EDMCompletionSDP:
         self._z.value = 0.5 * (z + z.T)
         statuses = []
         primary = {**_solver_options(self.solver, self.n_groups > 0), **self.solver_options}
+        if self.solver == "CLARABEL":  # the cached solver keeps a retry's regularisation else
+            primary.setdefault("static_regularization_constant", _clarabel_default_regularisation())
         try:
             solved = self._solve_conic(primary)
         except cp.error.SolverError as exc:
@@ -425,21 +427,15 @@ class EDMCompletionSDP:
     def _solve_conic(self, options: dict) -> tuple[np.ndarray, str, str] | None:
         """Step (i) by the primary solver on conic data compiled once per :meth:`set_data`: only
         the objective's q moves with Z (q = q_data + M vec(Z)), so each solve hands the solver
-        its data through cvxpy's solving chain (the solver's own cache updates q in place)
+        its data through cvxpy's solving chain (the solver's cached instance updated with them)
         without applying every Parameter again. (G, status, solver), or None when the status
         is not usable (:meth:`solve` then tries its other attempts)."""
         z = self._z.value
-        if self._conic is None:
-            data, chain, inverse = self._problem.get_problem_data(self.solver, solver_opts=options)
-            if self._z_to_q is None:
-                compiled = data[cp.settings.PARAM_PROB]
-                col = compiled.param_id_to_col[self._z.id]
-                self._z_to_q = compiled.q[:-1, col : col + self.n * self.n]
-            q_data = data[cp.settings.C] - self._z_to_q @ z.ravel(order="F")
-            self._conic = (data, chain, inverse, q_data)
-        data, chain, inverse, q_data = self._conic
-        data[cp.settings.C] = q_data + self._z_to_q @ z.ravel(order="F")
         try:
+            if self._conic is None:
+                self._conic = self._compile(options)
+            data, chain, inverse, q_data = self._conic
+            data[cp.settings.C] = q_data + self._z_to_q @ z.ravel(order="F")
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the status is checked below
                 raw = chain.solve_via_data(self._problem, data, warm_start=True,
@@ -455,6 +451,24 @@ class EDMCompletionSDP:
             g = self._gram.value
             return 0.5 * (g + g.T) * self.scale**2, status, self.solver
         return None
+
+    def _compile(self, options: dict) -> tuple:
+        """(conic data, solving chain, inverse data, q without Z) of the loaded data; the first
+        call also reads how Z enters q (its columns of the compiled objective)."""
+        data, chain, inverse = self._problem.get_problem_data(self.solver, solver_opts=options)
+        if self._z_to_q is None:
+            compiled = data[cp.settings.PARAM_PROB]
+            col = compiled.param_id_to_col[self._z.id]
+            self._z_to_q = compiled.q[:-1, col : col + self.n * self.n]
+        q_data = data[cp.settings.C] - self._z_to_q @ self._z.value.ravel(order="F")
+        return data, chain, inverse, q_data
+
+
+def _clarabel_default_regularisation() -> float:
+    """Clarabel's own default static regularisation (its DefaultSettings)."""
+    import clarabel
+
+    return float(clarabel.DefaultSettings().static_regularization_constant)
 
 
 def _solver_options(name: str, calibrated: bool = False) -> dict:
