@@ -70,7 +70,8 @@ PRECISION_FRACTION = 0.05
 #: alternatives: the stopping rule of Boender and Rinnooy Kan
 #: (:func:`rangeslam.verdict.judge.search_complete`) ends them after 7 when every start reached
 #: one minimum; this budget leaves it one start more. The result says when the budget, not the
-#: rule, ended them.
+#: rule, ended them. The range-aided judge (:class:`rangeslam.rangeaided.rivals.WorkBudget`)
+#: also bounds its work by it: its candidates' LM iterations, this many times the answer's.
 SEARCH_BUDGET = 8
 
 #: A wall found jointly by several loudspeakers (:mod:`rangeslam.acoustics.shared_walls`) needs
