@@ -44,7 +44,7 @@ def test_exact_log_starts_and_ends_at_the_truth(rng):
     assert start.poses.shape == (problem.n_poses, 3) and start.marks.shape == (4, 2)
     assert np.max(_errors(start.poses, start.marks, problem)) < 0.05
     res = solve_gtsam(problem)
-    assert res.method.startswith("gtsam from the EDM windows")
+    assert res.method.startswith("gtsam from the EDM windows") and res.start == "edm"
     assert np.max(_errors(res.poses, res.landmarks, problem)) < 1e-4
 
 
@@ -85,9 +85,9 @@ def test_start_is_chosen_and_named(rng):
     one (two robots); "odometry" is dead reckoning from the first poses; "edm" on a problem
     without that start is refused, naming why; an unknown name is refused."""
     problem, _ = _log(rng)
-    assert solve_gtsam(problem, initialisation="odometry").method == (
-        "gtsam, first poses from the data"
-    )
+    by_odometry = solve_gtsam(problem, initialisation="odometry")
+    assert by_odometry.method == "gtsam, first poses from the data"
+    assert by_odometry.start == "odometry"
     two = _split(problem)
     assert "2 robots" in edm_start_refusal(two)
     assert solve_gtsam(two).method == "gtsam, first poses from the data"

@@ -63,7 +63,7 @@ def _gtsam(problem):
     from rangeslam.rangeaided.gtsam_solve import solve_gtsam
 
     res = solve_gtsam(problem)
-    first = "EDM windows" if res.method.startswith("gtsam from the EDM windows") else "data"
+    first = "EDM windows" if res.start == "edm" else "data"
     return (res.poses, res.landmarks, res.status.name, res.seconds, first, res.judge_seconds,
             res.message)  # fmt: skip
 

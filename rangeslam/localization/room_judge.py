@@ -40,6 +40,7 @@ from rangeslam.localization.room_reconstruction import (
     sphere_intersections,
 )
 from rangeslam.status import Status
+from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import LOWER, RIVAL, Alternative, cost_level, judge
 
 __all__ = ["column_alternatives", "judge_room", "msac_deviance"]
@@ -111,8 +112,6 @@ def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Statu
     """(status, text) of the judgement of a robust fit's answer against the
     :func:`column_alternatives` of its dropped ranges (module docstring); empty when it stands.
     ``thr``: the fit's inlier bound, scaled units (its noise scale is thr / level_sigmas())."""
-    from rangeslam.verdict.checks import level_sigmas
-
     model = JointWallModel(prob.mics_s, prob.ranges_s, prob.observed)
     sigma = thr / level_sigmas()
     answer = Alternative(fit.theta.reshape(-1, prob.dim), msac_deviance(model, fit.theta, thr,

@@ -30,15 +30,21 @@ class EdmStart:
     notes: tuple[str, ...]
 
 
-def edm_start_refusal(problem: RangeAidedProblem) -> str:
-    """Why ``problem`` has no EDM-windows start, in words ("" when it has one): it is not a
-    beacon log, or it holds priors (the start fixes pose 0 in its own frame, the priors another)."""
+def _beacon_log(problem: RangeAidedProblem):
+    """The problem as a :class:`rangeslam.beacons.RangeOdometry` when it has an EDM-windows
+    start; InvalidInputError naming why not: it holds priors (the start fixes pose 0 in its own
+    frame, the priors another) or it is not a beacon log."""
     from rangeslam.beacons import RangeOdometry
 
     if len(problem.pose_priors.time) or len(problem.landmark_priors.time):
-        return "the problem holds priors (the EDM start's frame is pose 0's)"
+        raise InvalidInputError("the problem holds priors (the EDM start's frame is pose 0's)")
+    return RangeOdometry.from_problem(problem)
+
+
+def edm_start_refusal(problem: RangeAidedProblem) -> str:
+    """Why ``problem`` has no EDM-windows start, in words ("" when it has one)."""
     try:
-        RangeOdometry.from_problem(problem)
+        _beacon_log(problem)
     except InvalidInputError as exc:
         return str(exc)
     return ""
@@ -52,16 +58,15 @@ def edm_start(problem: RangeAidedProblem, first: np.ndarray | None = None) -> Ed
         InvalidInputError: the problem has no such start (:func:`edm_start_refusal`).
         SolverError: no window places any landmark (beacon_slam's own failure).
     """
-    from rangeslam.beacons import RangeOdometry
     from rangeslam.beacons.data import dead_reckoning
     from rangeslam.beacons.defaults import resolve_options
     from rangeslam.beacons.options import BeaconSlamOptions
     from rangeslam.beacons.windows import edm_initialisation
 
-    why = edm_start_refusal(problem)
-    if why:
-        raise InvalidInputError(f"problem has no EDM-windows start: {why}")
-    data = RangeOdometry.from_problem(problem)
+    try:
+        data = _beacon_log(problem)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"problem has no EDM-windows start: {exc}") from exc
     start = np.zeros(3) if first is None else np.asarray(first, dtype=float)
     options = resolve_options(BeaconSlamOptions.from_settings({}), data)
     init = edm_initialisation(data, dead_reckoning(data.odometry, start), options)

@@ -22,7 +22,7 @@ from scipy.stats import chi2
 
 from rangeslam._robust import mad_sigma
 from rangeslam.errors import InvalidInputError, SolverError
-from rangeslam.rangeaided.edm_start import edm_start, edm_start_refusal
+from rangeslam.rangeaided.edm_start import edm_start
 from rangeslam.rangeaided.gtsam_values import MAX_ITERATIONS, gtsam_pose, to_values
 from rangeslam.rangeaided.placement import Placement, place_robots
 from rangeslam.rangeaided.poses import positions
@@ -152,6 +152,8 @@ class RangeAidedResult(HasStatus):
         checks: every check the verdict ran, in order (name, statistic, level, passed, reason).
         first_poses: (R, 3) or (R, 7) each robot's first pose the start used.
         placement: how each robot's first pose was found, in words.
+        start: where LM started: "edm" (the EDM windows), "odometry" or "given"; "" for a
+            result not solved (dead reckoning).
         judge_seconds: wall time of the alternatives and the judge [s].
         alternatives: candidates the judge compared with the answer.
     """
@@ -173,6 +175,7 @@ class RangeAidedResult(HasStatus):
     checks: tuple[CheckRecord, ...] = ()
     first_poses: np.ndarray | None = None
     placement: str = ""
+    start: str = ""
     judge_seconds: float = 0.0
     alternatives: int = 0
 
@@ -380,12 +383,13 @@ def solve_gtsam(
     t0 = time.perf_counter()
     if start is None:
         placement = place_robots(problem, first=first_poses, rng=rng)
-        poses, marks, method = _start(problem, placement, initialisation, first_poses is not None)
+        poses, marks, method, kind = _start(problem, placement, initialisation,
+                                            first_poses is not None)  # fmt: skip
     else:
         poses, marks = (np.asarray(a, dtype=float) for a in start)
         placement = place_robots(problem, first=poses[[problem.robot_rows(r)[0] for r in
                                                        range(len(problem.robots))]])  # fmt: skip
-        method = "gtsam from the given start"
+        method, kind = "gtsam from the given start", "given"
     graph, groups = build_graph(problem, poses)
     answer = candidate(problem, graph, (poses, marks), "the answer", True, max_iterations)
     seconds = time.perf_counter() - t0
@@ -401,31 +405,32 @@ def solve_gtsam(
         poses=best.poses, landmarks=best.marks, status=status, message=message, method=method,
         iterations=best.iterations, initial_error=float(graph.error(to_values(poses, marks))),
         final_error=float(graph.error(best.values)), seconds=seconds, **stats, checks=checks,
-        first_poses=placement.first, placement=placement.words(problem.robots),
+        first_poses=placement.first, placement=placement.words(problem.robots), start=kind,
         judge_seconds=time.perf_counter() - t0 - seconds,
         alternatives=len(search.judgement.comparisons),
     )  # fmt: skip
 
 
 def _start(problem: RangeAidedProblem, placement: Placement, initialisation: str, given: bool
-           ) -> tuple[np.ndarray, np.ndarray, str]:  # fmt: skip
-    """(poses, landmarks, method in words) of the start ``initialisation`` names (solve_gtsam)."""
-    first = "first poses " + ("given" if given else "from the data")
-    use_edm = initialisation == "edm" or (
-        initialisation == "auto" and not edm_start_refusal(problem)
-    )
-    if use_edm:
+           ) -> tuple[np.ndarray, np.ndarray, str, str]:  # fmt: skip
+    """(poses, landmarks, method in words, start kind) of the start ``initialisation`` names
+    (solve_gtsam): the EDM windows where asked or allowed, else the odometry."""
+    why = ""
+    if initialisation != "odometry":
         try:
             found = edm_start(problem, placement.first[0])
-            return found.poses, found.marks, f"gtsam from the EDM windows ({found.notes[0]})"
+            return (found.poses, found.marks, f"gtsam from the EDM windows ({found.notes[0]})",
+                    "edm")  # fmt: skip
+        except InvalidInputError:  # not a beacon log: the odometry, unless "edm" was asked
+            if initialisation == "edm":
+                raise
         except SolverError as exc:
             if initialisation == "edm":
                 raise
             why = f"; the EDM windows placed no landmark ({exc}): started from the odometry"
-    else:
-        why = ""
     poses, _ = odometry_start(problem, placement.first)
-    return poses, landmark_start(problem, poses), f"gtsam, {first}{why}"
+    first = "first poses " + ("given" if given else "from the data")
+    return poses, landmark_start(problem, poses), f"gtsam, {first}{why}", "odometry"
 
 
 def dead_reckoning_result(problem: RangeAidedProblem, *, first_poses=None) -> RangeAidedResult:

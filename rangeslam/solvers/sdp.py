@@ -370,44 +370,23 @@ class EDMCompletionSDP:
     def solve(self, z: np.ndarray) -> tuple[np.ndarray, str, str]:
         """Solve step (i) for direction ``z``; return (G in caller units^2, status, solver).
 
-        Clarabel that fails is tried again with static regularisation 1e-7 (unless the options
-        set it), then :data:`FALLBACK_SOLVER`; raises
+        The primary solver runs on the conic data compiled once per :meth:`set_data`
+        (:meth:`_solve_conic`). Clarabel that fails is tried again with static regularisation
+        1e-7 (unless the options set it), then :data:`FALLBACK_SOLVER`; raises
         :class:`SolverError` with the status when neither gives a usable solution.
         """
         self._z.value = 0.5 * (z + z.T)
         statuses = []
-        primary = {**_solver_options(self.solver, self.n_groups > 0), **self.solver_options}
-        if self.solver == "CLARABEL":  # the cached solver keeps a retry's regularisation else
-            primary.setdefault("static_regularization_constant", _clarabel_default_regularisation())
-        try:
-            solved = self._solve_conic(primary)
-        except cp.error.SolverError as exc:
-            statuses.append(f"{self.solver}: error ({str(exc).splitlines()[0]})")
-            solved = None
-        if solved is not None:
-            return solved
-        if not statuses:
-            statuses.append(f"{self.solver}: {self._problem.status}")
-        attempts = []
-        if (
-            self.solver == "CLARABEL"
-            and "static_regularization_constant" not in self.solver_options
-        ):
-            # masked unfoldings with many sparse columns (tracked echoes) made Clarabel's KKT
-            # solves fail at its default static regularisation; 1e-7 solved them
-            attempts.append((self.solver, {"static_regularization_constant": 1e-7}))
-        if self.solver != FALLBACK_SOLVER:
-            attempts.append((FALLBACK_SOLVER, {}))
-        for name, extra in attempts:
+        for name, extra in self._attempts():
             label = name + "".join(f" ({k} {v})" for k, v in extra.items())
+            options = self._options(name, extra)
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # the status is checked below
-                    options = _solver_options(name, self.n_groups > 0)
-                    if name == self.solver:
-                        options.update(self.solver_options)
-                    options.update(extra)
-                    self._problem.solve(solver=name, **options)
+                    if name == self.solver and not extra:
+                        self._solve_conic(options)
+                    else:
+                        self._problem.solve(solver=name, **options)
             except cp.error.SolverError as exc:
                 statuses.append(f"{label}: error ({str(exc).splitlines()[0]})")
                 continue
@@ -424,33 +403,44 @@ class EDMCompletionSDP:
             statuses.append(f"{label}: {status}")
         raise SolverError("EDM completion SDP failed", status="; ".join(statuses))
 
-    def _solve_conic(self, options: dict) -> tuple[np.ndarray, str, str] | None:
+    def _attempts(self) -> list[tuple[str, dict]]:
+        """(solver, extra options) in the order :meth:`solve` tries them."""
+        attempts = [(self.solver, {})]
+        if (
+            self.solver == "CLARABEL"
+            and "static_regularization_constant" not in self.solver_options
+        ):
+            # masked unfoldings with many sparse columns (tracked echoes) made Clarabel's KKT
+            # solves fail at its default static regularisation; 1e-7 solved them
+            attempts.append((self.solver, {"static_regularization_constant": 1e-7}))
+        if self.solver != FALLBACK_SOLVER:
+            attempts.append((FALLBACK_SOLVER, {}))
+        return attempts
+
+    def _options(self, name: str, extra: dict) -> dict:
+        """The options of one attempt: the package's, the caller's for the primary solver,
+        then ``extra``. Clarabel's regularisation is always set (its cached solver would keep
+        a retry's otherwise)."""
+        options = _solver_options(name, self.n_groups > 0)
+        if name == self.solver:
+            options.update(self.solver_options)
+        if name == "CLARABEL":
+            options.setdefault("static_regularization_constant", _clarabel_default_regularisation())
+        options.update(extra)
+        return options
+
+    def _solve_conic(self, options: dict) -> None:
         """Step (i) by the primary solver on conic data compiled once per :meth:`set_data`: only
         the objective's q moves with Z (q = q_data + M vec(Z)), so each solve hands the solver
         its data through cvxpy's solving chain (the solver's cached instance updated with them)
-        without applying every Parameter again. (G, status, solver), or None when the status
-        is not usable (:meth:`solve` then tries its other attempts)."""
-        z = self._z.value
-        try:
-            if self._conic is None:
-                self._conic = self._compile(options)
-            data, chain, inverse, q_data = self._conic
-            data[cp.settings.C] = q_data + self._z_to_q @ z.ravel(order="F")
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # the status is checked below
-                raw = chain.solve_via_data(self._problem, data, warm_start=True,
-                                           solver_opts=options)  # fmt: skip
-                self._problem.unpack_results(raw, chain, inverse)
-        except MemoryError as exc:
-            raise SolverError(
-                f"EDM completion SDP of {self.n} points ran out of memory",
-                status=f"{self.solver}: out of memory",
-            ) from exc
-        status = self._problem.status
-        if status in _USABLE.get(self.solver, ("optimal",)) and self._gram.value is not None:
-            g = self._gram.value
-            return 0.5 * (g + g.T) * self.scale**2, status, self.solver
-        return None
+        without applying every Parameter again; the result is unpacked into the problem, as
+        ``Problem.solve`` would."""
+        if self._conic is None:
+            self._conic = self._compile(options)
+        data, chain, inverse, q_data = self._conic
+        data[cp.settings.C] = q_data + self._z_to_q @ self._z.value.ravel(order="F")
+        raw = chain.solve_via_data(self._problem, data, warm_start=True, solver_opts=options)
+        self._problem.unpack_results(raw, chain, inverse)
 
     def _compile(self, options: dict) -> tuple:
         """(conic data, solving chain, inverse data, q without Z) of the loaded data; the first
