@@ -28,7 +28,7 @@ from rangeslam._validation import (
 )
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
-from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.landmark_mirrors import LandmarkMirrors, landmark_mirrors
 from rangeslam.mdu.planarity import dimension_check, flat_rival_check, lifted_ssr
 from rangeslam.solvers.least_squares import (
     unfolding_jacobian,
@@ -409,6 +409,7 @@ def unfolding_check(
     judge_sources: str = "all",
     tail: bool = True,
     rivals_judged: bool = False,
+    source_mirrors: LandmarkMirrors | None = None,
 ) -> Check:
     """The verdict of :mod:`rangeslam.verdict` on an unfolding's answer (eq. 9 model).
 
@@ -428,6 +429,8 @@ def unfolding_check(
             planar walk or array gives every source one; the result reports them).
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
+        source_mirrors: the sources' :func:`landmark_mirrors` on these ranges, when the caller
+            has them (with ``judge_sources="none"``, for the note; computed here otherwise).
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
     information's rank beyond the rigid motions and the receivers' precision (in the receiver
@@ -460,7 +463,7 @@ def unfolding_check(
     dimension = dimension_check(receivers, sources, ranges, observed, redundancy, exact_rms,
                                 noise_std)  # fmt: skip
     source_check, sources_note = sources_verdict(
-        receivers, sources, ranges, observed, sigma, exact_rms, judge_sources
+        receivers, sources, ranges, observed, sigma, exact_rms, judge_sources, source_mirrors
     )
     covariance = gauge_free_covariance(info_jac, gauge)
     information = information_check(info_jac, gauge, sigma, scale, what, dim=d,
@@ -610,9 +613,11 @@ def sources_verdict(
     sigma: float | None,
     exact_rms: float,
     judge_sources: str,
+    mirrors: LandmarkMirrors | None = None,
 ) -> tuple[Check, str]:
     """The sources' :func:`points_check` as judged (see :func:`unfolding_check`'s
-    ``judge_sources``) and the note on what was only noted ("" if nothing)."""
+    ``judge_sources``) and the note on what was only noted ("" if nothing); ``mirrors``: the
+    sources' :func:`landmark_mirrors` when the caller has them (computed here otherwise)."""
     if judge_sources not in ("all", "none"):
         raise InvalidInputError(f'judge_sources must be "all" or "none"; got {judge_sources!r}')
     if judge_sources == "all":
@@ -622,7 +627,8 @@ def sources_verdict(
     failed = points_failures(sources, receivers, ranges.T, observed.T, sigma, exact_rms, "source")
     # A flat array or walk held fixed is bent towards each source's side: the mirrors judged
     # with everything refitted, so the note names every source reported.
-    mirrors = landmark_mirrors(receivers, sources, ranges, observed, sigma, exact_rms)
+    if mirrors is None:
+        mirrors = landmark_mirrors(receivers, sources, ranges, observed, sigma, exact_rms)
     named = {i for i, _ in failed}
     refitted = [j for j in np.flatnonzero(mirrors.ambiguous) if j not in named]
     if not failed and not refitted:

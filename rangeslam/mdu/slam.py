@@ -339,7 +339,7 @@ def slam_result(
         cov_r, cov_s, cov_traj = rotated_covariances(best.fit, rot)
     pts = best.completion.points
     edm_rec, edm_src, _ = canonical_frame(pts[:m], pts[m:])
-    mirrors = landmark_ambiguity(problem, best, rec_f, src_f)
+    mirrors = landmark_ambiguity(problem, best, best.receivers.mean(axis=0), rot)
     kept = judged_ranges(problem, best)[0]
     checks, n_judged, reached = (), 0, 0
     if judged is not None:

@@ -10,7 +10,7 @@ are judged on the same ranges at the same noise.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -25,7 +25,7 @@ from rangeslam.mdu.core import (
     unfolding_check,
     unknowns_up_to_rigid_motion,
 )
-from rangeslam.mdu.landmark_mirrors import landmark_mirrors
+from rangeslam.mdu.landmark_mirrors import LandmarkMirrors, landmark_mirrors
 from rangeslam.solvers.gtsam_graph import GraphFit
 from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.solvers.step_bounds import StepBounds
@@ -47,6 +47,7 @@ __all__ = [
     "landmark_ambiguity",
     "passes",
     "robust_breakdown",
+    "run_mirrors",
     "slam_verdict",
     "trajectory_check",
 ]
@@ -59,7 +60,11 @@ EXACT_POLISH = 1e-3
 
 @dataclass(frozen=True)
 class SlamProblem:
-    """The validated inputs of :func:`slam` (built once by :func:`parse_slam`)."""
+    """The validated inputs of :func:`slam` (built once by :func:`parse_slam`), and ``memo``:
+    the checks of each run made so far in this call (:func:`trajectory_check`,
+    :func:`run_mirrors`), which the search's stopping test, the verdict and the result share
+    (keyed by the run's identity, the run kept with its entry; a problem made from this one by
+    ``dataclasses.replace`` starts with an empty memo)."""
 
     ranges: np.ndarray  # (M, K) metres, 0 where not observed
     observed: np.ndarray  # (M, K) bool
@@ -73,6 +78,7 @@ class SlamProblem:
     refine: bool
     extra_starts: int
     options: ConvexIterationOptions
+    memo: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @property
     def n_obs(self) -> int:
@@ -204,9 +210,22 @@ def judged_ranges(problem: SlamProblem, best: SlamRun) -> tuple[np.ndarray, np.n
     return observed, best.residuals[observed], redundancy
 
 
+def memoised(problem: SlamProblem, name: str, run: SlamRun, compute):
+    """``compute()`` for ``run``, made once per :func:`slam` call (``problem.memo``)."""
+    key = (name, id(run))
+    hit = problem.memo.get(key)
+    if hit is None or hit[0] is not run:  # the run is kept with its entry: ids are not reused
+        hit = problem.memo[key] = (run, compute())
+    return hit[1]
+
+
 def trajectory_check(problem: SlamProblem, best: SlamRun):
     """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
-    the :func:`judged_ranges`."""
+    the :func:`judged_ranges` (once per run: :func:`memoised`)."""
+    return memoised(problem, "trajectory", best, lambda: _trajectory_check(problem, best))
+
+
+def _trajectory_check(problem: SlamProblem, best: SlamRun):
     observed, res, redundancy = judged_ranges(problem, best)
     estimate = float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0.0
     sigma = verdict_noise(problem.noise_std, estimate, EXACT_RTOL * problem.scale)
@@ -225,19 +244,33 @@ def trajectory_check(problem: SlamProblem, best: SlamRun):
         else None,
         what="the trajectory",
         judge_sources="none",
+        source_mirrors=run_mirrors(problem, best),
     )
 
 
-def landmark_ambiguity(problem: SlamProblem, best: SlamRun, receivers, sources):
-    """:func:`landmark_mirrors` of the answer (``receivers`` (M, d), ``sources`` (K, d) in the
-    frame reported) on the ranges and at the noise the verdict's note used (the
-    :func:`judged_ranges`; ``noise_std``, else the largest noise their residuals allow), so the
-    result's ``ambiguous_landmarks`` and the message's "noted" agree."""
-    observed, res, redundancy = judged_ranges(problem, best)
-    exact_rms = EXACT_RTOL * problem.scale
-    sigma = verdict_noise(
-        problem.noise_std, noise_upper_bound(float(res @ res), redundancy), exact_rms
-    )
-    return landmark_mirrors(
-        receivers, sources, problem.ranges, observed, sigma, EXACT_RTOL * problem.scale
-    )
+def run_mirrors(problem: SlamProblem, best: SlamRun) -> LandmarkMirrors:
+    """:func:`landmark_mirrors` of the run (in its own frame) on the ranges and at the noise the
+    verdict's note uses (the :func:`judged_ranges`; ``noise_std``, else the largest noise their
+    residuals allow), once per run (:func:`memoised`): the verdict's note and the result's
+    ``ambiguous_landmarks`` are the same computation."""
+
+    def compute():
+        observed, res, redundancy = judged_ranges(problem, best)
+        exact_rms = EXACT_RTOL * problem.scale
+        sigma = verdict_noise(
+            problem.noise_std, noise_upper_bound(float(res @ res), redundancy), exact_rms
+        )
+        return landmark_mirrors(
+            best.receivers, best.sources, problem.ranges, observed, sigma, exact_rms
+        )
+
+    return memoised(problem, "mirrors", best, compute)
+
+
+def landmark_ambiguity(
+    problem: SlamProblem, best: SlamRun, centre: np.ndarray, rotation: np.ndarray
+) -> LandmarkMirrors:
+    """:func:`run_mirrors` with the mirror images in the frame reported: (p - ``centre`` (d,))
+    @ ``rotation`` (d, d), as :func:`rangeslam.mdu.core.canonical_frame` moves the points."""
+    found = run_mirrors(problem, best)
+    return LandmarkMirrors(found.ambiguous, (found.mirrors - centre) @ rotation, found.cost_gaps)

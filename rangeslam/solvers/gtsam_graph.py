@@ -28,7 +28,6 @@ aligning the receivers to the truth.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -256,21 +255,16 @@ def _gauge_frame(points: np.ndarray, idx: list[int]) -> np.ndarray:
     return np.column_stack([e1, e2, np.cross(e1, e2)])
 
 
-def _partial_prior_error(at, rows, getter, this, values, jacobians):
-    """Error rows @ (p - at) of the point at this factor's key, Jacobian ``rows``."""
-    p = getattr(values, getter)(this.keys()[0])
-    if jacobians is not None:
-        jacobians[0] = rows
-    return rows @ (p - at)
-
-
 def _partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std: float):
-    """CustomFactor pinning the components rows @ (p - at) of one point (rows: (n, d)), and no
-    other: the gauge prior that leaves every observable direction to the measurements."""
-    getter = "atPoint3" if len(at) == 3 else "atPoint2"
-    error = functools.partial(_partial_prior_error, at.copy(), np.ascontiguousarray(rows), getter)
+    """Factor pinning the components rows @ (p - at) of one point (rows: (n, d)), and no other:
+    the gauge prior that leaves every observable direction to the measurements. A point is a
+    vector space, so the linear factor rows (p - at) held at ``at`` is exact (a native
+    LinearContainerFactor: no Python call per linearisation)."""
+    lin = gtsam.Values()
+    lin.insert(key, np.asarray(at, dtype=float).copy())
     model = gtsam.noiseModel.Isotropic.Sigma(len(rows), _GAUGE_TIGHT * noise_std)
-    return gtsam.CustomFactor(model, [key], error)
+    factor = gtsam.JacobianFactor(key, np.ascontiguousarray(rows), np.zeros(len(rows)), model)
+    return gtsam.LinearContainerFactor(factor, lin)
 
 
 def _covariance(gtsam, graph, values, keys: list[int], d: int, *, gauge_free: bool) -> np.ndarray:
