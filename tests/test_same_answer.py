@@ -16,12 +16,13 @@ from rangeslam.mdu.core import ConvexIterationOptions
 from rangeslam.mdu.emission import (
     EmissionCandidate,
     emission_verdict,
+    lowest_found,
     parse_emission,
     scaled_unfolding,
     search_emission,
     starting_offsets,
 )
-from rangeslam.mdu.emission_judge import judge_emission
+from rangeslam.mdu.emission_judge import judge_emission, judged_emission_search
 from rangeslam.status import Status
 from rangeslam.verdict.judge import Alternative, distance_level, information_distance, same_answer
 
@@ -120,14 +121,66 @@ def test_emission_rival_minimum_is_not_identifiable(rng):
 
 
 def test_emission_result_lists_the_judge(rng):
-    """calibrate_unknown_emission's result lists the judge's check and the verdict's, and how
-    many starts it judged and reached the answer."""
+    """calibrate_unknown_emission's result lists the judge's checks (rival minima, whether the
+    stopping rule ended its random starts) and the verdict's, and how many starts it judged and
+    reached the answer; the message says how the search ended."""
     from rangeslam.mdu.emission import calibrate_unknown_emission
 
     x, s = _scene(rng, m=8, k=12)
     groups = np.repeat([0, 1], 6)
     r = range_matrix(x, s) + np.array([0.4, -0.7])[groups] + SIGMA * rng.standard_normal((8, 12))
     out = calibrate_unknown_emission(r, groups, noise_std=SIGMA, rng=rng)
-    assert [c.name for c in out.checks] == ["rival minima", "verdict"]
+    assert [c.name for c in out.checks] == ["rival minima", "search complete", "verdict"]
     assert out.checks[-1].passed is out.converged
     assert out.reached >= 1 and out.judged >= 0
+    assert "starts reached" in out.message
+
+
+def _only_the_answer(found):
+    """The search record with its answer as its only start."""
+    return dataclasses.replace(found, candidates=(found.best,))
+
+
+def test_emission_judge_draws_random_starts_until_the_stopping_rule(rng):
+    """After the search, random starts of the same model join the judge until Boender and
+    Rinnooy Kan's rule ends them: every start reaching the answer, the rule ends the draws once
+    7 starts (the answer's counted) saw one minimum (expected 6 / 4 = 1.5 minima), short of
+    SEARCH_BUDGET; the record says the rule, not the budget, ended them."""
+    problem, scaled, found = _emission_search(rng)
+    best = found.best
+    calls = []
+
+    def at_the_answer(points):
+        calls.append(points.shape)
+        return EmissionCandidate(best.ssr, SimpleNamespace(x=best.fit.x.copy(), fun=best.fit.fun))
+
+    judged = judged_emission_search(problem, scaled, _only_the_answer(found), at_the_answer, rng)
+    assert judged.complete and judged.judgement.minima == 1
+    assert judged.starts == 7 == len(calls) + 1 and judged.expected == 1.5
+    assert calls[0] == (sum(problem.ranges.shape), 3)
+    assert judged.judgement.status is Status.CONVERGED
+    searched, words = lowest_found(_only_the_answer(found), judged)
+    assert searched.best is best and words == ""
+    assert searched.random_starts == found.random_starts + len(calls)
+
+
+def test_emission_judge_replaces_an_answer_a_random_start_undercuts(rng):
+    """A search that stopped at a minimum a random start undercuts by more than the level, far
+    off, is replaced by it and says so; a start that diverged (None) counts as drawn, not as a
+    start, and the budget ends the draws."""
+    problem, scaled, found = _emission_search(rng)
+    best = found.best
+    x = best.fit.x.copy()
+    pts = x[: -problem.n_groups].reshape(-1, 3)
+    pts[[0, 1]] = pts[[1, 0]]  # far off: two receivers exchanged
+    lower = EmissionCandidate(0.01 * best.ssr, SimpleNamespace(x=x, fun=0.1 * best.fit.fun))
+    draws = iter([None, lower])
+    judged = judged_emission_search(
+        problem, scaled, _only_the_answer(found), lambda points: next(draws, None), rng
+    )
+    assert judged.judgement.answer.payload is lower
+    assert not judged.complete
+    searched, words = lowest_found(_only_the_answer(found), judged)
+    assert searched.best is lower
+    assert words.startswith("random start 1 reached a lower minimum")
+    assert searched.random_starts == found.random_starts + 1

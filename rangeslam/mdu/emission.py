@@ -10,6 +10,7 @@ in :mod:`rangeslam.localization.emission`.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -44,10 +45,10 @@ from rangeslam.mdu.core import (
     unfolding_check,
     unknowns_up_to_rigid_motion,
 )
-from rangeslam.mdu.emission_judge import judge_emission, same_emission
+from rangeslam.mdu.emission_judge import judged_emission_search, same_emission
 from rangeslam.solvers.least_squares import unfolding_jacobian, unfolding_residuals
 from rangeslam.status import HasStatus, Status
-from rangeslam.verdict.judge import CheckRecord, Judgement, ReachedLowest
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, Judgement, ReachedLowest
 from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RANK_RTOL, RELATIVE_RMS
 
 # --- unknown microphones and unknown emission times (Problem 2) ---------------------------------
@@ -448,7 +449,7 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
     until an answer is exact, or passes the residual test and is confirmed by a second start
     (the judge calls them the same answer, :func:`same_emission`), or is the best of all
     convex-iteration runs. Every start's fit is kept for the judge (:func:`judge_emission`)."""
-    model, failures = scaled.model, []
+    failures: list[str] = []
     exact_ssr = (EXACT_RTOL**2) * int(problem.observed.sum())
     attempts, n_random = 0, 0
     # the vote of calibrate: the lowest fit is confirmed when another start reached the same
@@ -458,11 +459,9 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
     for pts, from_sdp in emission_starts(problem, scaled, rng, failures):
         attempts += from_sdp
         n_random += not from_sdp
-        fit = model.refine(pts, scaled.offsets0)
-        ssr = float(fit.fun @ fit.fun)
-        if not np.all(np.isfinite(fit.x)):
+        cand = fit_emission_start(scaled, pts)
+        if cand is None:
             continue
-        cand = EmissionCandidate(ssr, fit)
         candidates.append(cand)
         lowest.add(cand)
         best, confirmed = lowest.best, lowest.confirmed
@@ -478,6 +477,36 @@ def search_emission(problem: EmissionProblem, scaled: ScaledUnfolding, rng) -> E
     return EmissionSearch(
         lowest.best, lowest.confirmed, attempts, n_random, tuple(failures), tuple(candidates)
     )
+
+
+def fit_emission_start(scaled: ScaledUnfolding, pts: np.ndarray) -> EmissionCandidate | None:
+    """Levenberg-Marquardt over points and offsets from ``pts`` (M + K, d) scaled and the
+    starting offsets; None when the fit diverged."""
+    fit = scaled.model.refine(pts, scaled.offsets0)
+    ssr = float(fit.fun @ fit.fun)
+    if not (np.all(np.isfinite(fit.x)) and np.isfinite(ssr)):
+        return None
+    return EmissionCandidate(ssr, fit)
+
+
+def lowest_found(found: EmissionSearch, judged: JudgedSearch) -> tuple[EmissionSearch, str]:
+    """The search with the judge's answer (its lowest candidate) as the best, and its random
+    starts counted in; the words saying so when that replaced the search's answer ("" if not).
+    """
+    j = judged.judgement
+    drawn = judged.starts - len(found.candidates)  # the judge's random starts that fitted
+    found = dataclasses.replace(found, random_starts=found.random_starts + drawn)
+    own = next((c for c in j.comparisons if c.alternative is j.replaced), None)
+    if own is None:
+        return found, ""
+    found = dataclasses.replace(found, best=j.answer.payload)
+    if own.kind == SAME:  # the same answer, reached lower: no other answer
+        return found, ""
+    words = (
+        f"{j.answer.origin} reached a lower minimum (by {own.delta_cost:.3g} noise variances): "
+        "it replaced the search's answer"
+    )
+    return found, words
 
 
 def emission_verdict(
@@ -571,9 +600,10 @@ def mirrored_points(problem: EmissionProblem, scaled: ScaledUnfolding, ssr: floa
     return _mirror_ambiguities(pts_s, problem.ranges.shape[0], dist, problem.observed, tol)
 
 
-def emission_result(problem, scaled, found: EmissionSearch, status, message, judged: Judgement):
+def emission_result(problem, scaled, found: EmissionSearch, status, message, judged: JudgedSearch):
     """The :class:`UnknownEmissionCalibration` in metres, in the canonical frame, its checks the
-    judge's and the verdict's."""
+    judge's (rival minima, search complete) and the verdict's; the search in words after the
+    message."""
     ssr, fit, scale = found.best.ssr, found.best.fit, scaled.scale
     m, n_groups = problem.ranges.shape[0], problem.n_groups
     n_obs = int(problem.observed.sum())
@@ -596,15 +626,16 @@ def emission_result(problem, scaled, found: EmissionSearch, status, message, jud
         noise_estimate=math.sqrt(ssr / redundancy) * scale if redundancy > 0 else float("nan"),
         redundancy=int(redundancy),
         status=status,
-        message=message,
+        message="; ".join(filter(None, (message, judged.words()))),
         attempts=int(found.attempts),
         random_starts=int(found.random_starts),
         checks=(
-            judged.check,
+            judged.judgement.check,
+            judged.record(),
             CheckRecord("verdict", math.nan, math.nan, status is Status.CONVERGED, message),
         ),
-        judged=len(judged.comparisons),
-        reached=judged.reached,
+        judged=len(judged.judgement.comparisons),
+        reached=judged.judgement.reached,
     )
 
 
@@ -685,8 +716,12 @@ def calibrate_unknown_emission(
     found = search_emission(problem, scaled, rng)
     if found.best is None:
         raise InvalidInputError("every fit diverged: no unfolding with offsets found")
-    judged = judge_emission(problem, scaled, found)
-    status, message = emission_verdict(problem, scaled, found, judged)
+    judged = judged_emission_search(
+        problem, scaled, found, lambda pts: fit_emission_start(scaled, pts), rng
+    )
+    found, replaced = lowest_found(found, judged)
+    status, message = emission_verdict(problem, scaled, found, judged.judgement)
+    message = "; ".join(filter(None, (replaced, message)))
     return emission_result(problem, scaled, found, status, message, judged)
 
 

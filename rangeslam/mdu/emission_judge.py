@@ -3,19 +3,30 @@ against the search's answer by the one test (:func:`rangeslam.verdict.judge.judg
 of squared range residuals over sigma^2 (the deviance of Gaussian ranges) and the information
 distance of the receivers (the sources and the event offsets profiled out), all in the search's
 scaled units (the median corrected range); and the same test alone (:func:`same_emission`) for
-the search's vote of two starts.
+the search's vote of two starts. After the search, least-squares runs of the same model from
+random points join the starts until the stopping rule of Boender and Rinnooy Kan or the budget
+(:func:`judged_emission_search`), as :func:`rangeslam.calibrate`'s judge makes them.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rangeslam.mdu.core import unknowns_up_to_rigid_motion
-from rangeslam.verdict.judge import Alternative, information_distance, judge, same_answer
-from rangeslam.verdict.thresholds import EXACT_RTOL
+from rangeslam.verdict.judge import (
+    Alternative,
+    JudgedSearch,
+    information_distance,
+    judge,
+    random_search,
+    same_answer,
+)
+from rangeslam.verdict.thresholds import EXACT_RTOL, SEARCH_BUDGET
 
 if TYPE_CHECKING:
     from rangeslam.mdu.emission import (
@@ -30,6 +41,7 @@ __all__ = [
     "emission_metric",
     "emission_sigma",
     "judge_emission",
+    "judged_emission_search",
     "same_emission",
 ]
 
@@ -80,6 +92,45 @@ def judge_emission(problem: EmissionProblem, scaled: ScaledUnfolding, found: Emi
     (:func:`rangeslam.verdict.judge.judge`): the sum of squared range residuals over sigma^2
     (:func:`emission_sigma`) as the deviance, delta^2 of the receivers (sources and offsets
     profiled out). A :class:`rangeslam.verdict.judge.Judgement`; every start counts."""
+    run, others = _emission_judge(problem, scaled, found)
+    return run(others)
+
+
+def judged_emission_search(
+    problem: EmissionProblem,
+    scaled: ScaledUnfolding,
+    found: EmissionSearch,
+    fit_start: Callable[[np.ndarray], EmissionCandidate | None],
+    rng: np.random.Generator,
+) -> JudgedSearch:
+    """:func:`judge_emission` after random starts: ``fit_start(points)`` (the search's fit of
+    the model from scaled points (M + K, d) normal about the origin, with the starting offsets;
+    None when it diverged) until the stopping rule (:func:`rangeslam.verdict.judge.
+    search_complete`, every start of the search counted with the answer) or SEARCH_BUDGET starts
+    in all (at most ``problem.random_starts`` draws). A search that stopped at the first
+    minimum passing the residual test, unconfirmed, is judged against what those starts
+    reach: a lower minimum replaces it, an equal one far off is its rival."""
+    run, others = _emission_judge(problem, scaled, found)
+    sigma = emission_sigma(problem, scaled, found.best.ssr)
+    n_points = sum(problem.ranges.shape)
+
+    def randoms():
+        for j in itertools.count():
+            cand = fit_start(rng.standard_normal((n_points, problem.dim)))
+            yield (
+                None
+                if cand is None
+                else emission_alternative(scaled.model, cand, sigma, f"random start {j}")
+            )
+
+    budget = min(problem.random_starts, max(SEARCH_BUDGET - len(others) - 1, 0))
+    counted, _ = random_search(run, others, randoms(), budget=budget)
+    return JudgedSearch.of(run(counted), len(counted) + 1)
+
+
+def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
+    """(run, the other starts as Alternatives): ``run(alternatives)`` judges the answer against
+    them (module docstring)."""
     model = scaled.model
     sigma = emission_sigma(problem, scaled, found.best.ssr)
     answer = emission_alternative(model, found.best, sigma, "the answer")
@@ -89,4 +140,9 @@ def judge_emission(problem: EmissionProblem, scaled: ScaledUnfolding, found: Emi
         if c is not found.best
     ]
     dof = unknowns_up_to_rigid_motion(model.m, problem.dim)
-    return judge(answer, others, metric=emission_metric(model, sigma), dof=dof)
+    metric = emission_metric(model, sigma)
+
+    def run(alternatives):
+        return judge(answer, alternatives, metric=metric, dof=dof)
+
+    return run, others
