@@ -241,3 +241,21 @@ def test_noise_std_zero_is_exact_to_every_verdict():
     assert verdict_noise(None, None, 1e-8) is None
     assert verdict_noise(0.0, 0.004, 1e-8) == 1e-8
     assert verdict_noise(0.002, 0.004, 1e-8) == 0.002
+
+
+def test_without_a_noise_level_the_search_makes_one_run_and_the_judge_searches(rng):
+    """Without noise_std no test of one run can reject a wrong minimum: the cheap search stops
+    after its first convex-iteration run (no runs until the verdict passes), the judge's random
+    starts and refits look for a lower minimum, and the result counts the SDP solves (within
+    the budget of max_attempts runs of max_iterations solves). With noise_std the runs go on
+    only while the residual test fails."""
+    traj, landmarks = _scene(rng, 8)
+    steps = step_lengths(traj)
+    bounds = (0.8 * steps, 1.2 * steps)
+    r = add_range_noise(range_matrix(traj, landmarks), 0.01, rng=rng)
+    out = slam(r, step_bounds=bounds, max_iterations=30, rng=rng)
+    assert out.attempts == 1
+    assert 1 <= out.sdp_solves <= 30
+    assert out.judged > 0 and "starts reached" in out.message
+    given = slam(r, step_bounds=bounds, noise_std=0.01, max_attempts=3, rng=rng)
+    assert 1 <= given.attempts <= 3 and given.attempts <= given.sdp_solves

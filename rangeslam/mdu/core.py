@@ -424,22 +424,19 @@ def unfolding_check(
             to G unknown range offsets the model also fitted (emission times), or None.
         what: what the points are, for the reason.
         judge_sources: "all": a source that is weakly determined or has a mirror image fails
-            the check; "none": both only noted (the receivers are what is judged: a calibrated
-            array or SLAM's trajectory fit the same either side of a source's mirror, and a
-            planar walk or array gives every source one; the result reports them).
+            the check; "none": both only noted (the receivers are what is judged: they fit the
+            same either side of a source's mirror, which a planar walk or array gives each).
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
-        source_mirrors: the sources' :func:`landmark_mirrors` on these ranges, when the caller
-            has them (with ``judge_sources="none"``, for the note; computed here otherwise).
+        source_mirrors: the sources' :func:`landmark_mirrors`, when the caller has them.
 
     Checks in turn: the residuals against the noise, whether the points are flat, the
     information's rank beyond the rigid motions and the receivers' precision (in the receiver
     gauge: errors after aligning the receivers, as :func:`rangeslam.mdu_crlb` bounds them; also
-    along the weakest directions, :func:`region_check`), each
-    point against its partners held fixed (its precision, and its mirror image through their
-    plane: a point heard by d partners, or by nearly coplanar ones, is fixed only up to it;
-    receivers only without priors, which tie them to each other); and, for flat receivers
-    without priors, whether a flat scene fits the ranges as well (:func:`flat_rival_check`).
+    along the weakest directions, :func:`region_check`), each point against its partners held
+    fixed (its precision, and its mirror image through their plane; receivers only without
+    priors, which tie them to each other); and, for flat receivers without priors, whether a
+    flat scene fits the ranges as well (:func:`flat_rival_check`).
     """
     m, d = receivers.shape
     points = np.vstack([receivers, sources])

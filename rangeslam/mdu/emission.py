@@ -716,6 +716,15 @@ def calibrate_unknown_emission(
     found = search_emission(problem, scaled, rng)
     if found.best is None:
         raise InvalidInputError("every fit diverged: no unfolding with offsets found")
+    return judged_emission(problem, scaled, found, rng)
+
+
+def judged_emission(
+    problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch, rng
+) -> UnknownEmissionCalibration:
+    """Step 4: the search's answer judged after the judge's random starts
+    (:func:`judged_emission_search`; its lowest the answer, :func:`lowest_found`), the verdict
+    (:func:`emission_verdict`) and the result."""
     judged = judged_emission_search(
         problem, scaled, found, lambda pts: fit_emission_start(scaled, pts), rng
     )
