@@ -3,8 +3,8 @@
     python benchmarks/profile_slam.py --walks 10 --seed 98101
 
 Random non-planar walks as ``bench_edm_start.py`` draws them (M = 8 steps by default,
-``--steps`` for others; 1 cm, +-20% step bounds, noise not given). Each part of ``slam`` is timed by wrapping its function (wall-clock,
-``time.perf_counter``): the convex-iteration search with its GTSAM refinements
+``--steps`` for others; 1 cm, +-20% step bounds, noise not given). Each part of ``slam`` is
+timed by wrapping its function (wall-clock, ``time.perf_counter``): the convex-iteration search with its GTSAM refinements
 (``search_edm_runs``), the judge (``judge_slam``) split into its random starts
 (``random_minima``) and its leave-one-block-out refits (``block_alternatives``), the verdict's
 checks (``slam_verdict``) and the result (landmark mirrors, covariances: ``slam_result``). The

@@ -231,3 +231,32 @@ def test_bad_input(rng):
         refine_graph(x, s, r, noise_std=0.01, step_bounds=bounds, step_prior="gaussian")
     with pytest.raises(InvalidInputError, match="sources must have shape"):
         refine_graph(x, s[:, :2], r, noise_std=0.01)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_the_gauge_prior_pins_only_its_rows(d):
+    """The gauge prior is GTSAM's own linear factor: its error is |rows (p - at)|^2 / 2 over the
+    tight sigma and its linearisation the rows themselves wherever p is (a point is a vector
+    space, so the linear factor is exact); directions outside the rows cost nothing."""
+    import gtsam
+
+    from rangeslam.solvers.gtsam_graph import _GAUGE_TIGHT, _partial_prior
+
+    rng = np.random.default_rng(d)
+    key, at = gtsam.symbol("x", 3), rng.standard_normal(d)
+    rows = np.linalg.qr(rng.standard_normal((d, d)))[0][: d - 1]  # all but one direction
+    noise_std = 0.01
+    factor = _partial_prior(gtsam, key, at, rows, noise_std)
+    sigma = _GAUGE_TIGHT * noise_std
+    for p in (at + rng.standard_normal(d), at + 5.0 * rng.standard_normal(d)):
+        values = gtsam.Values()
+        values.insert(key, p)
+        expected = rows @ (p - at) / sigma
+        assert factor.error(values) == pytest.approx(0.5 * expected @ expected, rel=1e-12)
+        jac, rhs = factor.linearize(values).jacobian()
+        np.testing.assert_allclose(jac, rows / sigma, rtol=1e-12)
+        np.testing.assert_allclose(rhs, -expected, rtol=1e-12, atol=1e-9)
+    normal = np.linalg.svd(rows)[2][-1]  # the direction the rows leave free
+    values = gtsam.Values()
+    values.insert(key, at + 3.0 * normal)
+    assert factor.error(values) == pytest.approx(0.0, abs=1e-12)

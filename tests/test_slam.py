@@ -259,3 +259,35 @@ def test_without_a_noise_level_the_search_makes_one_run_and_the_judge_searches(r
     assert out.judged > 0 and "starts reached" in out.message
     given = slam(r, step_bounds=bounds, noise_std=0.01, max_attempts=3, rng=rng)
     assert 1 <= given.attempts <= 3 and given.attempts <= given.sdp_solves
+
+
+def test_each_run_is_checked_once_a_call(rng, monkeypatch):
+    """The verdict's note and the result's ambiguous landmarks are one computation of the
+    landmarks' mirror images per run (they were two, and three with the search's stopping
+    test), and a problem made from another by dataclasses.replace starts without its memo."""
+    import dataclasses
+    import sys
+
+    import rangeslam.mdu.core as core
+    import rangeslam.mdu.slam_verdict as verdict
+
+    calls = []
+    original = verdict.landmark_mirrors
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    for module in (verdict, core):  # the result's call and the verdict's note
+        monkeypatch.setattr(module, "landmark_mirrors", counted)
+    traj, landmarks = _scene(rng, 8)
+    steps = step_lengths(traj)
+    r = add_range_noise(range_matrix(traj, landmarks), 1e-3, rng=rng)
+    out = slam(r, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=1e-3, rng=rng)
+    assert out.ambiguous_landmarks is not None
+    assert len(calls) == (1 if out.start == "edm" else 2), out.start
+    parse_slam = sys.modules["rangeslam.mdu.slam"].parse_slam
+    options = sys.modules["rangeslam.mdu.core"].ConvexIterationOptions(8, 10.0, 50, 1e-6, "cheap")
+    problem = parse_slam(r, None, None, 3, True, 1e-3, None, None, "uniform", 0, options)
+    problem.memo["x"] = 1
+    assert dataclasses.replace(problem, robust="cauchy").memo == {}

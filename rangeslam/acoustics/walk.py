@@ -725,5 +725,6 @@ def _slam_answer(fit, start, res, ssr, m_all, status: Status, message: str) -> S
         attempts=start.attempts,
         start="edm",
         eigen_gap=start.eigen_gap,
+        sdp_solves=start.sdp_solves,
         **verdict,
     )

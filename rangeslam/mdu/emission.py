@@ -240,8 +240,8 @@ class UnknownEmissionCalibration(HasStatus):
             (``observed`` unless ``robust``; an event with none was dropped as a whole and its
             source and residuals are NaN); None otherwise.
         checks: the checks of the verdict (name, statistic, level, passed, reason): the judge
-            of the starts' minima (:func:`rangeslam.verdict.judge.judge`), then the verdict;
-            empty with ``receiver_offsets=True``.
+            of the starts' minima (:func:`rangeslam.verdict.judge.judge`), whether the stopping
+            rule ended its random starts, then the verdict; empty with ``receiver_offsets=True``.
         judged: the other starts' minima the judge compared with the answer; ``reached``:
             starts (the answer's own counted) that reached the answer.
     """
@@ -489,12 +489,13 @@ def fit_emission_start(scaled: ScaledUnfolding, pts: np.ndarray) -> EmissionCand
     return EmissionCandidate(ssr, fit)
 
 
-def lowest_found(found: EmissionSearch, judged: JudgedSearch) -> tuple[EmissionSearch, str]:
-    """The search with the judge's answer (its lowest candidate) as the best, and its random
-    starts counted in; the words saying so when that replaced the search's answer ("" if not).
-    """
+def lowest_found(
+    found: EmissionSearch, judged: JudgedSearch, drawn: int
+) -> tuple[EmissionSearch, str]:
+    """The search with the judge's answer (its lowest candidate) as the best, and the judge's
+    ``drawn`` random starts counted in (as the search counts its own: diverged fits too); the
+    words saying so when that replaced the search's answer ("" if not)."""
     j = judged.judgement
-    drawn = judged.starts - len(found.candidates)  # the judge's random starts that fitted
     found = dataclasses.replace(found, random_starts=found.random_starts + drawn)
     own = next((c for c in j.comparisons if c.alternative is j.replaced), None)
     if own is None:
@@ -556,7 +557,7 @@ def emission_verdict(
         status, message = check.status, message + check.reason + "; "
     if found.failures:
         message += f"{len(found.failures)} SDP runs failed ({found.failures[0]}); "
-    return status, message.strip().rstrip(";")
+    return status, "; ".join(part.strip() for part in message.split("; ") if part.strip())
 
 
 def emission_check(problem: EmissionProblem, scaled: ScaledUnfolding, fit):
@@ -692,9 +693,10 @@ def calibrate_unknown_emission(
         robust: with ``receiver_offsets=True`` only: drop the arrivals and whole events that do
             not fit (:mod:`rangeslam.mdu.offset_outliers`; the result's ``inliers``); status as
             :func:`rangeslam.calibrate` with ``robust=True``.
-        random_starts: least-squares runs from random points (offsets from step 1) when no
-            convex-iteration run passes (default 20); with ``receiver_offsets``, the search runs
-            at most (default :data:`CLOCK_RUNS`).
+        random_starts: least-squares runs from random points (offsets from step 1) at most:
+            the search's, when no convex-iteration run passes, and the judge's after it
+            (default 20); with ``receiver_offsets``, the search runs at most (default
+            :data:`CLOCK_RUNS`).
         rng: random generator (or seed).
 
     Identifiability: the ranges must number at least (M + K) d - d (d + 1) / 2 + G (InvalidInputError
@@ -725,10 +727,10 @@ def judged_emission(
     """Step 4: the search's answer judged after the judge's random starts
     (:func:`judged_emission_search`; its lowest the answer, :func:`lowest_found`), the verdict
     (:func:`emission_verdict`) and the result."""
-    judged = judged_emission_search(
+    judged, drawn = judged_emission_search(
         problem, scaled, found, lambda pts: fit_emission_start(scaled, pts), rng
     )
-    found, replaced = lowest_found(found, judged)
+    found, replaced = lowest_found(found, judged, drawn)
     status, message = emission_verdict(problem, scaled, found, judged.judgement)
     message = "; ".join(filter(None, (replaced, message)))
     return emission_result(problem, scaled, found, status, message, judged)

@@ -19,6 +19,7 @@ import numpy as np
 
 from rangeslam.mdu.core import unknowns_up_to_rigid_motion
 from rangeslam.verdict.judge import (
+    DRAWS_BUDGET,
     Alternative,
     JudgedSearch,
     information_distance,
@@ -102,14 +103,15 @@ def judged_emission_search(
     found: EmissionSearch,
     fit_start: Callable[[np.ndarray], EmissionCandidate | None],
     rng: np.random.Generator,
-) -> JudgedSearch:
+) -> tuple[JudgedSearch, int]:
     """:func:`judge_emission` after random starts: ``fit_start(points)`` (the search's fit of
     the model from scaled points (M + K, d) normal about the origin, with the starting offsets;
     None when it diverged) until the stopping rule (:func:`rangeslam.verdict.judge.
     search_complete`, every start of the search counted with the answer) or SEARCH_BUDGET starts
     in all (at most ``problem.random_starts`` draws). A search that stopped at the first
     minimum passing the residual test, unconfirmed, is judged against what those starts
-    reach: a lower minimum replaces it, an equal one far off is its rival."""
+    reach: a lower minimum replaces it, an equal one far off is its rival. Returns the
+    judgement and the draws made (a diverged fit counts as drawn, not as a start)."""
     run, others = _emission_judge(problem, scaled, found)
     sigma = emission_sigma(problem, scaled, found.best.ssr)
     n_points = sum(problem.ranges.shape)
@@ -123,9 +125,11 @@ def judged_emission_search(
                 else emission_alternative(scaled.model, cand, sigma, f"random start {j}")
             )
 
-    budget = min(problem.random_starts, max(SEARCH_BUDGET - len(others) - 1, 0))
-    counted, _ = random_search(run, others, randoms(), budget=budget)
-    return JudgedSearch.of(run(counted), len(counted) + 1)
+    left = max(SEARCH_BUDGET - len(others) - 1, 0)
+    budget = min(problem.random_starts, left)
+    counted, made = random_search(run, others, randoms(), budget=budget)
+    words = DRAWS_BUDGET if budget == left else "the random_starts limit"
+    return JudgedSearch.of(run(counted), len(counted) + 1, budget=words), made
 
 
 def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):

@@ -248,16 +248,17 @@ def rekeyed(problem: SlamProblem, run: SlamRun | None, sigma: float) -> SlamRun 
 
 def stops(problem: SlamProblem, run: SlamRun) -> bool:
     """Whether the search may stop at ``run``: it passes the residual test (:func:`passes`), or,
-    with ``edm_start="cheap"``, GTSAM's refinement and no noise level to test against, always:
-    no test of the run alone can then tell a wrong minimum, so more convex-iteration runs
-    would be made until the verdict passes; the judge's random starts and refits look for a
-    lower minimum once, after the search (:func:`rangeslam.mdu.slam_judge.judge_slam`). (Runs
-    until the verdict passed made 6-8 runs on 4 of 20 walks, 4.3-4.8 s each against a 0.9 s
-    median; their first runs sat at a wrong minimum with the noise settled 5x too high, which
-    the judge's random starts replaced.)"""
+    with ``edm_start="cheap"`` and no noise level to test against, its GTSAM refinement
+    converged: no test of one run can then tell a wrong minimum, and the judge's random starts
+    and refits look for a lower one once, after the search
+    (:func:`rangeslam.mdu.slam_judge.judge_slam`). (The search used to make runs until the
+    verdict passed: 6-8 runs on 4 of 20 walks, 4.3-4.8 s each against a 0.9 s median; their
+    first runs sat at a wrong minimum with the noise settled 5x too high, which the judge's
+    random starts now replace.)"""
     if passes(problem, run):
         return True
-    return problem.options.start == "cheap" and run.fit is not None and problem.noise_std is None
+    cheap = problem.options.start == "cheap" and problem.noise_std is None
+    return cheap and run.fit is not None and run.fit.converged
 
 
 @logged_step(log, "slam: EDM starts (convex iteration), each refined with GTSAM")

@@ -62,8 +62,7 @@ EXACT_POLISH = 1e-3
 class SlamProblem:
     """The validated inputs of :func:`slam` (built once by :func:`parse_slam`), and ``memo``:
     the checks of each run made so far in this call (:func:`trajectory_check`,
-    :func:`run_mirrors`), which the search's stopping test, the verdict and the result share
-    (keyed by the run's identity, the run kept with its entry; a problem made from this one by
+    :func:`run_mirrors`), which the verdict and the result share (keyed by the run's identity, the run kept with its entry; a problem made from this one by
     ``dataclasses.replace`` starts with an empty memo)."""
 
     ranges: np.ndarray  # (M, K) metres, 0 where not observed
