@@ -497,7 +497,7 @@ def lowest_found(
     words saying so when that replaced the search's answer ("" if not)."""
     j = judged.judgement
     found = dataclasses.replace(found, random_starts=found.random_starts + drawn)
-    own = next((c for c in j.comparisons if c.alternative is j.replaced), None)
+    own = j.replacement
     if own is None:
         return found, ""
     found = dataclasses.replace(found, best=j.answer.payload)

@@ -93,7 +93,7 @@ def judge_emission(problem: EmissionProblem, scaled: ScaledUnfolding, found: Emi
     (:func:`rangeslam.verdict.judge.judge`): the sum of squared range residuals over sigma^2
     (:func:`emission_sigma`) as the deviance, delta^2 of the receivers (sources and offsets
     profiled out). A :class:`rangeslam.verdict.judge.Judgement`; every start counts."""
-    run, others = _emission_judge(problem, scaled, found)
+    run, others, _ = _emission_judge(problem, scaled, found)
     return run(others)
 
 
@@ -112,8 +112,7 @@ def judged_emission_search(
     minimum passing the residual test, unconfirmed, is judged against what those starts
     reach: a lower minimum replaces it, an equal one far off is its rival. Returns the
     judgement and the draws made (a diverged fit counts as drawn, not as a start)."""
-    run, others = _emission_judge(problem, scaled, found)
-    sigma = emission_sigma(problem, scaled, found.best.ssr)
+    run, others, sigma = _emission_judge(problem, scaled, found)
     n_points = sum(problem.ranges.shape)
 
     def randoms():
@@ -133,8 +132,8 @@ def judged_emission_search(
 
 
 def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):
-    """(run, the other starts as Alternatives): ``run(alternatives)`` judges the answer against
-    them (module docstring)."""
+    """(run, the other starts as Alternatives, the objective's sigma): ``run(alternatives)``
+    judges the answer against them (module docstring)."""
     model = scaled.model
     sigma = emission_sigma(problem, scaled, found.best.ssr)
     answer = emission_alternative(model, found.best, sigma, "the answer")
@@ -149,4 +148,4 @@ def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: Em
     def run(alternatives):
         return judge(answer, alternatives, metric=metric, dof=dof)
 
-    return run, others
+    return run, others, sigma

@@ -519,7 +519,7 @@ def replaced(
     (run, failures): when that refinement fails, ``best`` and the failure in words (the caller
     reports it: the answer kept is then not the most likely one)."""
     j = judged.judgement
-    own = next((c for c in j.comparisons if c.alternative is j.replaced), None)
+    own = j.replacement
     if own is None or (own.kind == SAME and own.delta_cost <= cost_level()):
         return best, ()  # the same trajectory, and as likely: the same answer
     lowest = j.answer

@@ -136,6 +136,12 @@ class Judgement:
         return tuple(c for c in self.comparisons if c.kind == RIVAL)
 
     @property
+    def replacement(self) -> Comparison | None:
+        """The comparison of the replaced answer against the lowest (None when the answer is
+        the lowest): its kind says whether the lowest is the same answer, a rival or lower."""
+        return next((c for c in self.comparisons if c.alternative is self.replaced), None)
+
+    @property
     def ambiguities(self) -> tuple[Comparison, ...]:
         """The comparisons that found a named ambiguity of some points."""
         return tuple(c for c in self.comparisons if c.kind == AMBIGUITY)
