@@ -29,7 +29,7 @@ from rangeslam._validation import (
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.rigid_motion import receiver_gauge_projection, rigid_motion_basis
 from rangeslam.mdu.landmark_mirrors import LandmarkMirrors, landmark_mirrors
-from rangeslam.mdu.planarity import dimension_check, flat_rival_check, lifted_ssr
+from rangeslam.mdu.planarity import dimension_check, flat_fit_check, flat_rival_check, lifted_ssr
 from rangeslam.solvers.least_squares import (
     unfolding_jacobian,
     unfolding_residuals,
@@ -40,7 +40,6 @@ from rangeslam.verdict import (
     Check,
     consistency_check,
     first_failure,
-    flatness_check,
     gauge_free_covariance,
     information_check,
     noise_upper_bound,
@@ -430,13 +429,13 @@ def unfolding_check(
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
         source_mirrors: the sources' :func:`landmark_mirrors`, when the caller has them.
 
-    Checks in turn: the residuals against the noise, whether the points are flat, the
-    information's rank beyond the rigid motions and the receivers' precision (in the receiver
-    gauge: errors after aligning the receivers, as :func:`rangeslam.mdu_crlb` bounds them; also
+    Checks in turn: the residuals against the noise, whether the points may be flat
+    (:func:`flat_fit_check`), the information's rank beyond the rigid motions and the
+    receivers' precision (in the receiver gauge, as :func:`rangeslam.mdu_crlb` bounds them; also
     along the weakest directions, :func:`region_check`), each point against its partners held
     fixed (its precision, and its mirror image through their plane; receivers only without
     priors, which tie them to each other); and, for flat receivers without priors, whether a
-    flat scene fits the ranges as well (:func:`flat_rival_check`).
+    flat scene fits as well (:func:`flat_rival_check`).
     """
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
@@ -472,8 +471,8 @@ def unfolding_check(
     flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
         receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
         rivals_judged=rivals_judged)  # fmt: skip
-    check = first_failure(dimension, flatness_check(points, sigma, scale, what), flat_rival,
-                          information, source_check, receivers_check)  # fmt: skip
+    flat = flat_fit_check(points, m, ranges, observed, sigma, what)
+    check = first_failure(dimension, flat, flat_rival, information, source_check, receivers_check)
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 
 

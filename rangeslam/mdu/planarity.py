@@ -6,11 +6,14 @@ fit in ``dim`` dimensions with one in the other.
   ``dim=2``); NOT_IDENTIFIABLE when the test cannot be made, or without ``noise_std`` is too
   weak to tell (:func:`planarity_power`).
 - :func:`flat_rival_check`: a 3-D answer with flat receivers against the flat configuration.
+- :func:`flat_fit_check`: any answer against itself refitted in one dimension fewer.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
 from rangeslam.solvers.least_squares import refine_unfolding, unfolding_residuals
@@ -18,7 +21,77 @@ from rangeslam.status import Status
 from rangeslam.verdict import PASSED, Check, flatness_check
 from rangeslam.verdict.thresholds import CHI2_LEVEL
 
-__all__ = ["blind_power", "dimension_check", "flat_rival_check", "lifted_ssr", "planarity_power"]
+__all__ = [
+    "blind_power",
+    "dimension_check",
+    "flat_fit_check",
+    "flat_rival_check",
+    "flat_ssr",
+    "lifted_ssr",
+    "planarity_power",
+]
+
+
+def flat_fit_check(
+    points: np.ndarray,
+    m: int,
+    ranges: np.ndarray,
+    observed: np.ndarray,
+    sigma: float | None,
+    what: str,
+) -> Check:
+    """NOT_IDENTIFIABLE when the answer ``points`` (M + K, d), receivers above sources, may all
+    lie in one hyperplane (a plane in 3-D, a line in 2-D): the configuration refitted in d - 1
+    dimensions from its projection into its best hyperplane (the fold into fewer dimensions)
+    fits the (M, K) ``observed`` ``ranges`` as well, its cost gap over the answer (noise
+    variances at range noise ``sigma``, metres) within the chi-square quantile at CHI2_LEVEL of
+    the N - d coordinates the flat model lacks (a likelihood-ratio test of nested models). Flat
+    points fitted in d dimensions fold out of the hyperplane at second order: the data then fix
+    each point's side of it, and its height, not at all."""
+    d = points.shape[1]
+    extra = len(points) - d  # one coordinate per point, less d's d extra rigid motions
+    if not sigma or d < 2 or extra <= 0:
+        return PASSED
+    pairs = np.argwhere(observed)
+    residuals = unfolding_residuals(points, m, ranges[observed], pairs)
+    centre = points.mean(axis=0)
+    flat = (points - centre) @ np.linalg.svd(points - centre)[2][: d - 1].T
+    gap = (flat_ssr(flat, m, np.maximum(ranges, 0.0), observed) - residuals @ residuals) / sigma**2
+    level = float(chi2.ppf(CHI2_LEVEL, extra))
+    if np.isfinite(gap) and gap <= level:
+        kind = "plane" if d == 3 else "line"
+        return Check(
+            Status.NOT_IDENTIFIABLE,
+            f"{what} may be flat: refitted in one {kind} it fits the ranges as well (cost gap "
+            f"{gap:.3g} <= {level:.3g} noise variances on {extra} degrees of freedom), so the "
+            f"points' sides of it are not determined" + (" (fit with dim=2?)" if d == 3 else ""),
+        )
+    return PASSED
+
+
+def flat_ssr(flat: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:
+    """The sum of squared range residuals (m^2) of least squares in the dimension of ``flat``
+    (N, 1 or 2; receivers above sources) started there, on the (M, K) ``observed`` ``ranges``:
+    :func:`refine_unfolding` in a plane; on a line, |t_i - t_j| fitted by SciPy's trust-region
+    method (the sign pattern of the start, where the range is not zero)."""
+    if flat.shape[1] > 1:
+        fit = refine_unfolding(flat[:m], flat[m:], ranges, observed)
+        return float(np.sum(fit.residuals[observed] ** 2))
+    pairs = np.argwhere(observed)
+    rows, i, j = np.arange(len(pairs)), pairs[:, 0], m + pairs[:, 1]
+    scale = float(np.median(ranges[observed])) or 1.0
+
+    def residuals(t):
+        return np.abs(t[i] - t[j]) - ranges[observed] / scale
+
+    def jacobian(t):
+        jac = np.zeros((len(pairs), len(t)))
+        sign = np.sign(t[i] - t[j])
+        jac[rows, i], jac[rows, j] = sign, -sign
+        return jac
+
+    fit = least_squares(residuals, flat[:, 0] / scale, jac=jacobian, method="trf")
+    return float(np.sum(fit.fun**2)) * scale**2
 
 
 def lifted_ssr(points: np.ndarray, m: int, ranges: np.ndarray, observed: np.ndarray) -> float:

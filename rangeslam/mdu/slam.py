@@ -44,13 +44,13 @@ from rangeslam.mdu.slam_verdict import (
     slam_verdict,
 )
 from rangeslam.mdu.subsets import keyframe_runs
-from rangeslam.solvers.gtsam_graph import STEP_PRIORS
+from rangeslam.solvers.gtsam_graph import STATIONARY_CHI2, STEP_PRIORS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.breakdown import outvoted_points
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, cost_level
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
 from rangeslam.verdict.thresholds import EXACT_RTOL
 
 if TYPE_CHECKING:
@@ -512,16 +512,18 @@ def judge_sigma(problem: SlamProblem, best: SlamRun, sigma_ref: float) -> float:
 def replaced(
     problem: SlamProblem, best: SlamRun, judged: JudgedSearch, sigma_ref
 ) -> tuple[SlamRun, tuple[str, ...]]:
-    """``best``, or the judge's lowest candidate when it replaced the answer and either lies
-    outside its confidence region or fits better by more than the level (within both it is the
-    same answer; the landmarks may differ where the trajectory does not): refined from its
+    """``best``, or the judge's lowest candidate when it replaced the answer: it lies outside its
+    confidence region, or inside it lower than GTSAM's stationarity (STATIONARY_CHI2: within
+    it, the same minimum; beyond it, another point of the region that fits better, which the
+    answer reported must be: a planar walk's answer 4.6 noise variances above a random start's,
+    both "the same answer", was kept 2.7 cm off against a 0.73 cm bound): refined from its
     points as an EDM answer is (the noise settled, covariances), ``start`` its origin. Returns
     (run, failures): when that refinement fails, ``best`` and the failure in words (the caller
     reports it: the answer kept is then not the most likely one)."""
     j = judged.judgement
     own = j.replacement
-    if own is None or (own.kind == SAME and own.delta_cost <= cost_level()):
-        return best, ()  # the same trajectory, and as likely: the same answer
+    if own is None or (own.kind == SAME and own.delta_cost <= STATIONARY_CHI2):
+        return best, ()  # the same trajectory at the same minimum: the same answer
     lowest = j.answer
     try:
         run = edm_run(problem, best.completion, sigma_ref, pts=lowest.points)[0]

@@ -60,9 +60,12 @@ RANK_RTOL = 1e-7
 #: The RMS standard deviation the information implies must be at most this fraction of the scene
 #: size (12.5 cm at 2.5 m): beyond it the data do not determine the answer usefully.
 PRECISION_FRACTION = 0.05
-#: (Points may be flat while their thinnest RMS spread is within
-#: :func:`rangeslam.verdict.checks.flat_limit`: the offset off a plane whose second-order change of
-#: a range the level's one-range test cannot see; no constant of its own.)
+#: (An answer's points may be flat while their refit in one dimension fewer fits as well, the
+#: likelihood-ratio test of the nested model at CHI2_LEVEL
+#: (:func:`rangeslam.mdu.planarity.flat_fit_check`); the anchors of a mirror and flat receivers
+#: while their thinnest RMS spread is within :func:`rangeslam.verdict.checks.flat_limit`: the
+#: offset off a plane whose second-order change of a range the level's one-range test cannot
+#: see; no constant of their own.)
 
 # --- one answer: restarts agree --------------------------------------------------------------
 
