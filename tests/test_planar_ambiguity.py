@@ -195,7 +195,6 @@ def test_flat_points_refitted_in_a_plane_fit_as_well(rng):
         points, ranges, observed = _bent_fit(rng, 0.0, 1e-3)
         check = flat_fit_check(points, 8, ranges, observed, 1e-3, "the scene")
         assert check.status is Status.NOT_IDENTIFIABLE
-        assert "on 12 degrees of freedom" in check.reason
         spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)[-1]
         assert spread > 1e-3  # bent off the plane by the noise
         points, ranges, observed = _bent_fit(rng, 0.6, 1e-2)
@@ -220,3 +219,19 @@ def test_collinear_points_in_2d_refitted_on_a_line_fit_as_well(rng):
         answer = np.vstack([fit.receivers, fit.sources])
         check = flat_fit_check(answer, 5, ranges, observed, 1e-3, "x")
         assert check.passed is not flat, check.reason
+
+
+def test_a_flat_scene_fitted_with_offsets_is_not_converged(rng):
+    """A flat scene (10 receivers and 12 sources on z = 1 in a 4 m square, 1 mm) fitted with an
+    emission offset per group of 4 sources and a clock offset per receiver: the flat refit would
+    hold the fitted offsets fixed (not the nested model), so the one-range flatness bound decides
+    (the nested test passed 5 of 5 such scenes as CONVERGED, 2-6 cm off)."""
+    groups = np.repeat([0, 1, 2], 4)
+    pts = np.column_stack([rng.uniform(0, 4, (22, 2)), np.ones(22)])
+    clocks = rng.uniform(-0.3, 0.3, 10)
+    ranges = range_matrix(pts[:10], pts[10:]) + (clocks - clocks.mean())[:, None]
+    ranges += rng.uniform(-0.5, 0.5, 3)[groups] + 1e-3 * rng.standard_normal((10, 12))
+    out = rangeslam.calibrate_unknown_emission(
+        ranges, groups, noise_std=1e-3, receiver_offsets=True, rng=rng
+    )
+    assert out.status is Status.NOT_IDENTIFIABLE

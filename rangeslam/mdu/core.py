@@ -471,7 +471,7 @@ def unfolding_check(
     flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
         receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
         rivals_judged=rivals_judged)  # fmt: skip
-    flat = flat_fit_check(points, m, ranges, observed, sigma, what)
+    flat = flat_fit_check(points, m, ranges, observed, sigma, what, offsets=n_offsets > 0)
     check = first_failure(dimension, flat, flat_rival, information, source_check, receivers_check)
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 

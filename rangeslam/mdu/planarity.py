@@ -16,6 +16,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
+from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.solvers.least_squares import refine_unfolding, unfolding_residuals
 from rangeslam.status import Status
 from rangeslam.verdict import PASSED, Check, flatness_check
@@ -39,6 +40,8 @@ def flat_fit_check(
     observed: np.ndarray,
     sigma: float | None,
     what: str,
+    *,
+    offsets: bool = False,
 ) -> Check:
     """NOT_IDENTIFIABLE when the answer ``points`` (M + K, d), receivers above sources, may all
     lie in one hyperplane (a plane in 3-D, a line in 2-D): the configuration refitted in d - 1
@@ -47,18 +50,33 @@ def flat_fit_check(
     variances at range noise ``sigma``, metres) within the chi-square quantile at CHI2_LEVEL of
     the N - d coordinates the flat model lacks (a likelihood-ratio test of nested models). Flat
     points fitted in d dimensions fold out of the hyperplane at second order: the data then fix
-    each point's side of it, and its height, not at all."""
+    each point's side of it, and its height, not at all. Range costs only: priors (step
+    bounds) are left out of both sides, so the answer's range cost is above its range-only
+    minimum, which errs towards "may be flat".
+
+    Where the refit cannot be the nested model, the one-range bound of
+    :func:`rangeslam.verdict.flatness_check` decides instead: ``offsets`` (the ranges are
+    corrected by fitted offsets, emission times or clock offsets, which the flat refit would
+    hold fixed: a flat scene fitted with offsets passed as 3-D), or a refit that failed."""
     d = points.shape[1]
     extra = len(points) - d  # one coordinate per point, less d's d extra rigid motions
     if not sigma or d < 2 or extra <= 0:
         return PASSED
+    if offsets:
+        return flatness_check(points, sigma, float(np.median(ranges[observed])), what)
     pairs = np.argwhere(observed)
     residuals = unfolding_residuals(points, m, ranges[observed], pairs)
     centre = points.mean(axis=0)
     flat = (points - centre) @ np.linalg.svd(points - centre)[2][: d - 1].T
-    gap = (flat_ssr(flat, m, np.maximum(ranges, 0.0), observed) - residuals @ residuals) / sigma**2
+    try:
+        flat_cost = flat_ssr(flat, m, np.maximum(ranges, 0.0), observed)
+    except (InvalidInputError, SolverError):
+        flat_cost = float("nan")
+    gap = (flat_cost - residuals @ residuals) / sigma**2
+    if not np.isfinite(gap):
+        return flatness_check(points, sigma, float(np.median(ranges[observed])), what)
     level = float(chi2.ppf(CHI2_LEVEL, extra))
-    if np.isfinite(gap) and gap <= level:
+    if gap <= level:
         kind = "plane" if d == 3 else "line"
         return Check(
             Status.NOT_IDENTIFIABLE,

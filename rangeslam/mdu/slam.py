@@ -472,7 +472,8 @@ def slam(
 def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     """The search's best run judged against every alternative (with ``refine``:
     :func:`judge_slam` on the graph of the search's reference sigma): the lowest candidate,
-    when lower by more than the level, replaces it (refined again as an EDM answer is,
+    when it lies outside the answer's confidence region or is lower by more than
+    STATIONARY_CHI2 (:func:`replaced`), replaces it (refined again as an EDM answer is,
     :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
     the judge's status (a rival: NOT_IDENTIFIABLE). Returns (run, status, message, judgement
     or None)."""
