@@ -62,8 +62,8 @@ RANK_RTOL = 1e-7
 PRECISION_FRACTION = 0.05
 #: (An answer's points may be flat while their refit in one dimension fewer fits as well, the
 #: likelihood-ratio test of the nested model at CHI2_LEVEL
-#: (:func:`rangeslam.mdu.planarity.flat_fit_check`); the anchors of a mirror and flat receivers
-#: while their thinnest RMS spread is within :func:`rangeslam.verdict.checks.flat_limit`: the
+#: (:func:`rangeslam.mdu.planarity.flat_fit_check`); the anchors of a mirror, flat receivers and
+#: ranges corrected by fitted offsets while their thinnest RMS spread is within :func:`rangeslam.verdict.checks.flat_limit`: the
 #: offset off a plane whose second-order change of a range the level's one-range test cannot
 #: see; no constant of their own.)
 
