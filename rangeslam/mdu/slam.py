@@ -44,13 +44,13 @@ from rangeslam.mdu.slam_verdict import (
     slam_verdict,
 )
 from rangeslam.mdu.subsets import keyframe_runs
-from rangeslam.solvers.gtsam_graph import STATIONARY_CHI2, STEP_PRIORS
+from rangeslam.solvers.gtsam_graph import STEP_PRIORS
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.breakdown import outvoted_points
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch
+from rangeslam.verdict.judge import SAME, CheckRecord, JudgedSearch, cost_level
 from rangeslam.verdict.thresholds import EXACT_RTOL
 
 if TYPE_CHECKING:
@@ -472,8 +472,8 @@ def slam(
 def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     """The search's best run judged against every alternative (with ``refine``:
     :func:`judge_slam` on the graph of the search's reference sigma): the lowest candidate,
-    when it lies outside the answer's confidence region or is lower by more than
-    STATIONARY_CHI2 (:func:`replaced`), replaces it (refined again as an EDM answer is,
+    when lower by more than the level or outside the answer's confidence region
+    (:func:`replaced`), replaces it (refined again as an EDM answer is,
     :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
     the judge's status (a rival: NOT_IDENTIFIABLE). Returns (run, status, message, judgement
     or None)."""
@@ -513,18 +513,18 @@ def judge_sigma(problem: SlamProblem, best: SlamRun, sigma_ref: float) -> float:
 def replaced(
     problem: SlamProblem, best: SlamRun, judged: JudgedSearch, sigma_ref
 ) -> tuple[SlamRun, tuple[str, ...]]:
-    """``best``, or the judge's lowest candidate when it replaced the answer: it lies outside its
-    confidence region, or inside it lower than GTSAM's stationarity (STATIONARY_CHI2: within
-    it, the same minimum; beyond it, another point of the region that fits better, which the
-    answer reported must be: a planar walk's answer 4.6 noise variances above a random start's,
-    both "the same answer", was kept 2.7 cm off against a 0.73 cm bound): refined from its
+    """``best``, or the judge's lowest candidate when it replaced the answer and either lies
+    outside its confidence region or fits better by more than the level (within both it is the
+    same answer; the landmarks may differ where the trajectory does not: replacing it by any
+    lower point of the region made Fig. 5's covariances optimistic, benchmarks/README.md).
+    Refined from its
     points as an EDM answer is (the noise settled, covariances), ``start`` its origin. Returns
     (run, failures): when that refinement fails, ``best`` and the failure in words (the caller
     reports it: the answer kept is then not the most likely one)."""
     j = judged.judgement
     own = j.replacement
-    if own is None or (own.kind == SAME and own.delta_cost <= STATIONARY_CHI2):
-        return best, ()  # the same trajectory at the same minimum: the same answer
+    if own is None or (own.kind == SAME and own.delta_cost <= cost_level()):
+        return best, ()  # the same trajectory, and as likely: the same answer
     lowest = j.answer
     try:
         run = edm_run(problem, best.completion, sigma_ref, pts=lowest.points)[0]
