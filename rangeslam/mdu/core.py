@@ -429,13 +429,12 @@ def unfolding_check(
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
         source_mirrors: the sources' :func:`landmark_mirrors`, when the caller has them.
 
-    Checks in turn: the residuals against the noise, whether the points may be flat
-    (:func:`flat_fit_check`), the information's rank beyond the rigid motions and the
-    receivers' precision (in the receiver gauge, as :func:`rangeslam.mdu_crlb` bounds them; also
-    along the weakest directions, :func:`region_check`), each point against its partners held
-    fixed (its precision, and its mirror image through their plane; receivers only without
-    priors, which tie them to each other); and, for flat receivers without priors, whether a
-    flat scene fits as well (:func:`flat_rival_check`).
+    Checks in turn: the residuals, the dimension, whether the points may be flat
+    (:func:`flat_fit_check`), the information's rank and the receivers' precision (receiver
+    gauge, as :func:`rangeslam.mdu_crlb` bounds them; also along the weakest directions,
+    :func:`region_check`), each point against its partners held fixed (precision, mirror image;
+    receivers only without priors, which tie them to each other); and, for flat receivers
+    without priors, whether a flat scene fits as well (:func:`flat_rival_check`).
     """
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
@@ -471,7 +470,8 @@ def unfolding_check(
     flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
         receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
         rivals_judged=rivals_judged)  # fmt: skip
-    flat = flat_fit_check(points, m, ranges, observed, sigma, what, offsets=n_offsets > 0)
+    flat = PASSED if not dimension.passed else flat_fit_check(  # dimension fails first
+        points, m, ranges, observed, sigma, what, offsets=n_offsets > 0)  # fmt: skip
     check = first_failure(dimension, flat, flat_rival, information, source_check, receivers_check)
     return Check(check.status, "; ".join(filter(None, (check.reason, sources_note))))
 

@@ -62,8 +62,9 @@ def flat_fit_check(
     extra = len(points) - d  # one coordinate per point, less d's d extra rigid motions
     if not sigma or d < 2 or extra <= 0:
         return PASSED
+    one_range = flatness_check(points, sigma, float(np.median(ranges[observed])), what)
     if offsets:
-        return flatness_check(points, sigma, float(np.median(ranges[observed])), what)
+        return one_range
     pairs = np.argwhere(observed)
     residuals = unfolding_residuals(points, m, ranges[observed], pairs)
     centre = points.mean(axis=0)
@@ -74,7 +75,7 @@ def flat_fit_check(
         flat_cost = float("nan")
     gap = (flat_cost - residuals @ residuals) / sigma**2
     if not np.isfinite(gap):
-        return flatness_check(points, sigma, float(np.median(ranges[observed])), what)
+        return one_range
     level = float(chi2.ppf(CHI2_LEVEL, extra))
     if gap <= level:
         kind = "plane" if d == 3 else "line"
@@ -158,8 +159,7 @@ def flat_rival_check(
     centre = receivers.mean(axis=0)
     flat = (points - centre) @ np.linalg.svd(receivers - centre)[2][:2].T
     # offset-corrected ranges can dip below 0 (a source at a receiver)
-    fit = refine_unfolding(flat[:m], flat[m:], np.maximum(ranges, 0.0), observed)
-    ssr2 = float(np.sum(fit.residuals[observed] ** 2))
+    ssr2 = flat_ssr(flat, m, np.maximum(ranges, 0.0), observed)
     stat = ((ssr2 - ssr3) / extra) / max(ssr3 / redundancy, 1e-300)
     if np.isfinite(ssr2) and stat <= f_dist.ppf(CHI2_LEVEL, extra, redundancy):
         return Check(
