@@ -68,7 +68,7 @@ def test_a_lower_alternative_replaces_the_answer(rng):
     moved[0] += 0.5
     worse = dataclasses.replace(answer, sources=moved)
     found = dataclasses.replace(search, best=worse, runs=(worse,))
-    best, _, _, judged = slam_module.judged_answer(problem, found, rng)
+    best, _, _, judged, _ = slam_module.judged_answer(problem, found, rng)
     assert judged.judgement.replaced is not None
     assert best is not worse and best.start != "edm"
     assert best.fit.receiver_cov is not None  # refined again, with covariances

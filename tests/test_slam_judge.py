@@ -12,6 +12,7 @@ from rangeslam.evaluation.verdict_cases import make_case
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu import slam
 from rangeslam.mdu.core import ConvexIterationOptions
+from rangeslam.mdu.planar_walk import PLANAR_CHECK
 from rangeslam.mdu.slam import parse_slam
 from rangeslam.mdu.slam_graph import graph_deviance, graph_fit, stacked
 from rangeslam.mdu.slam_judge import subgraph_fit
@@ -57,7 +58,12 @@ def test_the_issue_walk_is_right():
     assert out.converged, out.message
     assert align(out.receivers, traj, reflection=True).rmse < RIGHT
     assert out.n_outliers == 1 and out.outliers.flat[cells[0]]
-    assert [c.name for c in out.checks] == ["rival minima", "search complete", "verdict"]
+    assert [c.name for c in out.checks] == [
+        "rival minima",
+        "search complete",
+        PLANAR_CHECK,
+        "verdict",
+    ]
     assert out.checks[0].passed and out.judged > 10
     assert out.start != "edm"  # an alternative of the judge replaced the search's answer
 
@@ -68,7 +74,10 @@ def _right_or_not_converged(rng, n_walks: int, n_wrong: int) -> None:
         out = slam(ranges, step_bounds=bounds, noise_std=1e-3, robust="cauchy", rng=rng)
         error = align(out.receivers, traj, reflection=True).rmse
         assert not out.converged or error < RIGHT, (error, out.message)
-        assert out.judged > 0 and len(out.checks) == 3
+        assert out.judged > 0
+        assert [c.name for c in out.checks] == [
+            "rival minima", "search complete", PLANAR_CHECK, "verdict"
+        ]  # fmt: skip
 
 
 @pytest.mark.parametrize("n_wrong", [1, 2])
@@ -132,11 +141,10 @@ def test_the_deviance_is_the_kernel_cost_over_every_range(rng):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 42, open: the answer sits inside the lowest candidate's confidence region, "
-    "4.6 noise variances above it, and is kept; reporting the lowest fixes this walk but made "
-    "Fig. 5's covariances optimistic: on planar walks fitted in 3-D the minima are landmark side "
-    "flips, and the walk refitted in its plane is the honest model (benchmarks/README.md, "
-    "'a planar walk fitted in 3-D')",
+    reason="issue 42, open: a tail of the noise, not the search: the answer is the graph's "
+    "minimum nearest the truth (GTSAM from the truth: 2.67 cm off in 3-D, 2.62 cm in the walk's "
+    "plane, 1 mm noise), its NEES 43.6 beyond chi2(17)'s 0.999 quantile 40.8; the truth's RMS "
+    "bound (0.73 cm) is not what this realisation attains (benchmarks/README.md)",
 )
 def test_the_answer_is_the_lowest_candidate_the_judge_saw():
     """Frozen (verdict benchmark seed 71137679, "M=10, no bounds", seed 1560209429: a planar

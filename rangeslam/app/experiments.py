@@ -476,7 +476,7 @@ def slam_experiment(
     else:
         base_x, base_s = _gtsam_alone(start_x, start_s, ranges, sigma, step_bounds, step_prior)
     bound, ranges_only = _slam_bounds(traj, landmarks, sigma, step_bounds, slam_options)
-    nees, dof = trajectory_nees(a, result.trajectory_cov, traj)
+    nees, dof = trajectory_nees(a, result.trajectory_cov, traj, result.trajectory_dof)
     oracle = _slam_oracle(traj, landmarks, ranges, sigma, step_bounds, slam_options)
     placement = bounds_placement if bounds else None
     oracle_rms = _slam_oracle_rms(

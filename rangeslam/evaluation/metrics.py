@@ -89,13 +89,18 @@ def trajectory_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
 
 
 def trajectory_nees(
-    alignment: Alignment, cov: np.ndarray | None, truth: np.ndarray
+    alignment: Alignment, cov: np.ndarray | None, truth: np.ndarray, dof: int | None = None
 ) -> tuple[float, int]:
     """NEES of an aligned trajectory: e^T P^+ e with e (M d,) the error after ``alignment`` and
-    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ drops the rigid
-    motion (the d (d + 1) / 2 smallest eigenvalues, ``eigh``). Returns (NEES, its dof)."""
+    P (M d, M d) the estimate's covariance rotated into the truth's frame; P^+ keeps its ``dof``
+    largest eigenvalues (``eigh``): by default M d - d (d + 1) / 2, the rigid motion dropped; a
+    walk fitted in its plane has 2 M - 3 (:attr:`rangeslam.mdu.SlamResult.trajectory_dof`).
+    Returns (NEES, its dof)."""
     m, d = truth.shape
-    dof = m * d - d * (d + 1) // 2
+    full = m * d - d * (d + 1) // 2
+    if dof is not None and not 0 < dof <= full:
+        raise InvalidInputError(f"dof must be in [1, {full}] for {m} points in {d}-D; got {dof}")
+    dof = full if dof is None else int(dof)
     if dof <= 0:
         raise InvalidInputError(f"{m} points in {d}-D leave nothing beyond a rigid motion")
     if cov is None:

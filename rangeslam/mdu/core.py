@@ -286,16 +286,18 @@ def passes_residual_test(
     exact_rms: float,
     *,
     n_offsets: int = 0,
+    n_pinned: int = 0,
 ) -> bool:
     """Exact data (RMS residual <= exact_rms), or a sum of squared range residuals below the
     0.999 chi-square quantile for the redundancy, in units of noise_std^2.
 
     ``ssr``, ``noise_std`` and ``exact_rms`` are in one unit (metres, or the scaled units of
     :func:`rangeslam.mdu.emission.calibrate_unknown_emission`); the redundancy is the ranges
-    minus the points' coordinates up to a rigid motion minus ``n_offsets`` range offsets."""
+    minus the points' coordinates up to a rigid motion minus ``n_offsets`` range offsets plus
+    ``n_pinned`` coordinates the model holds (a walk fitted in its plane: M - 3)."""
     if ssr <= exact_rms**2 * n_ranges:
         return True
-    redundancy = n_ranges - (unknowns_up_to_rigid_motion(n_points, dim) + n_offsets)
+    redundancy = n_ranges - (unknowns_up_to_rigid_motion(n_points, dim) + n_offsets - n_pinned)
     if noise_std is None or redundancy <= 0 or noise_std == 0:
         return False
     from scipy.stats import chi2
@@ -335,18 +337,22 @@ def residual_status(
     *,
     chi_square: bool,
     bounded: bool,
+    n_pinned: int = 0,
 ) -> tuple[Status, str]:
     """The status of a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
     (M, K) ranges), and if not CONVERGED why: INCONSISTENT when the chi-square test against
     ``noise_std`` fails (``chi_square``), or else RMS > 2% of the median range ``scale``;
-    NOT_IDENTIFIABLE without redundant ranges unless step bounds are ``bounded``."""
+    NOT_IDENTIFIABLE without redundant ranges unless step bounds are ``bounded``. ``n_pinned``:
+    coordinates the model holds (:func:`passes_residual_test`)."""
     n_obs = int(observed.sum())
     n = sum(observed.shape)
     rms = float(np.sqrt(ssr / n_obs))
     message = ""
     status = Status.CONVERGED
     if chi_square:
-        if not passes_residual_test(ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale):
+        if not passes_residual_test(
+            ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale, n_pinned=n_pinned
+        ):
             status = Status.INCONSISTENT
             message += (
                 f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
@@ -355,7 +361,7 @@ def residual_status(
     elif not rms <= RELATIVE_RMS * scale:
         status = Status.INCONSISTENT
         message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
-    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
+    if n_obs + n_pinned - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
         status = Status.NOT_IDENTIFIABLE
         message += "no redundant ranges and no step bounds: the trajectory is not unique; "
     return status, message

@@ -32,6 +32,7 @@ from rangeslam.mdu.core import (
     rotated_covariances,
     validated_ranges,
 )
+from rangeslam.mdu.planar_walk import planar_answer
 from rangeslam.mdu.robust_unfolding import agreeing
 from rangeslam.mdu.slam_graph import graph_deviance, refine_run, stacked
 from rangeslam.mdu.slam_judge import judge_slam
@@ -110,6 +111,10 @@ class SlamResult(HasStatus):
         judged: alternatives the judge compared with the answer (other convex-iteration runs,
             random starts, refits without one landmark or one window of steps); ``reached``:
             the starts (the answer counted) that reached the answer.
+        planar_walk: the trajectory was refitted in its plane (3-D only): the likelihood-ratio
+            test of that nested model did not reject it (:mod:`rangeslam.mdu.planar_walk`; its
+            record in ``checks``). ``trajectory_cov`` then has rank 2 M - 3
+            (:attr:`trajectory_dof`), and each landmark's side of the plane is an ambiguity.
     """
 
     receivers: np.ndarray
@@ -133,6 +138,14 @@ class SlamResult(HasStatus):
     checks: tuple[CheckRecord, ...] = ()
     judged: int = 0
     reached: int = 0
+    planar_walk: bool = False
+
+    @property
+    def trajectory_dof(self) -> int:
+        """Degrees of freedom of the trajectory beyond the rigid motion, the rank of
+        ``trajectory_cov``: M d - d (d + 1) / 2, or 2 M - 3 for a walk fitted in its plane."""
+        m, d = self.receivers.shape
+        return 2 * m - 3 if self.planar_walk else m * d - d * (d + 1) // 2
 
     @property
     def outliers(self) -> np.ndarray | None:
@@ -337,10 +350,12 @@ def slam_result(
     message: str,
     judged: JudgedSearch | None = None,
     sdp_solves: int = 0,
+    plane: CheckRecord | None = None,
 ) -> SlamResult:
     """The :class:`SlamResult` of the best run, in the canonical frame (covariances rotated),
-    with the judge's checks and counts (``judged``; none without refinement) and the SDP solves
-    the search made."""
+    with the judge's checks and counts (``judged``; none without refinement), the nested test
+    of the walk's plane (``plane``: :func:`rangeslam.mdu.planar_walk.planar_answer`'s record)
+    and the SDP solves the search made."""
     m = problem.ranges.shape[0]
     rec_f, src_f, rot = canonical_frame(best.receivers, best.sources)
     cov_r = cov_s = cov_traj = None
@@ -356,7 +371,7 @@ def slam_result(
         verdict = CheckRecord("verdict", float("nan"), float("nan"), status is Status.CONVERGED,
                               message)  # fmt: skip
         checks, n_judged, reached = (
-            (j.check, judged.record(), verdict),
+            (j.check, judged.record(), *((plane,) if plane else ()), verdict),
             len(j.comparisons),
             j.reached,
         )
@@ -383,6 +398,7 @@ def slam_result(
         judged=n_judged,
         reached=reached,
         sdp_solves=int(sdp_solves),
+        planar_walk=best.planar,
     )
 
 
@@ -465,8 +481,8 @@ def slam(
             "not hold together with the ranges)",
             status="; ".join(dict.fromkeys(found.failures)),
         )
-    best, status, message, judged = judged_answer(problem, found, rng)
-    return slam_result(problem, best, found.attempts, status, message, judged, found.solves)
+    best, status, message, judged, plane = judged_answer(problem, found, rng)
+    return slam_result(problem, best, found.attempts, status, message, judged, found.solves, plane)
 
 
 def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
@@ -477,12 +493,13 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
     the judge's status (a rival: NOT_IDENTIFIABLE). Returns (run, status, message, judgement
     or None)."""
-    best, judged, failures, unrefined = found.best, None, (), ()
+    best, judged, failures, unrefined, plane = found.best, None, (), (), None
     if problem.refine and best.fit is not None:
         others = [r for r in found.runs if r is not best]
         sigma = judge_sigma(problem, best, found.sigma_ref)
         judged = judge_slam(problem, best, others, sigma, rng)
         best, unrefined = replaced(problem, best, judged, found.sigma_ref)
+        best, plane = planar_answer(problem, best, sigma)
         failures = judged.failures + unrefined
     status, message = slam_verdict(problem, best, found.failures, failures)
     if status is Status.CONVERGED and unrefined:
@@ -491,7 +508,7 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     if judged is not None and status is Status.CONVERGED:
         status = judged.judgement.status
         message = "; ".join(filter(None, (message, judged.judgement.reason)))
-    return best, status, message, judged
+    return best, status, message, judged, plane
 
 
 def judge_sigma(problem: SlamProblem, best: SlamRun, sigma_ref: float) -> float:

@@ -60,9 +60,11 @@ def graph_fit(
     *,
     covariances: bool = False,
     max_iterations: int = 5000,
+    plane: np.ndarray | None = None,
 ) -> GraphFit:
     """GTSAM on the problem's ranges and step priors from ``pts`` (M + K, d), range sigma
-    ``sigma`` metres."""
+    ``sigma`` metres; with ``plane`` (a (3,) normal) the receivers held in their plane across it
+    (:func:`rangeslam.solvers.gtsam_graph.refine_graph`'s ``receiver_plane``)."""
     m = problem.ranges.shape[0]
     return refine_graph(
         pts[:m],
@@ -79,6 +81,7 @@ def graph_fit(
         # images meet there), and few steps leave the shape itself in one: at M = 5 and
         # 1 mm, 1000 LM iterations are typical
         max_iterations=max_iterations,
+        receiver_plane=plane,
     )
 
 

@@ -46,6 +46,7 @@ __all__ = [
     "kept_ranges",
     "landmark_ambiguity",
     "passes",
+    "pinned_coordinates",
     "robust_breakdown",
     "run_mirrors",
     "slam_verdict",
@@ -100,7 +101,8 @@ class SlamRun:
     """One answer: squared range residual sum (m^2), trajectory (M, d) and landmarks (K, d), the
     GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), the
     key runs are ranked by (the graph's cost, or ``ssr`` without refinement), and where its GTSAM
-    run started (:attr:`SlamResult.start`)."""
+    run started (:attr:`SlamResult.start`); ``planar``: the trajectory was fitted in its plane
+    (M - 3 fewer unknowns: :mod:`rangeslam.mdu.planar_walk`)."""
 
     ssr: float
     receivers: np.ndarray
@@ -110,6 +112,7 @@ class SlamRun:
     residuals: np.ndarray
     key: float
     start: str = "edm"
+    planar: bool = False  # the receivers held in a plane (rangeslam.mdu.planar_walk)
 
 
 def passes(problem: SlamProblem, run: SlamRun) -> bool:
@@ -122,8 +125,9 @@ def passes(problem: SlamProblem, run: SlamRun) -> bool:
     n = sum(problem.ranges.shape)
     exact_rms = EXACT_RTOL * problem.scale
     return passes_residual_test(
-        float(res @ res), int(kept.sum()), n, problem.dim, problem.noise_std, exact_rms
-    )
+        float(res @ res), int(kept.sum()), n, problem.dim, problem.noise_std, exact_rms,
+        n_pinned=pinned_coordinates(problem, run),
+    )  # fmt: skip
 
 
 def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
@@ -145,6 +149,7 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
         problem.scale,
         chi_square=problem.noise_std is not None and redundancy > 0,
         bounded=problem.bounds is not None,
+        n_pinned=pinned_coordinates(problem, best),
     )
     message += why
     breakdown = robust_breakdown(problem, kept) if problem.robust else None
@@ -201,12 +206,17 @@ def kept_ranges(problem: SlamProblem, best: SlamRun) -> np.ndarray:
 def judged_ranges(problem: SlamProblem, best: SlamRun) -> tuple[np.ndarray, np.ndarray, int]:
     """What the verdict judges ``best`` on: the (M, K) ranges (all observed ones; with a robust
     kernel only those it kept, :func:`kept_ranges`), their residuals (metres) and their
-    redundancy."""
+    redundancy (of a planar run, M - 3 more)."""
     observed = kept_ranges(problem, best) if problem.robust else problem.observed
-    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(
-        sum(problem.ranges.shape), problem.dim
-    )
+    unknowns = unknowns_up_to_rigid_motion(sum(problem.ranges.shape), problem.dim)
+    redundancy = int(observed.sum()) - unknowns + pinned_coordinates(problem, best)
     return observed, best.residuals[observed], redundancy
+
+
+def pinned_coordinates(problem: SlamProblem, run: SlamRun) -> int:
+    """Coordinates a planar run's model holds: each step's offset across the plane, less the
+    plane's own three (a translation and two tilts, gauge); 0 for a run in 3-D."""
+    return problem.ranges.shape[0] - 3 if run.planar else 0
 
 
 def memoised(problem: SlamProblem, name: str, run: SlamRun, compute):

@@ -160,6 +160,7 @@ class GraphProblem:
     step_prior: StepPrior | None
     odometry: Odometry
     lm: LMOptions
+    plane: np.ndarray | None = None  # (d,) unit normal of the receivers' plane, or None
 
 
 def check_lm_options(max_iterations, lambda_upper_bound) -> LMOptions:
@@ -370,6 +371,16 @@ def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem:
         graph.add(_partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, problem.noise_std))
 
 
+def add_plane_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
+    """Each receiver's offset along ``problem.plane`` (a unit normal) pinned where the start (on
+    the plane: :func:`parse_graph_problem` projected it) has it, as the gauge priors pin theirs
+    (sigma 1e-2 noise_std): the receivers held in one plane; the covariances then have (almost)
+    no variance across it."""
+    row = problem.plane[None, :]
+    for i, key in enumerate(keys[: len(problem.receivers)]):
+        graph.add(_partial_prior(gtsam, key, problem.receivers[i], row, problem.noise_std))
+
+
 @dataclass(frozen=True)
 class LMRun:
     """What Levenberg-Marquardt returned: GTSAM's values, the estimate (N, d) metres, the
@@ -446,6 +457,8 @@ def build_graph(gtsam, problem: GraphProblem, keys: list[int]):
     if problem.step_prior is not None:
         add_step_priors(gtsam, graph, problem.step_prior, keys, d)
     add_odometry_factors(gtsam, graph, problem.odometry, keys, d)
+    if problem.plane is not None:  # part of the model: the covariances see it
+        add_plane_priors(gtsam, graph, problem, keys)
     measurements = graph.clone()  # without the gauge priors: the covariances come from these
     points = np.vstack([problem.receivers, problem.sources])
     add_gauge_priors(gtsam, graph, points, keys, problem)
@@ -505,7 +518,7 @@ def check_reached(observed: np.ndarray, stepped: bool) -> None:
 def parse_graph_problem(
     receivers, sources, ranges, *, noise_std, mask, step_bounds, step_sigma, step_prior,
     step_lengths, step_vectors, odometry_sigma, robust, robust_scale, max_iterations,
-    lambda_upper_bound,
+    lambda_upper_bound, receiver_plane=None,
 ) -> GraphProblem:  # fmt: skip
     """The front door of :func:`refine_graph`: every input checked once, in the order of the
     messages users know."""
@@ -539,7 +552,28 @@ def parse_graph_problem(
     scale = float(np.median(r[observed])) if observed.any() else 1.0
     prior = parse_step_prior(step_bounds, step_sigma, step_prior, m, noise_std, max(scale, 1e-300))
     odo = parse_odometry(step_lengths, step_vectors, odometry_sigma, m, d)
-    return GraphProblem(x, s, r, observed, noise_std, robust, c, prior, odo, lm)
+    plane = parse_receiver_plane(receiver_plane, x)
+    if plane is not None:  # the start projected onto the plane (the gauge priors hold it there)
+        x = x - np.outer((x - x.mean(axis=0)) @ plane, plane)
+    return GraphProblem(x, s, r, observed, noise_std, robust, c, prior, odo, lm, plane)
+
+
+def parse_receiver_plane(receiver_plane, receivers: np.ndarray) -> np.ndarray | None:
+    """The unit normal (d,) of ``receiver_plane`` (a normal vector, any length), checked: 3-D
+    only, finite and nonzero. None when not given."""
+    if receiver_plane is None:
+        return None
+    d = receivers.shape[1]
+    normal = as_float_array(receiver_plane, "receiver_plane")
+    if d != 3 or normal.shape != (3,):
+        raise InvalidInputError(
+            f"receiver_plane must be a normal vector of shape (3,) with 3-D points; got "
+            f"{shape_str(normal.shape)} with {d}-D points"
+        )
+    size = float(np.linalg.norm(normal))
+    if not np.isfinite(size) or size == 0:
+        raise InvalidInputError(f"receiver_plane must be finite and nonzero; got {normal}")
+    return normal / size
 
 
 def refine_graph(
@@ -560,6 +594,7 @@ def refine_graph(
     covariances: bool = True,
     max_iterations: int = 500,
     lambda_upper_bound: float = 1e12,
+    receiver_plane: ArrayLike | None = None,
 ) -> GraphFit:
     """Refine receivers (M, d) and sources (K, d) on their ranges (M, K) with GTSAM.
 
@@ -583,6 +618,9 @@ def refine_graph(
         covariances: compute the marginal covariances (GTSAM Marginals).
         max_iterations, lambda_upper_bound: Levenberg-Marquardt settings (:class:`LMOptions`);
             max_iterations=0 evaluates the graph's cost (and covariances) at the given points.
+        receiver_plane: (3,) a normal: the receivers held in the plane across it through their
+            start's centroid, started on it (:func:`add_plane_priors`; used by
+            :mod:`rangeslam.mdu.planar_walk`).
 
     Returns a :class:`GraphFit`. Raises SolverError when LM returns a non-finite cost or the
     covariances are undefined (an unobservable direction beyond the gauge).
@@ -595,26 +633,30 @@ def refine_graph(
         step_sigma=step_sigma, step_prior=step_prior, step_lengths=step_lengths,
         step_vectors=step_vectors, odometry_sigma=odometry_sigma, robust=robust,
         robust_scale=robust_scale, max_iterations=max_iterations,
-        lambda_upper_bound=lambda_upper_bound,
+        lambda_upper_bound=lambda_upper_bound, receiver_plane=receiver_plane,
     )  # fmt: skip
     m = len(problem.receivers)
     keys = graph_keys(gtsam, m, len(problem.sources))
     graph, measurements, points = build_graph(gtsam, problem, keys)
     run = run_levenberg_marquardt(gtsam, graph, points, keys, problem.lm)
     status, message = lm_verdict(problem.lm, run)
-    est = run.estimate
-    rec_cov = src_cov = joint = None
+    covs = (None, None, None)
     if covariances:
-        rec_cov, src_cov, joint = graph_covariances(
-            gtsam, measurements, run.values, keys, est, problem
-        )
+        covs = graph_covariances(gtsam, measurements, run.values, keys, run.estimate, problem)
+    return fit_result(problem, run, covs, status, message)
+
+
+def fit_result(problem: GraphProblem, run: LMRun, covs, status: Status, message: str) -> GraphFit:
+    """The :class:`GraphFit` of an LM ``run`` on ``problem``, with ``covs`` (receiver, source,
+    joint covariances, or Nones) and its verdict."""
+    m, est = len(problem.receivers), run.estimate
     residuals = np.where(problem.observed, range_matrix(est[:m], est[m:]) - problem.ranges, np.nan)
     return GraphFit(
         receivers=frozen(est[:m]),
         sources=frozen(est[m:]),
-        receiver_cov=rec_cov,
-        source_cov=src_cov,
-        joint_cov=joint,
+        receiver_cov=covs[0],
+        source_cov=covs[1],
+        joint_cov=covs[2],
         residuals=frozen(residuals),
         error=run.error,
         initial_error=run.initial_error,

@@ -376,6 +376,14 @@ def range_gauss_newton(
     return z
 
 
+def range_cost(z: np.ndarray, anchors: np.ndarray, ranges: np.ndarray) -> float:
+    """Sum of squared range residuals ||x - a_m|| [+ b] - r_m at ``z`` = x (d,) or (x, b)
+    (d + 1,) (the size tells), anchors (N, d), ranges (N,); NaN where ``z`` is not finite."""
+    d = anchors.shape[1]
+    res = np.linalg.norm(z[:d] - anchors, axis=1) - ranges + (z[d] if z.size > d else 0.0)
+    return float(res @ res)
+
+
 def reflected(points: np.ndarray, anchors: np.ndarray) -> np.ndarray:
     """``points`` (P, d) reflected through the best-fit plane (line in 2-D) of ``anchors``
     (N, d): the other side, for anchors that cannot tell the sides apart."""
@@ -395,10 +403,13 @@ def mirror_point(
     if len(anchors) < point.size:
         return None
     start = reflected(point[None], anchors)[0]
-    if offset is None:
-        mirror = range_gauss_newton(start, anchors, ranges)
-    else:
-        mirror = range_gauss_newton(np.r_[start, offset], anchors, ranges, offset=True)
+    if offset is not None:
+        start = np.r_[start, offset]
+    mirror = range_gauss_newton(start, anchors, ranges, offset=offset is not None)
+    if not range_cost(mirror, anchors, ranges) <= range_cost(start, anchors, ranges):
+        # undamped Gauss-Newton overshot (a point near the plane of exactly coplanar anchors has
+        # no first-order information across it): the reflection, which fits as well, stands
+        mirror = start
     centred = anchors - anchors.mean(axis=0)
     spread = float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
     if np.linalg.norm(mirror[: point.size] - point) < 1e-2 * spread:

@@ -1,0 +1,84 @@
+"""A planar walk fitted in its plane: the nested model of :func:`rangeslam.mdu.slam`'s answer.
+
+A robot on a floor (Fig. 5's lemniscate at one height) walks in a plane. Fitted in 3-D, the
+walk bends out of its plane to fit the range noise, and each landmark fits as well on either side
+of the plane: every combination of sides is a local minimum, a few noise variances apart. The
+lowest of them is a selection on fitted noise, and its covariance is optimistic (Fig. 5's walks:
+mean NEES / dof 1.17-1.20 over 24 walks, where the 99% band ends at 1.12; benchmarks/README.md,
+"a planar walk fitted in 3-D").
+
+The nested model holds the receivers in one plane (each step's offset across it: M unknowns
+fewer, less the plane's own three, a translation and two tilts that the rigid motion already
+leaves free) with the landmarks free. Refitted from the answer projected into its best plane, on
+the same graph at the same range sigma, it is kept when the likelihood-ratio test does not reject
+it: the deviance gap (-2 log likelihood ratio, :func:`rangeslam.mdu.slam_graph.graph_deviance`)
+within the chi-square(M - 3) quantile at :data:`rangeslam.verdict.thresholds.CHI2_LEVEL`, the
+test :func:`rangeslam.mdu.planarity.flat_fit_check` makes of a whole configuration. Then the
+landmarks' sides are an exact discrete gauge (reported as ``ambiguous_landmarks``), not minima to
+choose between, and the trajectory's covariance has rank 2 M - 3.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.stats import chi2
+
+from rangeslam.errors import InvalidInputError, SolverError
+from rangeslam.geometry.edm import range_matrix
+from rangeslam.mdu.slam_graph import graph_deviance, graph_fit, stacked
+from rangeslam.mdu.slam_verdict import SlamProblem, SlamRun
+from rangeslam.verdict.judge import CheckRecord
+from rangeslam.verdict.thresholds import CHI2_LEVEL
+
+__all__ = ["PLANAR_CHECK", "best_plane", "planar_answer"]
+
+#: The name of the check record the nested test leaves in :attr:`SlamResult.checks`.
+PLANAR_CHECK = "the walk in its plane"
+
+
+def best_plane(receivers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (3,), unit normal (3,)): the least-squares plane of the trajectory (M, 3), the
+    normal its direction of least spread (the last right singular vector)."""
+    centre = receivers.mean(axis=0)
+    return centre, np.linalg.svd(receivers - centre)[2][-1]
+
+
+def planar_answer(
+    problem: SlamProblem, best: SlamRun, sigma: float
+) -> tuple[SlamRun, CheckRecord | None]:
+    """``best`` (a refined 3-D run), or its refit in the trajectory's plane (module docstring)
+    when the likelihood-ratio test keeps the plane, with covariances; and the test's record
+    (statistic: the deviance gap; level: the chi-square(M - 3) quantile; passed: the refit ran),
+    None where the test does not apply (2-D, fewer than 4 steps, no GTSAM fit). ``sigma``: the
+    range sigma (metres) both are scored at, the judge's. A refit that fails leaves ``best``,
+    with the failure as the record's reason."""
+    m = problem.ranges.shape[0]
+    if problem.dim != 3 or m < 4 or best.fit is None or sigma <= 0:
+        return best, None
+    level = float(chi2.ppf(CHI2_LEVEL, m - 3))
+    centre, normal = best_plane(best.receivers)
+    flat = best.receivers - np.outer((best.receivers - centre) @ normal, normal)
+    try:
+        fit = graph_fit(
+            problem, np.vstack([flat, best.sources]), sigma, covariances=True, plane=normal
+        )
+    except (SolverError, InvalidInputError, RuntimeError) as exc:
+        return best, CheckRecord(PLANAR_CHECK, float("nan"), level, False, f"refit failed: {exc}")
+    answer = np.vstack([best.receivers, best.sources])
+    gap = graph_deviance(problem, stacked(fit), sigma) - graph_deviance(problem, answer, sigma)
+    if not (fit.converged and gap <= level):
+        return best, CheckRecord(PLANAR_CHECK, gap, level, True)
+    res = range_matrix(fit.receivers, fit.sources) - problem.ranges
+    run = dataclasses.replace(
+        best,
+        ssr=float(np.sum(res[problem.observed] ** 2)),
+        receivers=fit.receivers,
+        sources=fit.sources,
+        fit=fit,
+        residuals=res,
+        key=fit.error,
+        planar=True,
+    )
+    return run, CheckRecord(PLANAR_CHECK, gap, level, True)
