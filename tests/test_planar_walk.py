@@ -122,3 +122,17 @@ def test_mirror_of_a_point_near_the_plane_of_coplanar_anchors_is_finite(rng):
     mirror = mirror_point(point, anchors, ranges)
     if mirror is not None:
         assert np.all(np.isfinite(mirror)) and np.linalg.norm(mirror - point) < 1.0
+
+
+def test_the_plane_graph_pins_only_its_gauge(rng):
+    """With receiver_plane only the motions in the plane are gauge: from two starts (landmarks
+    moved by 5 cm) GTSAM reaches the same cost to 1e-6 of it (pinning a landmark's coordinates at
+    its start, as the 3-D gauge priors would, left the cost 0.1-1 noise variances apart), and its
+    covariance keeps the landmarks' variance."""
+    traj, landmarks, exact, bounds = _lemniscate_scene(rng, 10)
+    ranges = add_range_noise(exact, 0.01, rng=rng)
+    graph = dict(noise_std=0.01, step_bounds=bounds, receiver_plane=(0.0, 0.0, 1.0))
+    starts = [landmarks + 0.05 * rng.standard_normal(landmarks.shape) for _ in range(2)]
+    fits = [refine_graph(traj, s, ranges, max_iterations=5000, **graph) for s in starts]
+    assert abs(fits[0].error - fits[1].error) <= 1e-6 * fits[0].error
+    assert np.all(np.linalg.eigvalsh(fits[0].source_cov) > 1e-4 * 0.01**2)

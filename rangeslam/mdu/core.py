@@ -415,6 +415,7 @@ def unfolding_check(
     tail: bool = True,
     rivals_judged: bool = False,
     source_mirrors: LandmarkMirrors | None = None,
+    n_pinned: int = 0,
 ) -> Check:
     """The verdict of :mod:`rangeslam.verdict` on an unfolding's answer (eq. 9 model).
 
@@ -434,21 +435,20 @@ def unfolding_check(
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
         source_mirrors: the sources' :func:`landmark_mirrors`, when the caller has them.
+        n_pinned: coordinates the model holds (:func:`passes_residual_test`).
 
-    Checks in turn: the residuals, the dimension, whether the points may be flat
-    (:func:`flat_fit_check`), the information's rank and the receivers' precision (receiver
-    gauge, as :func:`rangeslam.mdu_crlb` bounds them; also along the weakest directions,
-    :func:`region_check`), each point against its partners held fixed (precision, mirror image;
-    receivers only without priors, which tie them to each other); and, for flat receivers
-    without priors, whether a flat scene fits as well (:func:`flat_rival_check`).
-    """
+    Checks in turn: the residuals, the dimension, flatness (:func:`flat_fit_check`), the
+    information's rank and the receivers' precision (receiver gauge; also along the weakest
+    directions, :func:`region_check`), each point against its partners held fixed (receivers
+    only without priors, which tie them together), and for flat receivers without priors
+    whether a flat scene fits as well (:func:`flat_rival_check`)."""
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
     pairs = np.argwhere(observed)
     jac = unfolding_jacobian(points, m, pairs)
     residuals = unfolding_residuals(points, m, ranges[observed], pairs)
     n_offsets = 0 if offset_columns is None else offset_columns.shape[1]
-    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(len(points), d) - n_offsets
+    redundancy = len(pairs) + n_pinned - n_offsets - unknowns_up_to_rigid_motion(len(points), d)
     info_jac, gauge, projection = information_model(
         receivers, sources, jac, prior_jac, offset_columns
     )
@@ -475,7 +475,7 @@ def unfolding_check(
         information = region_check(receivers, sources, pairs, model, sigma, scale, what)
     flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
         receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
-        rivals_judged=rivals_judged)  # fmt: skip
+        rivals_judged=rivals_judged, n_pinned=n_pinned)  # fmt: skip
     flat = PASSED if not dimension.passed else flat_fit_check(  # dimension fails first
         points, m, ranges, observed, sigma, what, offsets=n_offsets > 0)  # fmt: skip
     check = first_failure(dimension, flat, flat_rival, information, source_check, receivers_check)
@@ -493,17 +493,21 @@ def priorless_checks(
     scale: float,
     *,
     rivals_judged: bool = False,
+    n_pinned: int = 0,
 ) -> tuple[Check, Check]:
     """The checks of :func:`unfolding_check` made only without step priors: (the flat rival,
     :func:`flat_rival_check`, which compares range residuals alone and so cannot judge a flat
     scene a prior holds; each receiver against its sources, :func:`points_check`: priors tie
     the receivers to each other, so they are not judged one by one). ``scale``: the median
     observed range, metres, as :func:`unfolding_check` computed it. ``rivals_judged``: the judge
-    compared the fold already (the flat rival passes)."""
+    compared the fold already (the flat rival passes). ``n_pinned``: coordinates the model holds
+    (a walk in its plane), which the flat rival does not add."""
     return (
         PASSED
         if rivals_judged
-        else flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
+        else flat_rival_check(
+            receivers, sources, ranges, observed, redundancy, sigma, scale, n_pinned=n_pinned
+        ),
         points_check(receivers, sources, ranges, observed, sigma, exact_rms, "receiver"),
     )
 

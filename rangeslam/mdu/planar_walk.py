@@ -45,17 +45,15 @@ def best_plane(receivers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centre, np.linalg.svd(receivers - centre)[2][-1]
 
 
-def planar_answer(
-    problem: SlamProblem, best: SlamRun, sigma: float
-) -> tuple[SlamRun, CheckRecord | None]:
+def planar_answer(problem: SlamProblem, best: SlamRun) -> tuple[SlamRun, CheckRecord | None]:
     """``best`` (a refined 3-D run), or its refit in the trajectory's plane (module docstring)
     when the likelihood-ratio test keeps the plane, with covariances; and the test's record
     (statistic: the deviance gap; level: the chi-square(M - 3) quantile; passed: the refit ran),
-    None where the test does not apply (2-D, fewer than 4 steps, no GTSAM fit). ``sigma``: the
-    range sigma (metres) both are scored at, the judge's. A refit that fails leaves ``best``,
-    with the failure as the record's reason."""
-    m = problem.ranges.shape[0]
-    if problem.dim != 3 or m < 4 or best.fit is None or sigma <= 0:
+    None where the test does not apply (2-D, fewer than 4 steps, no GTSAM fit). Both models are
+    minimised and scored on the graph of ``best``'s own range sigma (its covariances' too). A
+    refit that fails leaves ``best``, with the failure as the record's reason."""
+    m, sigma = problem.ranges.shape[0], best.sigma
+    if problem.dim != 3 or m < 4 or best.fit is None or not sigma:
         return best, None
     level = float(chi2.ppf(CHI2_LEVEL, m - 3))
     centre, normal = best_plane(best.receivers)

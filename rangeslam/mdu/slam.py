@@ -79,7 +79,8 @@ class SlamResult(HasStatus):
         source_cov: (K, d, d) the same for the landmarks.
         trajectory_cov: (M d, M d) joint covariance of all positions (rows of ``receivers``
             stacked), receiver gauge, m^2 (None without refinement): for the NEES of the whole
-            trajectory, rank M d - 3 (2-D) or M d - 6 (3-D).
+            trajectory, rank :attr:`trajectory_dof` (M d - 3 in 2-D, M d - 6 in 3-D, 2 M - 3
+            for a walk in its plane).
         residuals: (M, K) fitted minus measured range, metres; NaN where not observed.
         edm_receivers: (M, d) the EDM (convex iteration) answer before GTSAM, same frame (None
             for methods without an EDM step, such as the EKF baseline); for a walk solved on
@@ -244,7 +245,8 @@ def edm_run(problem: SlamProblem, completion: EDMCompletion, sigma_ref: float | 
         rec, src = pts[:m], pts[m:]
     res = range_matrix(rec, src) - problem.ranges
     ssr = float(np.sum(res[problem.observed] ** 2))
-    run = SlamRun(ssr, rec, src, fit, completion, res, ssr if fit is None else fit.error)
+    key = ssr if fit is None else fit.error
+    run = SlamRun(ssr, rec, src, fit, completion, res, key, sigma=sigma)
     if sigma_ref is not None and sigma != sigma_ref:
         run = rekeyed(problem, run, sigma_ref)  # ranked on the reference graph
     return run, sigma
@@ -499,7 +501,7 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
         sigma = judge_sigma(problem, best, found.sigma_ref)
         judged = judge_slam(problem, best, others, sigma, rng)
         best, unrefined = replaced(problem, best, judged, found.sigma_ref)
-        best, plane = planar_answer(problem, best, sigma)
+        best, plane = planar_answer(problem, best)
         failures = judged.failures + unrefined
     status, message = slam_verdict(problem, best, found.failures, failures)
     if status is Status.CONVERGED and unrefined:

@@ -102,7 +102,8 @@ class SlamRun:
     GTSAM fit (None without refinement), the SDP answer it came from, residuals (M, K), the
     key runs are ranked by (the graph's cost, or ``ssr`` without refinement), and where its GTSAM
     run started (:attr:`SlamResult.start`); ``planar``: the trajectory was fitted in its plane
-    (M - 3 fewer unknowns: :mod:`rangeslam.mdu.planar_walk`)."""
+    (M - 3 fewer unknowns: :mod:`rangeslam.mdu.planar_walk`); ``sigma`` the range sigma of the
+    fit's graph (None without refinement)."""
 
     ssr: float
     receivers: np.ndarray
@@ -113,6 +114,7 @@ class SlamRun:
     key: float
     start: str = "edm"
     planar: bool = False  # the receivers held in a plane (rangeslam.mdu.planar_walk)
+    sigma: float | None = None  # the range sigma of the fit's graph, metres
 
 
 def passes(problem: SlamProblem, run: SlamRun) -> bool:
@@ -120,7 +122,7 @@ def passes(problem: SlamProblem, run: SlamRun) -> bool:
     (:func:`judged_ranges`: with a robust kernel, those it kept), and, with a kernel, no more
     ranges dropped than the breakdown allows (:func:`robust_breakdown`)."""
     kept, res, _ = judged_ranges(problem, run)
-    if problem.robust and not robust_breakdown(problem, kept).passed:
+    if problem.robust and not robust_breakdown(problem, kept, run).passed:
         return False
     n = sum(problem.ranges.shape)
     exact_rms = EXACT_RTOL * problem.scale
@@ -152,7 +154,7 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
         n_pinned=pinned_coordinates(problem, best),
     )
     message += why
-    breakdown = robust_breakdown(problem, kept) if problem.robust else None
+    breakdown = robust_breakdown(problem, kept, best) if problem.robust else None
     if breakdown is not None and not breakdown.passed:  # the deeper reason of a failed test
         status, message = breakdown.status, message + breakdown.reason
     if best.fit is not None and not best.fit.converged:
@@ -164,11 +166,13 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
     return status, message.rstrip("; ")
 
 
-def robust_breakdown(problem: SlamProblem, kept: np.ndarray):
-    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust answer that kept the
-    (M, K) ranges ``kept``: steps and landmarks alike (each is a point located from its ranges)."""
+def robust_breakdown(problem: SlamProblem, kept: np.ndarray, run: SlamRun):
+    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust answer ``run`` that kept
+    the (M, K) ranges ``kept``: steps and landmarks alike (each is a point located from its
+    ranges), on the redundancy of its model (a walk in its plane: M - 3 more)."""
+    redundancy = problem.redundancy + pinned_coordinates(problem, run)
     return breakdown_check(
-        kept, problem.observed, problem.redundancy, judge_sources=True, names=("step", "landmark")
+        kept, problem.observed, redundancy, judge_sources=True, names=("step", "landmark")
     )
 
 
@@ -254,6 +258,7 @@ def _trajectory_check(problem: SlamProblem, best: SlamRun):
         what="the trajectory",
         judge_sources="none",
         source_mirrors=run_mirrors(problem, best),
+        n_pinned=pinned_coordinates(problem, best),
     )
 
 

@@ -268,14 +268,15 @@ def _partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std:
     return gtsam.LinearContainerFactor(factor, lin)
 
 
-def _covariance(gtsam, graph, values, keys: list[int], d: int, *, gauge_free: bool) -> np.ndarray:
+def _covariance(gtsam, graph, values, keys: list[int], n_gauge: int) -> np.ndarray:
     """Covariance of the stacked points from GTSAM's linearisation of the measurement factors at
     ``values`` (noise models, robust weights and step priors baked in): the pseudo-inverse of the
-    information through the SVD of the whitened Jacobian, the rigid-motion null space dropped.
+    information through the SVD of the whitened Jacobian, the gauge's ``n_gauge`` null
+    directions dropped (the rigid motions; in a plane's graph the motions in the plane).
 
     GTSAM's own Marginals need the gauge priors, and with them the elimination was reported
     indeterminate on a few well-posed lemniscate scenes; the SVD of A does not square the
-    condition number. Raises SolverError when more than the rigid motions are unobservable.
+    condition number. Raises SolverError when more than the gauge is unobservable.
     """
     ordering = gtsam.Ordering()
     for key in keys:
@@ -288,7 +289,6 @@ def _covariance(gtsam, graph, values, keys: list[int], d: int, *, gauge_free: bo
             status="non-finite Jacobian",
         )
     _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-    n_gauge = d * (d + 1) // 2 if gauge_free else d
     keep = sv > 1e-9 * sv[0]
     if int(np.sum(~keep)) + (jac.shape[1] - len(sv)) > n_gauge:
         raise SolverError(
@@ -357,6 +357,9 @@ def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem:
     """Priors on the unobservable rigid motion only: 6 coordinates (3 in 2-D) of three spread
     points; with step vectors (which fix the orientation), the first point's translation."""
     d = points.shape[1]
+    if problem.plane is not None:
+        add_in_plane_gauge_priors(gtsam, graph, problem, keys)
+        return
     if problem.odometry.vectors is not None:
         prior_factor = gtsam.PriorFactorPoint3 if d == 3 else gtsam.PriorFactorPoint2
         noise = gtsam.noiseModel.Isotropic.Sigma(d, _GAUGE_TIGHT * problem.noise_std)
@@ -369,6 +372,21 @@ def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem:
         axes.append([2])  # c: along the normal of the plane abc
     for p, pinned in zip(idx, axes, strict=True):
         graph.add(_partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, problem.noise_std))
+
+
+def add_in_plane_gauge_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
+    """The gauge left once the plane priors hold the receivers (a motion in the plane: 2
+    translations and the turn about the normal): the first receiver's two coordinates in the
+    plane, and the farthest receiver from it across their line in the plane; nothing observable
+    pinned."""
+    x, normal = problem.receivers, problem.plane
+    far = int(np.argmax(np.linalg.norm(x - x[0], axis=1)))
+    along = (x[far] - x[0]) - ((x[far] - x[0]) @ normal) * normal
+    along /= np.linalg.norm(along)
+    across = np.cross(normal, along)
+    sigma = problem.noise_std
+    graph.add(_partial_prior(gtsam, keys[0], x[0], np.vstack([along, across]), sigma))
+    graph.add(_partial_prior(gtsam, keys[far], x[far], across[None, :], sigma))
 
 
 def add_plane_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
@@ -492,7 +510,8 @@ def graph_covariances(gtsam, measurements, values, keys, est: np.ndarray, proble
     (M + K, d), in the receiver gauge unless step vectors fixed the orientation."""
     m, d = problem.receivers.shape
     gauge_free = problem.odometry.vectors is None
-    full = _covariance(gtsam, measurements, values, keys, d, gauge_free=gauge_free)
+    n_gauge = 3 if problem.plane is not None else d * (d + 1) // 2 if gauge_free else d
+    full = _covariance(gtsam, measurements, values, keys, n_gauge)
     if gauge_free:
         proj = receiver_gauge_projection(est[:m], est[m:])
         full = proj @ full @ proj.T
