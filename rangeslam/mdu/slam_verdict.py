@@ -26,7 +26,7 @@ from rangeslam.mdu.core import (
     unknowns_up_to_rigid_motion,
 )
 from rangeslam.mdu.landmark_mirrors import LandmarkMirrors, landmark_mirrors
-from rangeslam.solvers.gtsam_graph import GraphFit
+from rangeslam.solvers.gtsam_graph import PLANE_TIGHT, GraphFit
 from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
@@ -47,6 +47,7 @@ __all__ = [
     "landmark_ambiguity",
     "passes",
     "pinned_coordinates",
+    "plane_rows",
     "robust_breakdown",
     "run_mirrors",
     "slam_verdict",
@@ -233,8 +234,9 @@ def memoised(problem: SlamProblem, name: str, run: SlamRun, compute):
 
 
 def trajectory_check(problem: SlamProblem, best: SlamRun):
-    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
-    the :func:`judged_ranges` (once per run: :func:`memoised`)."""
+    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows
+    (and, for a walk in its plane, the plane's: :func:`plane_rows`), on the
+    :func:`judged_ranges` (once per run: :func:`memoised`)."""
     return memoised(problem, "trajectory", best, lambda: _trajectory_check(problem, best))
 
 
@@ -243,6 +245,12 @@ def _trajectory_check(problem: SlamProblem, best: SlamRun):
     estimate = float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0.0
     sigma = verdict_noise(problem.noise_std, estimate, EXACT_RTOL * problem.scale)
     n_points = sum(problem.ranges.shape)
+    rows = [] if not sigma else [step_prior_rows(
+        problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
+    )]  # fmt: skip
+    if best.planar:
+        rows.append(plane_rows(best.receivers, n_points))
+    rows = [r for r in rows if r is not None]
     return unfolding_check(
         best.receivers,
         best.sources,
@@ -250,16 +258,24 @@ def _trajectory_check(problem: SlamProblem, best: SlamRun):
         observed,
         problem.noise_std,
         EXACT_RTOL * problem.scale,
-        prior_jac=step_prior_rows(
-            problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
-        )
-        if sigma
-        else None,
+        prior_jac=np.vstack(rows) if rows else None,
         what="the trajectory",
         judge_sources="none",
         source_mirrors=run_mirrors(problem, best),
         n_pinned=pinned_coordinates(problem, best),
     )
+
+
+def plane_rows(receivers: np.ndarray, n_points: int) -> np.ndarray:
+    """(M, (M + K) d) the information rows of the plane that holds a planar run's receivers
+    (M, 3): each one's offset along the plane's normal, in range-noise units at the graph's
+    tightness (:func:`rangeslam.solvers.gtsam_graph.add_plane_priors`: sigma / (1e-2 sigma))."""
+    m, d = receivers.shape
+    normal = np.linalg.svd(receivers - receivers.mean(axis=0))[2][-1]
+    rows = np.zeros((m, n_points * d))
+    for i in range(m):
+        rows[i, i * d : (i + 1) * d] = normal / PLANE_TIGHT
+    return rows
 
 
 def run_mirrors(problem: SlamProblem, best: SlamRun) -> LandmarkMirrors:
