@@ -286,18 +286,16 @@ def passes_residual_test(
     exact_rms: float,
     *,
     n_offsets: int = 0,
-    n_pinned: int = 0,
 ) -> bool:
     """Exact data (RMS residual <= exact_rms), or a sum of squared range residuals below the
     0.999 chi-square quantile for the redundancy, in units of noise_std^2.
 
     ``ssr``, ``noise_std`` and ``exact_rms`` are in one unit (metres, or the scaled units of
     :func:`rangeslam.mdu.emission.calibrate_unknown_emission`); the redundancy is the ranges
-    minus the points' coordinates up to a rigid motion minus ``n_offsets`` range offsets plus
-    ``n_pinned`` coordinates the model holds (a walk fitted in its plane: M - 3)."""
+    minus the points' coordinates up to a rigid motion minus ``n_offsets`` range offsets."""
     if ssr <= exact_rms**2 * n_ranges:
         return True
-    redundancy = n_ranges - (unknowns_up_to_rigid_motion(n_points, dim) + n_offsets - n_pinned)
+    redundancy = n_ranges - (unknowns_up_to_rigid_motion(n_points, dim) + n_offsets)
     if noise_std is None or redundancy <= 0 or noise_std == 0:
         return False
     from scipy.stats import chi2
@@ -337,22 +335,18 @@ def residual_status(
     *,
     chi_square: bool,
     bounded: bool,
-    n_pinned: int = 0,
 ) -> tuple[Status, str]:
     """The status of a trajectory's range residual (sum of squares ``ssr`` over the ``observed``
     (M, K) ranges), and if not CONVERGED why: INCONSISTENT when the chi-square test against
     ``noise_std`` fails (``chi_square``), or else RMS > 2% of the median range ``scale``;
-    NOT_IDENTIFIABLE without redundant ranges unless step bounds are ``bounded``. ``n_pinned``:
-    coordinates the model holds (:func:`passes_residual_test`)."""
+    NOT_IDENTIFIABLE without redundant ranges unless step bounds are ``bounded``."""
     n_obs = int(observed.sum())
     n = sum(observed.shape)
     rms = float(np.sqrt(ssr / n_obs))
     message = ""
     status = Status.CONVERGED
     if chi_square:
-        if not passes_residual_test(
-            ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale, n_pinned=n_pinned
-        ):
+        if not passes_residual_test(ssr, n_obs, n, dim, noise_std, EXACT_RTOL * scale):
             status = Status.INCONSISTENT
             message += (
                 f"the residual test failed: RMS residual {rms:.3g} m for noise_std "
@@ -361,7 +355,7 @@ def residual_status(
     elif not rms <= RELATIVE_RMS * scale:
         status = Status.INCONSISTENT
         message += f"RMS residual {rms:.3g} m is more than 2% of the median range; "
-    if n_obs + n_pinned - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
+    if n_obs - unknowns_up_to_rigid_motion(n, dim) <= 0 and not bounded:
         status = Status.NOT_IDENTIFIABLE
         message += "no redundant ranges and no step bounds: the trajectory is not unique; "
     return status, message
@@ -415,7 +409,6 @@ def unfolding_check(
     tail: bool = True,
     rivals_judged: bool = False,
     source_mirrors: LandmarkMirrors | None = None,
-    n_pinned: int = 0,
 ) -> Check:
     """The verdict of :mod:`rangeslam.verdict` on an unfolding's answer (eq. 9 model).
 
@@ -435,20 +428,21 @@ def unfolding_check(
         tail: whether the residuals' tail is tested (False for the inliers of a robust fit).
         rivals_judged: the judge compared the fold and mirrors (no flat-rival F-test then).
         source_mirrors: the sources' :func:`landmark_mirrors`, when the caller has them.
-        n_pinned: coordinates the model holds (:func:`passes_residual_test`).
 
-    Checks in turn: the residuals, the dimension, flatness (:func:`flat_fit_check`), the
-    information's rank and the receivers' precision (receiver gauge; also along the weakest
-    directions, :func:`region_check`), each point against its partners held fixed (receivers
-    only without priors, which tie them together), and for flat receivers without priors
-    whether a flat scene fits as well (:func:`flat_rival_check`)."""
+    Checks in turn: the residuals, the dimension, whether the points may be flat
+    (:func:`flat_fit_check`), the information's rank and the receivers' precision (receiver
+    gauge, as :func:`rangeslam.mdu_crlb` bounds them; also along the weakest directions,
+    :func:`region_check`), each point against its partners held fixed (precision, mirror image;
+    receivers only without priors, which tie them to each other); and, for flat receivers
+    without priors, whether a flat scene fits as well (:func:`flat_rival_check`).
+    """
     m, d = receivers.shape
     points = np.vstack([receivers, sources])
     pairs = np.argwhere(observed)
     jac = unfolding_jacobian(points, m, pairs)
     residuals = unfolding_residuals(points, m, ranges[observed], pairs)
     n_offsets = 0 if offset_columns is None else offset_columns.shape[1]
-    redundancy = len(pairs) + n_pinned - n_offsets - unknowns_up_to_rigid_motion(len(points), d)
+    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(len(points), d) - n_offsets
     info_jac, gauge, projection = information_model(
         receivers, sources, jac, prior_jac, offset_columns
     )
@@ -475,7 +469,7 @@ def unfolding_check(
         information = region_check(receivers, sources, pairs, model, sigma, scale, what)
     flat_rival, receivers_check = (PASSED, PASSED) if prior_jac is not None else priorless_checks(
         receivers, sources, ranges, observed, redundancy, sigma, exact_rms, scale,
-        rivals_judged=rivals_judged, n_pinned=n_pinned)  # fmt: skip
+        rivals_judged=rivals_judged)  # fmt: skip
     flat = PASSED if not dimension.passed else flat_fit_check(  # dimension fails first
         points, m, ranges, observed, sigma, what, offsets=n_offsets > 0)  # fmt: skip
     check = first_failure(dimension, flat, flat_rival, information, source_check, receivers_check)
@@ -493,21 +487,17 @@ def priorless_checks(
     scale: float,
     *,
     rivals_judged: bool = False,
-    n_pinned: int = 0,
 ) -> tuple[Check, Check]:
     """The checks of :func:`unfolding_check` made only without step priors: (the flat rival,
     :func:`flat_rival_check`, which compares range residuals alone and so cannot judge a flat
     scene a prior holds; each receiver against its sources, :func:`points_check`: priors tie
     the receivers to each other, so they are not judged one by one). ``scale``: the median
     observed range, metres, as :func:`unfolding_check` computed it. ``rivals_judged``: the judge
-    compared the fold already (the flat rival passes). ``n_pinned``: coordinates the model holds
-    (a walk in its plane), which the flat rival does not add."""
+    compared the fold already (the flat rival passes)."""
     return (
         PASSED
         if rivals_judged
-        else flat_rival_check(
-            receivers, sources, ranges, observed, redundancy, sigma, scale, n_pinned=n_pinned
-        ),
+        else flat_rival_check(receivers, sources, ranges, observed, redundancy, sigma, scale),
         points_check(receivers, sources, ranges, observed, sigma, exact_rms, "receiver"),
     )
 

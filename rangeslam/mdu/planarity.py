@@ -139,8 +139,6 @@ def flat_rival_check(
     redundancy: int,
     sigma: float | None,
     scale: float,
-    *,
-    n_pinned: int = 0,
 ) -> Check:
     """NOT_IDENTIFIABLE when a 3-D answer whose receivers are flat (:func:`flatness_check`)
     fits its ranges no better than the flat configuration refined from its projection into
@@ -149,12 +147,9 @@ def flat_rival_check(
     sources truly off a flat array cannot be flattened. ``receivers`` (M, 3), ``sources``
     (K, 3), ``ranges`` and ``observed`` (M, K), ``sigma`` and ``scale`` metres. Ranges already
     corrected by fitted offsets (emission times, clock offsets) keep those offsets in the flat
-    fit, which can only make it worse: a folded scene with offsets may pass unseen here.
-    ``n_pinned``: coordinates the answer's model held already (a walk in its plane: M - 3), which
-    the flat configuration does not add; ``redundancy`` counts them."""
+    fit, which can only make it worse: a folded scene with offsets may pass unseen here."""
     m, d = receivers.shape
-    # one coordinate per point, less 3-D's three extra motions and what the model held
-    extra = m + len(sources) - 3 - n_pinned
+    extra = m + len(sources) - 3  # one coordinate per point, less 3-D's three extra motions
     if d != 3 or redundancy <= 0 or flatness_check(receivers, sigma, scale, "").passed:
         return PASSED
     points = np.vstack([receivers, sources])

@@ -493,15 +493,18 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     when lower by more than the level or outside the answer's confidence region
     (:func:`replaced`), replaces it (refined again as an EDM answer is,
     :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
-    the judge's status (a rival: NOT_IDENTIFIABLE). Returns (run, status, message, judgement
-    or None)."""
+    the judge's status (a rival: NOT_IDENTIFIABLE). A converged 3-D answer is then refitted in
+    its plane where the nested test keeps it (:func:`rangeslam.mdu.planar_walk.planar_answer`):
+    the plane refines the estimate and its covariance, but the verdict is the 3-D model's (a
+    walk the data do not determine in 3-D is not made identifiable by assuming it flat: that
+    turned 4 refusals right by the truth's bound into converged-wrong answers, seed 990341375).
+    Returns (run, status, message, judgement or None, the plane's check record or None)."""
     best, judged, failures, unrefined, plane = found.best, None, (), (), None
     if problem.refine and best.fit is not None:
         others = [r for r in found.runs if r is not best]
         sigma = judge_sigma(problem, best, found.sigma_ref)
         judged = judge_slam(problem, best, others, sigma, rng)
         best, unrefined = replaced(problem, best, judged, found.sigma_ref)
-        best, plane = planar_answer(problem, best)
         failures = judged.failures + unrefined
     status, message = slam_verdict(problem, best, found.failures, failures)
     if status is Status.CONVERGED and unrefined:
@@ -510,6 +513,8 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     if judged is not None and status is Status.CONVERGED:
         status = judged.judgement.status
         message = "; ".join(filter(None, (message, judged.judgement.reason)))
+    if judged is not None and status is Status.CONVERGED:
+        best, plane = planar_answer(problem, best)
     return best, status, message, judged, plane
 
 

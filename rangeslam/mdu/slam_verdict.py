@@ -26,7 +26,7 @@ from rangeslam.mdu.core import (
     unknowns_up_to_rigid_motion,
 )
 from rangeslam.mdu.landmark_mirrors import LandmarkMirrors, landmark_mirrors
-from rangeslam.solvers.gtsam_graph import PLANE_TIGHT, GraphFit
+from rangeslam.solvers.gtsam_graph import GraphFit
 from rangeslam.solvers.least_squares import unfolding_jacobian
 from rangeslam.solvers.step_bounds import StepBounds
 from rangeslam.status import Status
@@ -47,7 +47,6 @@ __all__ = [
     "landmark_ambiguity",
     "passes",
     "pinned_coordinates",
-    "plane_rows",
     "robust_breakdown",
     "run_mirrors",
     "slam_verdict",
@@ -123,14 +122,13 @@ def passes(problem: SlamProblem, run: SlamRun) -> bool:
     (:func:`judged_ranges`: with a robust kernel, those it kept), and, with a kernel, no more
     ranges dropped than the breakdown allows (:func:`robust_breakdown`)."""
     kept, res, _ = judged_ranges(problem, run)
-    if problem.robust and not robust_breakdown(problem, kept, run).passed:
+    if problem.robust and not robust_breakdown(problem, kept).passed:
         return False
     n = sum(problem.ranges.shape)
     exact_rms = EXACT_RTOL * problem.scale
     return passes_residual_test(
-        float(res @ res), int(kept.sum()), n, problem.dim, problem.noise_std, exact_rms,
-        n_pinned=pinned_coordinates(problem, run),
-    )  # fmt: skip
+        float(res @ res), int(kept.sum()), n, problem.dim, problem.noise_std, exact_rms
+    )
 
 
 def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
@@ -152,10 +150,9 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
         problem.scale,
         chi_square=problem.noise_std is not None and redundancy > 0,
         bounded=problem.bounds is not None,
-        n_pinned=pinned_coordinates(problem, best),
     )
     message += why
-    breakdown = robust_breakdown(problem, kept, best) if problem.robust else None
+    breakdown = robust_breakdown(problem, kept) if problem.robust else None
     if breakdown is not None and not breakdown.passed:  # the deeper reason of a failed test
         status, message = breakdown.status, message + breakdown.reason
     if best.fit is not None and not best.fit.converged:
@@ -167,13 +164,11 @@ def slam_verdict(problem: SlamProblem, best: SlamRun, failures, start_failures):
     return status, message.rstrip("; ")
 
 
-def robust_breakdown(problem: SlamProblem, kept: np.ndarray, run: SlamRun):
-    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust answer ``run`` that kept
-    the (M, K) ranges ``kept``: steps and landmarks alike (each is a point located from its
-    ranges), on the redundancy of its model (a walk in its plane: M - 3 more)."""
-    redundancy = problem.redundancy + pinned_coordinates(problem, run)
+def robust_breakdown(problem: SlamProblem, kept: np.ndarray):
+    """:func:`rangeslam.verdict.breakdown.breakdown_check` of a robust answer that kept the
+    (M, K) ranges ``kept``: steps and landmarks alike (each is a point located from its ranges)."""
     return breakdown_check(
-        kept, problem.observed, redundancy, judge_sources=True, names=("step", "landmark")
+        kept, problem.observed, problem.redundancy, judge_sources=True, names=("step", "landmark")
     )
 
 
@@ -234,9 +229,9 @@ def memoised(problem: SlamProblem, name: str, run: SlamRun, compute):
 
 
 def trajectory_check(problem: SlamProblem, best: SlamRun):
-    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows
-    (and, for a walk in its plane, the plane's: :func:`plane_rows`), on the
-    :func:`judged_ranges` (once per run: :func:`memoised`)."""
+    """:func:`rangeslam.mdu.core.unfolding_check` of the best run with the step priors' rows, on
+    the :func:`judged_ranges` (once per run: :func:`memoised`): a 3-D run's (the verdict is
+    made before the walk is refitted in its plane)."""
     return memoised(problem, "trajectory", best, lambda: _trajectory_check(problem, best))
 
 
@@ -245,12 +240,6 @@ def _trajectory_check(problem: SlamProblem, best: SlamRun):
     estimate = float(np.sqrt(res @ res / redundancy)) if redundancy > 0 else 0.0
     sigma = verdict_noise(problem.noise_std, estimate, EXACT_RTOL * problem.scale)
     n_points = sum(problem.ranges.shape)
-    rows = [] if not sigma else [step_prior_rows(
-        problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
-    )]  # fmt: skip
-    if best.planar:
-        rows.append(plane_rows(best.receivers, n_points))
-    rows = [r for r in rows if r is not None]
     return unfolding_check(
         best.receivers,
         best.sources,
@@ -258,24 +247,15 @@ def _trajectory_check(problem: SlamProblem, best: SlamRun):
         observed,
         problem.noise_std,
         EXACT_RTOL * problem.scale,
-        prior_jac=np.vstack(rows) if rows else None,
+        prior_jac=step_prior_rows(
+            problem.bounds, problem.step_prior, problem.step_sigma, best.receivers, sigma, n_points
+        )
+        if sigma
+        else None,
         what="the trajectory",
         judge_sources="none",
         source_mirrors=run_mirrors(problem, best),
-        n_pinned=pinned_coordinates(problem, best),
     )
-
-
-def plane_rows(receivers: np.ndarray, n_points: int) -> np.ndarray:
-    """(M, (M + K) d) the information rows of the plane that holds a planar run's receivers
-    (M, 3): each one's offset along the plane's normal, in range-noise units at the graph's
-    tightness (:func:`rangeslam.solvers.gtsam_graph.add_plane_priors`: sigma / (1e-2 sigma))."""
-    m, d = receivers.shape
-    normal = np.linalg.svd(receivers - receivers.mean(axis=0))[2][-1]
-    rows = np.zeros((m, n_points * d))
-    for i in range(m):
-        rows[i, i * d : (i + 1) * d] = normal / PLANE_TIGHT
-    return rows
 
 
 def run_mirrors(problem: SlamProblem, best: SlamRun) -> LandmarkMirrors:

@@ -56,7 +56,7 @@ from rangeslam.solvers.robust_kernels import (
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 
-__all__ = ["PLANE_TIGHT", "STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
+__all__ = ["STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
 
 #: Readings of step bounds in the graph (see the module docstring).
 STEP_PRIORS = ("uniform", "dead_zone")
@@ -70,9 +70,6 @@ STATIONARY_CHI2 = 1.0
 # coordinates of the gauge points get no prior information at all (zero rows of the square-root
 # information), so nothing observable is pulled.
 _GAUGE_TIGHT = 1e-2
-#: Sigma of the plane priors of ``receiver_plane`` relative to noise_std: the gauge priors' (both
-#: are :func:`_partial_prior`).
-PLANE_TIGHT = _GAUGE_TIGHT
 # The least damping of Levenberg-Marquardt (see run_levenberg_marquardt): round-off against the
 # whitened information, whose diagonal is at least of order 1 (ranges over their sigma).
 _LAMBDA_FLOOR = 1e-16
