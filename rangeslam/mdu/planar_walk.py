@@ -3,9 +3,8 @@
 A robot on a floor (Fig. 5's lemniscate at one height) walks in a plane. Fitted in 3-D, the
 walk bends out of its plane to fit the range noise, and each landmark fits as well on either side
 of the plane: every combination of sides is a local minimum, a few noise variances apart. The
-lowest of them is a selection on fitted noise, and its covariance is optimistic (Fig. 5's walks:
-mean NEES / dof 1.17-1.20 over 24 walks, where the 99% band ends at 1.12; benchmarks/README.md,
-"a planar walk fitted in 3-D").
+lowest of them is a selection on fitted noise, and its covariance is optimistic (on Fig. 5's
+walks: benchmarks/README.md, "a planar walk fitted in 3-D").
 
 The nested model holds the receivers in one plane (each step's offset across it: M unknowns
 fewer, less the plane's own three, a translation and two tilts that the rigid motion already
@@ -15,7 +14,8 @@ it: the deviance gap (-2 log likelihood ratio, :func:`rangeslam.mdu.slam_graph.g
 within the chi-square(M - 3) quantile at :data:`rangeslam.verdict.thresholds.CHI2_LEVEL`, the
 test :func:`rangeslam.mdu.planarity.flat_fit_check` makes of a whole configuration. Then the
 landmarks' sides are an exact discrete gauge (reported as ``ambiguous_landmarks``), not minima to
-choose between, and the trajectory's covariance has rank 2 M - 3.
+choose between, and the trajectory's covariance has rank 2 M - 3. Only a converged 3-D answer
+is refitted, and the verdict stays the 3-D model's (:func:`rangeslam.mdu.slam.judged_answer`).
 """
 
 from __future__ import annotations

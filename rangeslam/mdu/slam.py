@@ -496,8 +496,8 @@ def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     the judge's status (a rival: NOT_IDENTIFIABLE). A converged 3-D answer is then refitted in
     its plane where the nested test keeps it (:func:`rangeslam.mdu.planar_walk.planar_answer`):
     the plane refines the estimate and its covariance, but the verdict is the 3-D model's (a
-    walk the data do not determine in 3-D is not made identifiable by assuming it flat: that
-    turned 4 refusals right by the truth's bound into converged-wrong answers, seed 990341375).
+    walk the data do not determine in 3-D is not made identifiable by assuming it flat;
+    benchmarks/README.md, "slam fits a planar walk in its plane").
     Returns (run, status, message, judgement or None, the plane's check record or None)."""
     best, judged, failures, unrefined, plane = found.best, None, (), (), None
     if problem.refine and best.fit is not None:
