@@ -4,11 +4,12 @@
 
 Random non-planar walks as ``bench_edm_start.py`` draws them (M = 8 steps by default,
 ``--steps`` for others; 1 cm, +-20% step bounds, noise not given). Each part of ``slam`` is
-timed by wrapping its function (wall-clock, ``time.perf_counter``): the convex-iteration search with its GTSAM refinements
-(``search_edm_runs``), the judge (``judge_slam``) split into its random starts
-(``random_minima``) and its leave-one-block-out refits (``block_alternatives``), the verdict's
-checks (``slam_verdict``) and the result (landmark mirrors, covariances: ``slam_result``). The
-peers: ``gtsam_best_of`` from ``bench_edm_start.py`` with 3 and with 7 random starts (7 is the
+timed by wrapping its function (wall-clock, ``time.perf_counter``): the convex-iteration
+search with its GTSAM refinements (``search_edm_runs``), the judge (``judge_slam``) split into
+its random starts (``random_minima``) and its leave-one-block-out refits
+(``block_alternatives``), the verdict's checks (``slam_verdict``), the refit of a converged
+answer in its plane (``planar_answer``) and the result (landmark mirrors, covariances:
+``slam_result``). The peers: ``gtsam_best_of`` from ``bench_edm_start.py`` with 3 and with 7 random starts (7 is the
 least number of starts after which Boender and Rinnooy Kan's rule ends a search whose starts all
 reached one minimum). Ratios are of medians in one run. Also the issue's other terms: the median
 trajectory error (RMS after the best rigid motion with reflection) and the success (< 10 cm) of
@@ -39,6 +40,7 @@ PARTS = {
     "judge: random starts": (slam_judge, "random_minima"),
     "judge: block refits": (slam_judge, "block_alternatives"),
     "verdict checks": (SLAM, "slam_verdict"),
+    "the walk's plane (nested refit)": (SLAM, "planar_answer"),
     "result (mirrors, covariances)": (SLAM, "slam_result"),
 }
 
