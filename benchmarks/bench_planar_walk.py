@@ -20,25 +20,18 @@ import argparse
 import numpy as np
 from _common import machine, markdown_table
 
-from rangeslam.app.experiments import FIG5_ROOM_SIZE, place_step_bounds
+from rangeslam.app.experiments import fig5_scene, place_step_bounds
 from rangeslam.evaluation.metrics import trajectory_nees
 from rangeslam.geometry.alignment import align
-from rangeslam.geometry.edm import range_matrix
-from rangeslam.geometry.room import Room
 from rangeslam.mdu import slam
-from rangeslam.sim.scenes import add_range_noise, random_points_in_room
-from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.sim.trajectories import step_lengths
 from rangeslam.solvers.gtsam_graph import refine_graph
 
 
 def scene(m: int, sigma: float, rng: np.random.Generator):
     """(trajectory (M, 3), ranges (M, 7), step bounds): Fig. 5's walk, as slam_experiment draws
-    it."""
-    room = Room.shoebox(FIG5_ROOM_SIZE)
-    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
-    source = random_points_in_room(room, 1, rng=rng)[0]
-    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
-    ranges = add_range_noise(range_matrix(traj, landmarks), sigma, rng=rng)
+    it (:func:`rangeslam.app.experiments.fig5_scene`, bounds placed at random)."""
+    traj, _, ranges = fig5_scene(m, sigma, rng)
     return traj, ranges, place_step_bounds(step_lengths(traj), "random", rng)
 
 

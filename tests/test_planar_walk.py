@@ -6,29 +6,24 @@ import numpy as np
 import pytest
 
 from rangeslam import align
+from rangeslam.app.experiments import fig5_scene, place_step_bounds
 from rangeslam.errors import InvalidInputError
 from rangeslam.evaluation.metrics import trajectory_nees
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.geometry.room import Room
 from rangeslam.mdu import slam
 from rangeslam.mdu.planar_walk import PLANAR_CHECK, best_plane
 from rangeslam.sim.scenes import add_range_noise, walk_in_random_room
-from rangeslam.sim.trajectories import lemniscate, step_lengths
+from rangeslam.sim.trajectories import step_lengths
 from rangeslam.solvers.gtsam_graph import refine_graph
 from rangeslam.verdict.checks import mirror_point
 from rangeslam.verdict.judge import cost_level
 
 
 def _lemniscate_scene(rng, m: int):
-    """Fig. 5's walk at one height (1.2 m), a loudspeaker in the 5 x 4 x 2.6 m room and its 6
-    first-order images, exact ranges and +-20% step bounds placed at random around the steps."""
-    room = Room.shoebox((5.0, 4.0, 2.6))
-    traj = lemniscate(m, step=0.3, phase=rng.uniform(0, 2 * np.pi))
-    source = rng.uniform([0.5, 0.5, 0.3], [4.5, 3.5, 2.3])
-    landmarks = np.vstack([source, room.image_sources(source, 1).positions])
-    steps = step_lengths(traj)
-    low = steps * (1 - 0.4 * rng.uniform(0, 1, len(steps)))
-    return traj, landmarks, range_matrix(traj, landmarks), (low, low + 0.4 * steps)
+    """Fig. 5's walk (:func:`rangeslam.app.experiments.fig5_scene`), its exact ranges and +-20%
+    step bounds placed at random around the steps."""
+    traj, landmarks, exact = fig5_scene(m, 0.0, rng)
+    return traj, landmarks, exact, place_step_bounds(step_lengths(traj), "random", rng)
 
 
 def _check(out):

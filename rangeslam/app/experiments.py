@@ -37,6 +37,7 @@ __all__ = [
     "calibration_experiment",
     "demo_rooms",
     "fig3_scene",
+    "fig5_scene",
     "mean_nees",
     "receiver_crlb",
     "room_experiment",
@@ -416,7 +417,7 @@ def _slam_oracle_rms(traj, landmarks, sigma, placement, slam_options, draws: int
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
-def _fig5_scene(m: int, sigma: float, rng: np.random.Generator):
+def fig5_scene(m: int, sigma: float, rng: np.random.Generator):
     """(trajectory (M, 3), landmarks (7, 3), ranges (M, 7) with N(0, sigma^2) noise): the
     lemniscate of eq. (12) from a random phase, a loudspeaker uniform in the Fig. 5 room and its
     6 first-order images, metres."""
@@ -461,7 +462,7 @@ def slam_experiment(
             f"bounds_placement must be 'centred' or 'random'; got {bounds_placement!r}"
         )
     draws = check_int(oracle_draws, "oracle_draws", 0, 10_000)
-    traj, landmarks, ranges = _fig5_scene(m, sigma, rng)
+    traj, landmarks, ranges = fig5_scene(m, sigma, rng)
     step_prior = slam_options.get("step_prior", "uniform")
     steps = step_lengths(traj)
     step_bounds = place_step_bounds(steps, bounds_placement, rng) if bounds else None

@@ -56,15 +56,13 @@ def planar_answer(problem: SlamProblem, best: SlamRun) -> tuple[SlamRun, CheckRe
     if problem.dim != 3 or m < 4 or best.fit is None or not sigma:
         return best, None
     level = float(chi2.ppf(CHI2_LEVEL, m - 3))
-    centre, normal = best_plane(best.receivers)
-    flat = best.receivers - np.outer((best.receivers - centre) @ normal, normal)
-    try:
+    answer = np.vstack([best.receivers, best.sources])
+    try:  # refine_graph starts from the receivers projected onto the plane
         fit = graph_fit(
-            problem, np.vstack([flat, best.sources]), sigma, covariances=True, plane=normal
+            problem, answer, sigma, covariances=True, plane=best_plane(best.receivers)[1]
         )
     except (SolverError, InvalidInputError, RuntimeError) as exc:
         return best, CheckRecord(PLANAR_CHECK, float("nan"), level, False, f"refit failed: {exc}")
-    answer = np.vstack([best.receivers, best.sources])
     gap = graph_deviance(problem, stacked(fit), sigma) - graph_deviance(problem, answer, sigma)
     if not (fit.converged and gap <= level):
         return best, CheckRecord(PLANAR_CHECK, gap, level, True)

@@ -427,12 +427,8 @@ def mirror_gap(
     mirror = mirror_point(point, anchors, ranges, offset)
     if mirror is None:
         return float("inf")
-    d = point.size
-    b_point = 0.0 if offset is None else offset
-    b_mirror = 0.0 if offset is None else float(mirror[d])
-    res_p = np.linalg.norm(anchors - point, axis=1) + b_point - ranges
-    res_m = np.linalg.norm(anchors - mirror[:d], axis=1) + b_mirror - ranges
-    return float(res_m @ res_m - res_p @ res_p)
+    own = point if offset is None else np.r_[point, offset]
+    return range_cost(mirror, anchors, ranges) - range_cost(own, anchors, ranges)
 
 
 def expected_mirror_gap(
