@@ -153,12 +153,14 @@ def rival_check(
     answer = Alternative(own, graph_deviance(problem, own, sigma), "the filter's answer", payload=1)
     # the answer and the random starts together at most SEARCH_BUDGET
     starts = random_minima(problem, answer, [], sigma, rng, budget=SEARCH_BUDGET - 1)
+    metric = judge_metric(problem, sigma)
     judgement = judge(
         answer,
         starts,
-        metric=judge_metric(problem, sigma),
+        metric=metric,
         dof=unknowns_up_to_rigid_motion(m, d),
         counted=counted_as_start,
+        precision=metric.precision,
     )
     own_comparison = next((c for c in judgement.comparisons if c.alternative is answer), None)
     if own_comparison is not None and own_comparison.kind == LOWER:

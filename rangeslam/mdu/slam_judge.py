@@ -35,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
+from functools import partial
 
 import numpy as np
 
@@ -63,12 +64,14 @@ from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
     judge,
+    precision_spread,
     random_search,
 )
 from rangeslam.verdict.thresholds import RANK_RTOL, SEARCH_BUDGET
 
 __all__ = [
     "FIT_ERRORS",
+    "JudgeMetric",
     "block_alternatives",
     "counted_as_start",
     "judge_metric",
@@ -77,6 +80,7 @@ __all__ = [
     "subgraph_fit",
     "trajectory_distance",
     "trajectory_information",
+    "trajectory_step",
 ]
 
 # what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
@@ -179,18 +183,23 @@ def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) 
     )
 
 
+def trajectory_step(m: int, a: Alternative, b: Alternative, skip=()) -> np.ndarray:
+    """(M d,) b's trajectory (the first ``m`` rows of its points) brought onto a's by the best
+    rigid motion with reflection (the gauge of ranges and step lengths), minus a's, metres;
+    steps in ``skip`` are left out of the alignment and of the step (zero)."""
+    ref, pts = np.asarray(a.points[:m], dtype=float), np.asarray(b.points[:m], dtype=float)
+    keep = np.setdiff1d(np.arange(m), [r for r in skip if r < m])
+    aligned = ref.copy()
+    aligned[keep] = align(pts[keep], ref[keep], reflection=True).aligned
+    return (aligned - ref).ravel()
+
+
 def trajectory_distance(information: np.ndarray, m: int):
-    """``distance2(a, b, skip)`` for :func:`judge`: delta^2 of b's trajectory (the first ``m``
-    rows of its points) from a's in the trajectory's ``information`` (M d, M d), b's trajectory
-    first brought onto a's by the best rigid motion with reflection (the gauge of ranges and
-    step lengths); steps in ``skip`` are left out of the alignment and of the step."""
+    """``distance2(a, b, skip)`` for :func:`judge`: delta^2 of b's trajectory from a's
+    (:func:`trajectory_step`) in the trajectory's ``information`` (M d, M d)."""
 
     def distance2(a: Alternative, b: Alternative, skip=()) -> float:
-        ref, pts = np.asarray(a.points[:m], dtype=float), np.asarray(b.points[:m], dtype=float)
-        keep = np.setdiff1d(np.arange(m), [r for r in skip if r < m])
-        aligned = ref.copy()
-        aligned[keep] = align(pts[keep], ref[keep], reflection=True).aligned
-        step = (aligned - ref).ravel()
+        step = trajectory_step(m, a, b, skip)
         return float(step @ information @ step)
 
     return distance2
@@ -247,16 +256,48 @@ def block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
     return alternatives
 
 
-def judge_metric(problem: SlamProblem, sigma: float):
-    """The judge's ``metric``: at the lowest candidate, the trajectory's distance
-    (:func:`trajectory_distance`) in its information (:func:`trajectory_information`) at range
-    sigma ``sigma`` (metres)."""
-    m = problem.ranges.shape[0]
+class JudgeMetric:
+    """The judge's ``metric`` and ``precision`` for a walk, at range sigma ``sigma`` (metres):
+    at the lowest candidate, the trajectory's distance (:func:`trajectory_distance`) in its
+    information (:func:`trajectory_information`, made once per lowest), and its spread
+    (:func:`rangeslam.verdict.judge.precision_spread`: the trajectory's RMS step per point
+    against the RMS variance per point that information implies)."""
 
-    def metric(lowest: Alternative):
-        return trajectory_distance(trajectory_information(problem, lowest.points, sigma), m)
+    def __init__(self, problem: SlamProblem, sigma: float):
+        self.problem, self.sigma = problem, sigma
+        self.m = problem.ranges.shape[0]
+        self._at: tuple[Alternative, np.ndarray] | None = None
+        self._traces: dict[int, tuple[Alternative, float]] = {}
 
-    return metric
+    def information(self, lowest: Alternative) -> np.ndarray:
+        """(M d, M d) the trajectory's information at ``lowest`` (kept for the last one)."""
+        if self._at is None or self._at[0] is not lowest:
+            self._at = (lowest, trajectory_information(self.problem, lowest.points, self.sigma))
+        return self._at[1]
+
+    def __call__(self, lowest: Alternative):
+        return trajectory_distance(self.information(lowest), self.m)
+
+    def covariance_trace(self, candidate: Alternative) -> float:
+        """The trace (m^2) of the trajectory's covariance at ``candidate``: its information's
+        pseudo-inverse (kept per candidate)."""
+        kept = self._traces.get(id(candidate))
+        if kept is None or kept[0] is not candidate:
+            info = trajectory_information(self.problem, candidate.points, self.sigma)
+            cov = np.linalg.pinv(info, rcond=RANK_RTOL, hermitian=True)
+            kept = self._traces[id(candidate)] = (candidate, float(np.trace(cov)))
+        return kept[1]
+
+    def precision(self, lowest: Alternative):
+        """``spread2(a, b)`` (:func:`rangeslam.verdict.judge.precision_spread`) in the
+        covariances the information at each implies (``lowest`` is one of them)."""
+        return precision_spread(self.covariance_trace, partial(trajectory_step, self.m))
+
+
+def judge_metric(problem: SlamProblem, sigma: float) -> JudgeMetric:
+    """The judge's metric and precision for ``problem`` at range sigma ``sigma``
+    (:class:`JudgeMetric`)."""
+    return JudgeMetric(problem, sigma)
 
 
 def counted_as_start(alternative: Alternative) -> bool:
@@ -284,7 +325,8 @@ def random_minima(
     metric = judge_metric(problem, sigma)
 
     def run(found: list[Alternative]):
-        return judge(answer, found, metric=metric, dof=dof, counted=counted_as_start)
+        return judge(answer, found, metric=metric, dof=dof, counted=counted_as_start,
+                     precision=metric.precision)  # fmt: skip
 
     randoms = _random_alternatives(problem, sigma, rng, [] if failures is None else failures)
     found, _ = random_search(run, counted, randoms, budget=budget, at_least=at_least)
@@ -311,11 +353,13 @@ def judge_slam(
         budget=max(SEARCH_BUDGET, problem.extra_starts), at_least=problem.extra_starts,
         failures=failures,
     )  # fmt: skip
+    metric = judge_metric(problem, sigma)
     judgement = judge(
         main,
         alternatives + counted,
-        metric=judge_metric(problem, sigma),
+        metric=metric,
         dof=unknowns_up_to_rigid_motion(m, problem.dim),
         counted=counted_as_start,
+        precision=metric.precision,
     )
     return JudgedSearch.of(judgement, len(counted) + 1, failures)

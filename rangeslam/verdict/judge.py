@@ -58,6 +58,7 @@ __all__ = [
     "indistinguishable",
     "information_distance",
     "judge",
+    "precision_spread",
     "random_search",
     "same_answer",
     "search_complete",
@@ -248,6 +249,25 @@ def information_distance(
     return distance2
 
 
+def precision_spread(
+    covariance_trace: Callable[[Alternative], float],
+    step: Callable[[Alternative, Alternative], np.ndarray],
+) -> Callable[[Alternative, Alternative], float]:
+    """``spread2(a, b)`` for :func:`judge`'s ``precision``: the squared length of ``step(a, b)``
+    (b's points of interest moved onto a's by the gauge, minus a's: (n d,) metres) over the
+    smaller ``covariance_trace`` of a and b (m^2: the trace of the covariance of those points
+    that candidate's information implies, the sum of their variances): b's squared RMS distance
+    per point from a in units of the RMS variance per point of the more precise of the two.
+    Either may be the truth, so the step must be within the precision the data give at each:
+    an imprecise minimum does not make a precise one near."""
+
+    def spread2(a: Alternative, b: Alternative) -> float:
+        total = min(covariance_trace(a), covariance_trace(b))
+        return float(np.sum(step(a, b) ** 2)) / max(total, np.finfo(float).tiny)
+
+    return spread2
+
+
 def same_answer(
     distance2: Callable[[Alternative, Alternative, Sequence[int]], float],
     answer: Alternative,
@@ -271,6 +291,7 @@ def judge(
     dof: int,
     counted: Callable[[Alternative], bool] = lambda alt: True,
     level: float = CHI2_LEVEL,
+    precision: Callable[[Alternative], Callable[[Alternative, Alternative], float]] | None = None,
 ) -> Judgement:
     """Every alternative against the lowest candidate, by the one test (module docstring).
 
@@ -284,11 +305,21 @@ def judge(
         counted: which candidates count as starts for ``reached`` and ``minima`` (random starts;
             refits of part of the data do not sample the basins).
         level: the chi-square level (default CHI2_LEVEL).
+        precision: ``precision(lowest)`` gives ``spread2(a, b)`` (e.g.
+            :func:`precision_spread`): b's squared RMS step per point from a, after the gauge,
+            over the RMS variance per point of the estimate (the more precise of a and b's).
+            An alternative whose
+            spread2 is within the cost level lies within the answer's stated precision at the
+            level (the RMS standard deviation the result reports, times
+            :func:`rangeslam.verdict.level_sigmas`): the same answer at that precision, even
+            outside the confidence region (a valley the quadratic model at the lowest does not
+            describe). None: the confidence region alone.
     """
     pool = [answer, *alternatives]
     q_cost, q_far = cost_level(level), distance_level(dof, level)
     lowest = min(pool, key=lambda a: a.deviance)  # the answer judged: the most likely
     distance2 = metric(lowest)
+    spread2 = precision(lowest) if precision is not None else None
     # the expected gaps are the answer's: they count while the lowest is the answer itself
     answer_lowest = lowest is answer or distance2(lowest, answer, ()) <= q_far
     comparisons = []
@@ -297,11 +328,8 @@ def judge(
             continue
         gap = float(alt.deviance - lowest.deviance)
         far = distance2(lowest, alt, ())
-        kind = (
-            SAME
-            if far <= q_far
-            else (WORSE if _told_apart(gap, alt, answer_lowest, q_cost) else RIVAL)
-        )
+        near = far <= q_far or (spread2 is not None and spread2(lowest, alt) <= q_cost)
+        kind = SAME if near else (WORSE if _told_apart(gap, alt, answer_lowest, q_cost) else RIVAL)
         if kind == RIVAL and alt.ambiguous and distance2(lowest, alt, alt.ambiguous) <= q_far:
             kind = AMBIGUITY
         if alt is answer and kind != SAME:
