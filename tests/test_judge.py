@@ -22,6 +22,7 @@ from rangeslam.verdict.judge import (
     distance_level,
     information_distance,
     judge,
+    precision_spread,
     random_search,
     search_complete,
     unseen_minima,
@@ -86,6 +87,54 @@ def test_equal_cost_far_alternative_is_a_rival(rng):
     assert out.comparisons[0].kind == RIVAL
     assert out.status is Status.NOT_IDENTIFIABLE and not out.check.passed
     assert "the refit without source 2" in out.reason
+
+
+def _rigid_step(m):
+    """step(a, b) of precision_spread: b's first m points aligned onto a's, minus a's."""
+    from rangeslam.geometry.alignment import align
+
+    def step(a, b):
+        return (align(b.points[:m], a.points[:m], reflection=True).aligned - a.points[:m]).ravel()
+
+    return step
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_alternative_within_the_stated_precision_is_the_same_answer(seed):
+    """An alternative as cheap as the answer, outside its confidence region (delta^2 beyond the
+    level) but closer to it than the RMS standard deviation per point the result states, times
+    the level's sigmas: SAME, CONVERGED. Beyond that precision: a rival."""
+    rng = np.random.default_rng(seed)
+    pts, m, k = scene(rng)
+    answer = scored(pts, m, k, ranges_of(pts, m), "answer")
+    dof = 3 * (m + k) - 6
+    metric = metric_for(m, k)
+    direction = rng.standard_normal(pts.shape)
+    direction -= direction.mean(axis=0)
+    unit = Alternative(pts + 1e-3 * direction, answer.deviance, "probe")
+    # scale the move to 2 delta-level radii in the information metric (outside the region)
+    size = 1e-3 * np.sqrt(2 * distance_level(dof) / metric(answer)(answer, unit, ()))
+    far = Alternative(pts + size * direction, answer.deviance + 1.0, "random start 3")
+    moved2 = float(np.sum((_rigid_step(m + k)(answer, far)) ** 2))
+    assert metric(answer)(answer, far, ()) > distance_level(dof)
+    for trace, kind in ((2 * moved2 / cost_level(), SAME), (0.5 * moved2 / cost_level(), RIVAL)):
+        spread = precision_spread(lambda alt, t=trace: t, _rigid_step(m + k))
+        out = judge(answer, [far], metric=metric, dof=dof, precision=lambda low, s=spread: s)
+        assert out.comparisons[0].kind == kind
+        assert out.status is (Status.CONVERGED if kind == SAME else Status.NOT_IDENTIFIABLE)
+
+
+def test_the_more_precise_of_two_minima_sets_the_precision(rng):
+    """An imprecise minimum does not make a precise one near: the spread is measured in the
+    smaller of the two candidates' covariance traces, whichever is the lowest."""
+    pts, m, k = scene(rng)
+    answer = Alternative(pts, 10.0, "answer")
+    other = Alternative(pts + np.r_[[[0.1, 0.0, 0.0]] * m, np.zeros((k, 3))], 9.0, "random start")
+    traces = {id(answer): 1.0, id(other): 1e-4}  # the answer imprecise, the other precise
+    spread = precision_spread(lambda alt: traces[id(alt)], _rigid_step(m + k))
+    moved2 = float(np.sum(_rigid_step(m + k)(answer, other) ** 2))
+    assert spread(answer, other) == pytest.approx(moved2 / 1e-4)
+    assert spread(other, answer) == pytest.approx(moved2 / 1e-4, rel=1e-6)
 
 
 def test_costlier_far_alternative_is_worse(rng):
