@@ -39,6 +39,7 @@ from rangeslam.verdict.judge import (
     JudgedSearch,
     information_distance,
     judge,
+    marginal_precision,
     random_search,
     same_answer,
 )
@@ -100,10 +101,13 @@ def same_calibration(problem: CalibrationProblem, answer: np.ndarray, sigma: flo
     m = problem.ranges.shape[0]
     jac = _information_jacobian(answer, problem, sigma)
     distance2 = information_distance(jac, interest=np.arange(m))
+    main = Alternative(answer, 0.0, "the answer")
+    precision = marginal_precision(
+        lambda c: jac if c is main else _information_jacobian(c.points, problem, sigma),
+        np.arange(m),
+    )
     test = same_answer(
-        distance2,
-        Alternative(answer, 0.0, "the answer"),
-        unknowns_up_to_rigid_motion(m, problem.dim),
+        distance2, main, unknowns_up_to_rigid_motion(m, problem.dim), spread2=precision(main)
     )
     return lambda points: test(Alternative(points, 0.0, "a start"))
 
@@ -164,14 +168,18 @@ def judge_calibration(
     # the receivers are what is calibrated: the sources are nuisance, profiled out
     receivers = np.arange(m)
 
+    def jacobian_at(candidate: Alternative) -> np.ndarray:
+        return jac if candidate is main else _information_jacobian(candidate.points, problem, sigma)
+
     def metric(lowest: Alternative):
-        at = jac if lowest is main else _information_jacobian(lowest.points, problem, sigma)
-        return information_distance(at, interest=receivers)
+        return information_distance(jacobian_at(lowest), interest=receivers)
 
     dof = unknowns_up_to_rigid_motion(m, problem.dim)
+    precision = marginal_precision(jacobian_at, receivers)
 
     def run(alternatives):
-        return judge(main, alternatives, metric=metric, dof=dof, counted=lambda a: bool(a.payload))
+        return judge(main, alternatives, metric=metric, dof=dof,
+                     counted=lambda a: bool(a.payload), precision=precision)  # fmt: skip
 
     fixed = itertools.chain(
         block_proposals(answer, observed),

@@ -38,7 +38,7 @@ from scipy.stats import chi2
 
 from rangeslam.geometry.alignment import align
 from rangeslam.status import Status
-from rangeslam.verdict.thresholds import CHI2_LEVEL
+from rangeslam.verdict.thresholds import CHI2_LEVEL, RANK_RTOL
 
 __all__ = [
     "AMBIGUITY",
@@ -268,19 +268,72 @@ def precision_spread(
     return spread2
 
 
+def marginal_precision(
+    jacobian_at: Callable[[Alternative], np.ndarray],
+    interest: Sequence[int],
+    *,
+    reflection: bool = True,
+) -> Callable[[Alternative], Callable[[Alternative, Alternative], float]]:
+    """:func:`judge`'s ``precision`` for a model whose whitened Jacobian (R, N d + q) at a
+    candidate is ``jacobian_at(candidate)`` (points row-major, then extra unknowns): the spread
+    (:func:`precision_spread`) of the points ``interest`` (their step after the best rigid
+    motion, with reflection when ``reflection``), in the trace of their marginal covariance at
+    each candidate (the pseudo-inverse of the Schur complement of the nuisance block, as
+    :func:`information_distance` profiles it; kept per candidate)."""
+    rows = np.asarray(interest, dtype=int)
+    traces: dict[int, tuple[Alternative, float]] = {}
+
+    def trace(candidate: Alternative) -> float:
+        kept = traces.get(id(candidate))
+        if kept is None or kept[0] is not candidate:
+            d = np.asarray(candidate.points).shape[1]
+            kept = (candidate, _marginal_trace(jacobian_at(candidate), rows, d))
+            traces[id(candidate)] = kept
+        return kept[1]
+
+    def step(a: Alternative, b: Alternative) -> np.ndarray:
+        ref, pts = np.asarray(a.points)[rows], np.asarray(b.points)[rows]
+        return (align(pts, ref, reflection=reflection).aligned - ref).ravel()
+
+    spread2 = precision_spread(trace, step)
+    return lambda lowest: spread2
+
+
+def _marginal_trace(jac: np.ndarray, rows: np.ndarray, d: int) -> float:
+    """Trace (squared units of the columns) of the marginal covariance of the points ``rows``
+    (d columns each, row-major) under the whitened Jacobian ``jac`` (R, p): the other columns
+    profiled out (projected away), the rest pseudo-inverted (singular values under RANK_RTOL of
+    the largest are the gauge's)."""
+    cols = (rows[:, None] * d + np.arange(d)[None, :]).ravel()
+    nuisance = np.setdiff1d(np.arange(jac.shape[1]), cols)
+    j_i = jac[:, cols]
+    if nuisance.size:
+        u, s_n, _ = np.linalg.svd(jac[:, nuisance], full_matrices=False)
+        u = u[:, s_n > RANK_RTOL * s_n[0]]
+        j_i = j_i - u @ (u.T @ j_i)
+    singular = np.linalg.svd(j_i, compute_uv=False)
+    keep = singular > RANK_RTOL * singular[0]
+    return float(np.sum(singular[keep] ** -2.0))
+
+
 def same_answer(
     distance2: Callable[[Alternative, Alternative, Sequence[int]], float],
     answer: Alternative,
     dof: int,
     level: float = CHI2_LEVEL,
+    spread2: Callable[[Alternative, Alternative], float] | None = None,
 ) -> Callable[[Alternative], bool]:
     """The judge's first row alone, for a search that counts the starts reaching its answer:
     a predicate, true for a candidate whose information distance delta^2 from ``answer``
     (``distance2`` of :func:`information_distance` in the information at ``answer``) is within
-    :func:`distance_level` of ``dof`` unknowns, i.e. inside the answer's confidence region: the
-    same answer, whatever its cost."""
-    q_far = distance_level(dof, level)
-    return lambda alt: distance2(answer, alt, ()) <= q_far
+    :func:`distance_level` of ``dof`` unknowns, i.e. inside the answer's confidence region, or
+    (with ``spread2``, :func:`judge`'s ``precision`` at ``answer``) within its stated precision
+    at the level: the same answer, whatever its cost."""
+    q_far, q_cost = distance_level(dof, level), cost_level(level)
+    return lambda alt: (
+        distance2(answer, alt, ()) <= q_far
+        or (spread2 is not None and spread2(answer, alt) <= q_cost)
+    )
 
 
 def judge(
@@ -323,19 +376,28 @@ def judge(
     # the expected gaps are the answer's: they count while the lowest is the answer itself
     answer_lowest = lowest is answer or distance2(lowest, answer, ()) <= q_far
     comparisons = []
+
+    def near(a: Alternative, b: Alternative, distance: float) -> bool:
+        return distance <= q_far or (spread2 is not None and spread2(a, b) <= q_cost)
+
     for alt in pool:
         if alt is lowest:
             continue
         gap = float(alt.deviance - lowest.deviance)
         far = distance2(lowest, alt, ())
-        near = far <= q_far or (spread2 is not None and spread2(lowest, alt) <= q_cost)
-        kind = SAME if near else (WORSE if _told_apart(gap, alt, answer_lowest, q_cost) else RIVAL)
+        kind = (
+            SAME
+            if near(lowest, alt, far)
+            else (WORSE if _told_apart(gap, alt, answer_lowest, q_cost) else RIVAL)
+        )
         if kind == RIVAL and alt.ambiguous and distance2(lowest, alt, alt.ambiguous) <= q_far:
             kind = AMBIGUITY
         if alt is answer and kind != SAME:
             kind = LOWER if kind == WORSE else kind
         comparisons.append(Comparison(alt, gap, far, kind))
-    minima = _distinct_minima(lowest, comparisons, counted, distance2, q_far)
+    minima = _distinct_minima(
+        lowest, comparisons, counted, lambda a, b: near(a, b, distance2(a, b, ()))
+    )
     return _judgement(answer, lowest, comparisons, counted, minima, q_cost, q_far)
 
 
@@ -423,10 +485,10 @@ def _distance_words(distance2: float, q_far: float) -> str:
     return f"at information distance {distance2:.3g} (confidence region {q_far:.3g})"
 
 
-def _distinct_minima(lowest, comparisons, counted, distance2, q_far) -> int:
+def _distinct_minima(lowest, comparisons, counted, same) -> int:
     """Distinct minima among the counted candidates (the lowest's own when it is counted or
-    one counted candidate reached it): each other a minimum of its own unless within the
-    confidence region (``q_far``) of one already counted."""
+    one counted candidate reached it): each other a minimum of its own unless the ``same(a,
+    b)`` answer as one already counted (within its confidence region or stated precision)."""
     at_lowest = counted(lowest) or any(
         c.kind == SAME and counted(c.alternative) for c in comparisons
     )
@@ -434,7 +496,7 @@ def _distinct_minima(lowest, comparisons, counted, distance2, q_far) -> int:
     for c in comparisons:
         if not counted(c.alternative) or c.kind == SAME:
             continue
-        if not any(distance2(rep, c.alternative, ()) <= q_far for rep in others):
+        if not any(same(rep, c.alternative) for rep in others):
             others.append(c.alternative)
     return int(at_lowest) + len(others)
 
