@@ -22,6 +22,7 @@ from rangeslam.verdict.judge import (
     distance_level,
     information_distance,
     judge,
+    marginal_precision,
     precision_spread,
     random_search,
     search_complete,
@@ -135,6 +136,27 @@ def test_the_more_precise_of_two_minima_sets_the_precision(rng):
     moved2 = float(np.sum(_rigid_step(m + k)(answer, other) ** 2))
     assert spread(answer, other) == pytest.approx(moved2 / 1e-4)
     assert spread(other, answer) == pytest.approx(moved2 / 1e-4, rel=1e-6)
+
+
+def test_marginal_precision_is_the_schur_complement_covariance(rng):
+    """marginal_precision's scale is the trace of the receivers' covariance with the sources
+    profiled out (the pseudo-inverse of the Schur complement, rigid motions its null space):
+    spread2 is a receiver step's squared length over it, and zero for the answer itself."""
+    pts, m, k = scene(rng)
+    pairs = np.argwhere(np.ones((m, k), dtype=bool))
+    jac = unfolding_jacobian(pts, m, pairs) / SIGMA
+    info = jac.T @ jac
+    r, n = slice(0, 3 * m), slice(3 * m, None)
+    schur = info[r, r] - info[r, n] @ np.linalg.pinv(info[n, n], hermitian=True) @ info[n, r]
+    trace = float(np.trace(np.linalg.pinv(schur, rcond=1e-7, hermitian=True)))
+    answer = Alternative(pts, 0.0, "answer")
+    spread2 = marginal_precision(lambda alt: jac, np.arange(m))(answer)
+    moved = pts.copy()
+    moved[0, 0] += 0.01  # one receiver 1 cm along x: a rigid fit spreads part of it
+    alt = Alternative(moved, 0.0, "random start")
+    step = _rigid_step(m)(answer, alt)
+    assert spread2(answer, alt) == pytest.approx(float(step @ step) / trace, rel=1e-6)
+    assert spread2(answer, answer) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_costlier_far_alternative_is_worse(rng):
