@@ -100,63 +100,110 @@ def _rigid_step(m):
     return step
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_an_alternative_within_the_stated_precision_is_the_same_answer(seed):
-    """An alternative as cheap as the answer, outside its confidence region (delta^2 beyond the
-    level) but closer to it than the RMS standard deviation per point the result states, times
-    the level's sigmas: SAME, CONVERGED. Beyond that precision: a rival."""
-    rng = np.random.default_rng(seed)
+@pytest.mark.parametrize("thickness", [3.0, 1e-4])
+def test_point_variances_are_the_schur_complement_covariance(rng, thickness):
+    """The receivers' variances with the sources profiled out, from the whitened Jacobian and
+    from the information's Schur complement, agree, by one convention for the gauge (singular
+    values under RANK_RTOL, eigenvalues under its square): in a well-spread scene and in a
+    near-planar one (receivers within 0.1 mm of a plane)."""
+    from rangeslam.verdict.judge import information_point_variances, jacobian_point_variances
+    from rangeslam.verdict.thresholds import RANK_RTOL
+
     pts, m, k = scene(rng)
-    answer = scored(pts, m, k, ranges_of(pts, m), "answer")
-    dof = 3 * (m + k) - 6
-    metric = metric_for(m, k)
-    direction = rng.standard_normal(pts.shape)
-    direction -= direction.mean(axis=0)
-    unit = Alternative(pts + 1e-3 * direction, answer.deviance, "probe")
-    # scale the move to 2 delta-level radii in the information metric (outside the region)
-    size = 1e-3 * np.sqrt(2 * distance_level(dof) / metric(answer)(answer, unit, ()))
-    far = Alternative(pts + size * direction, answer.deviance + 1.0, "random start 3")
-    moved2 = float(np.sum((_rigid_step(m + k)(answer, far)) ** 2))
-    assert metric(answer)(answer, far, ()) > distance_level(dof)
-    for trace, kind in ((2 * moved2 / cost_level(), SAME), (0.5 * moved2 / cost_level(), RIVAL)):
-        spread = precision_spread(lambda alt, t=trace: t, _rigid_step(m + k))
-        out = judge(answer, [far], metric=metric, dof=dof, precision=lambda low, s=spread: s)
-        assert out.comparisons[0].kind == kind
-        assert out.status is (Status.CONVERGED if kind == SAME else Status.NOT_IDENTIFIABLE)
-
-
-def test_the_more_precise_of_two_minima_sets_the_precision(rng):
-    """An imprecise minimum does not make a precise one near: the spread is measured in the
-    smaller of the two candidates' covariance traces, whichever is the lowest."""
-    pts, m, k = scene(rng)
-    answer = Alternative(pts, 10.0, "answer")
-    other = Alternative(pts + np.r_[[[0.1, 0.0, 0.0]] * m, np.zeros((k, 3))], 9.0, "random start")
-    traces = {id(answer): 1.0, id(other): 1e-4}  # the answer imprecise, the other precise
-    spread = precision_spread(lambda alt: traces[id(alt)], _rigid_step(m + k))
-    moved2 = float(np.sum(_rigid_step(m + k)(answer, other) ** 2))
-    assert spread(answer, other) == pytest.approx(moved2 / 1e-4)
-    assert spread(other, answer) == pytest.approx(moved2 / 1e-4, rel=1e-6)
-
-
-def test_marginal_precision_is_the_schur_complement_covariance(rng):
-    """marginal_precision's scale is the trace of the receivers' covariance with the sources
-    profiled out (the pseudo-inverse of the Schur complement, rigid motions its null space):
-    spread2 is a receiver step's squared length over it, and zero for the answer itself."""
-    pts, m, k = scene(rng)
+    pts[:m, 2] = 1.0 + thickness * rng.uniform(0, 1, m)
     pairs = np.argwhere(np.ones((m, k), dtype=bool))
     jac = unfolding_jacobian(pts, m, pairs) / SIGMA
     info = jac.T @ jac
     r, n = slice(0, 3 * m), slice(3 * m, None)
-    schur = info[r, r] - info[r, n] @ np.linalg.pinv(info[n, n], hermitian=True) @ info[n, r]
-    trace = float(np.trace(np.linalg.pinv(schur, rcond=1e-7, hermitian=True)))
+    f_nn = np.linalg.pinv(info[n, n], rcond=RANK_RTOL**2, hermitian=True)
+    schur = info[r, r] - info[r, n] @ f_nn @ info[n, r]
+    from_info = information_point_variances(schur, 3)
+    from_jac = jacobian_point_variances(jac, np.arange(m), 3)
+    assert from_jac == pytest.approx(from_info, rel=1e-3)
     answer = Alternative(pts, 0.0, "answer")
     spread2 = marginal_precision(lambda alt: jac, np.arange(m))(answer)
-    moved = pts.copy()
-    moved[0, 0] += 0.01  # one receiver 1 cm along x: a rigid fit spreads part of it
-    alt = Alternative(moved, 0.0, "random start")
-    step = _rigid_step(m)(answer, alt)
-    assert spread2(answer, alt) == pytest.approx(float(step @ step) / trace, rel=1e-6)
     assert spread2(answer, answer) == pytest.approx(0.0, abs=1e-12)
+
+
+def _outside_the_region(rng, pts, m, k, answer, dof):
+    """pts moved along a random direction to twice the confidence region's radius."""
+    metric = metric_for(m, k)
+    direction = rng.standard_normal(pts.shape)
+    direction -= direction.mean(axis=0)
+    unit = Alternative(pts + 1e-3 * direction, answer.deviance, "probe")
+    size = 1e-3 * np.sqrt(2 * distance_level(dof) / metric(answer)(answer, unit, ()))
+    return pts + size * direction
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_alternative_within_the_stated_precision_is_the_same_answer(seed):
+    """An alternative as likely as the answer (within the cost level), outside its confidence
+    region, but with every point within level_sigmas() standard deviations of the answer's:
+    SAME, CONVERGED. One point beyond its own precision: a rival."""
+    rng = np.random.default_rng(seed)
+    pts, m, k = scene(rng)
+    answer = scored(pts, m, k, ranges_of(pts, m), "answer")
+    dof = 3 * (m + k) - 6
+    far_points = _outside_the_region(rng, pts, m, k, answer, dof)
+    far = Alternative(far_points, answer.deviance + 1.0, "random start 3")
+    assert metric_for(m, k)(answer)(answer, far, ()) > distance_level(dof)
+    moved = np.sum(_rigid_step(m + k)(answer, far).reshape(-1, 3) ** 2, axis=1)
+    worst = int(np.argmax(moved))
+    for scale, kind in ((2.0, SAME), (0.5, RIVAL)):
+        variances = moved * 4.0 / cost_level()  # every point well within its precision ...
+        variances[worst] = scale * moved[worst] / cost_level()  # ... but the worst one
+        spread = precision_spread(lambda alt, v=variances: v, _rigid_step(m + k))
+        out = judge(
+            answer, [far], metric=metric_for(m, k), dof=dof, precision=lambda low, s=spread: s
+        )
+        assert out.comparisons[0].kind == kind
+        assert out.status is (Status.CONVERGED if kind == SAME else Status.NOT_IDENTIFIABLE)
+
+
+def test_the_precision_does_not_excuse_a_decisive_cost_gap(rng):
+    """Within the precision but costlier than the lowest by more than the level: not the same
+    answer. The answer itself is then LOWER (replaced by the lowest)."""
+    pts, m, k = scene(rng)
+    answer = scored(pts, m, k, ranges_of(pts, m), "answer")
+    dof = 3 * (m + k) - 6
+    lower_points = _outside_the_region(rng, pts, m, k, answer, dof)
+    lower = Alternative(lower_points, answer.deviance - 2 * cost_level(), "the refit without 1")
+    wide = precision_spread(lambda alt: np.full(m + k, 1e6), _rigid_step(m + k))
+    out = judge(answer, [lower], metric=metric_for(m, k), dof=dof, precision=lambda low: wide)
+    assert out.answer is lower and out.comparisons[0].kind == LOWER
+
+
+def test_the_more_precise_of_two_minima_sets_each_points_precision(rng):
+    """An imprecise minimum does not make a precise one near: each point's variance is the
+    smaller of the two candidates', whichever is the lowest, and one weak point does not excuse
+    the others."""
+    pts, m, k = scene(rng)
+    answer = Alternative(pts, 10.0, "answer")
+    other = Alternative(pts + np.r_[[[0.1, 0.0, 0.0]] * m, np.zeros((k, 3))], 9.0, "random start")
+    variances = {id(answer): np.ones(m + k), id(other): np.full(m + k, 1e-4)}
+    spread = precision_spread(lambda alt: variances[id(alt)], _rigid_step(m + k))
+    moved = np.sum(_rigid_step(m + k)(answer, other).reshape(-1, 3) ** 2, axis=1)
+    assert spread(answer, other) == pytest.approx(moved.max() / 1e-4)
+    assert spread(other, answer) == pytest.approx(moved.max() / 1e-4, rel=1e-6)
+    worst = int(np.argmax(moved))
+    variances[id(other)][worst] = 1e6  # one weak point: the others still count
+    assert spread(answer, other) == pytest.approx(np.delete(moved, worst).max() / 1e-4)
+
+
+def test_minima_within_the_precision_count_as_one(rng):
+    """The stopping rule's count: two random starts at places within each other's precision
+    (and as likely) reached one minimum; beyond it, two."""
+    pts, m, k = scene(rng)
+    answer = scored(pts, m, k, ranges_of(pts, m), "answer", payload=True)
+    dof = 3 * (m + k) - 6
+    a_points = _outside_the_region(rng, pts, m, k, answer, dof)
+    a = Alternative(a_points, answer.deviance + 30.0, "random start 0", payload=True)
+    b = Alternative(2 * a_points - pts, a.deviance + 1.0, "random start 1", payload=True)
+    for variance, minima in ((1e6, 2), (1e-12, 3)):
+        spread = precision_spread(lambda alt, v=variance: np.full(m + k, v), _rigid_step(m + k))
+        out = judge(answer, [a, b], metric=metric_for(m, k), dof=dof,
+                    counted=lambda alt: bool(alt.payload), precision=lambda low, s=spread: s)  # fmt: skip
+        assert out.minima == minima
 
 
 def test_costlier_far_alternative_is_worse(rng):

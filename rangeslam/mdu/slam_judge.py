@@ -63,6 +63,7 @@ from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
+    information_point_variances,
     judge,
     precision_spread,
     random_search,
@@ -259,15 +260,15 @@ def block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
 class JudgeMetric:
     """The judge's ``metric`` and ``precision`` for a walk, at range sigma ``sigma`` (metres):
     at the lowest candidate, the trajectory's distance (:func:`trajectory_distance`) in its
-    information (:func:`trajectory_information`, made once per lowest), and its spread
-    (:func:`rangeslam.verdict.judge.precision_spread`: the trajectory's RMS step per point
-    against the RMS variance per point that information implies)."""
+    information (:func:`trajectory_information`, made once per lowest), and the steps' spread
+    (:func:`rangeslam.verdict.judge.precision_spread`: each step's move against its variance,
+    the smaller of the two candidates')."""
 
     def __init__(self, problem: SlamProblem, sigma: float):
         self.problem, self.sigma = problem, sigma
         self.m = problem.ranges.shape[0]
         self._at: tuple[Alternative, np.ndarray] | None = None
-        self._traces: dict[int, tuple[Alternative, float]] = {}
+        self._variances: dict[int, tuple[Alternative, np.ndarray]] = {}
 
     def information(self, lowest: Alternative) -> np.ndarray:
         """(M d, M d) the trajectory's information at ``lowest`` (kept for the last one)."""
@@ -278,20 +279,21 @@ class JudgeMetric:
     def __call__(self, lowest: Alternative):
         return trajectory_distance(self.information(lowest), self.m)
 
-    def covariance_trace(self, candidate: Alternative) -> float:
-        """The trace (m^2) of the trajectory's covariance at ``candidate``: its information's
-        pseudo-inverse (kept per candidate)."""
-        kept = self._traces.get(id(candidate))
-        if kept is None or kept[0] is not candidate:
+    def point_variances(self, candidate: Alternative) -> np.ndarray:
+        """(M,) each step's variance (m^2) at ``candidate``: the pseudo-inverse of the
+        trajectory's information there (:func:`rangeslam.verdict.judge.
+        information_point_variances`; kept per candidate)."""
+        hit = self._variances.get(id(candidate))
+        if hit is None or hit[0] is not candidate:
             info = trajectory_information(self.problem, candidate.points, self.sigma)
-            cov = np.linalg.pinv(info, rcond=RANK_RTOL, hermitian=True)
-            kept = self._traces[id(candidate)] = (candidate, float(np.trace(cov)))
-        return kept[1]
+            hit = (candidate, information_point_variances(info, self.problem.dim))
+            self._variances[id(candidate)] = hit
+        return hit[1]
 
     def precision(self, lowest: Alternative):
-        """``spread2(a, b)`` (:func:`rangeslam.verdict.judge.precision_spread`) in the
-        covariances the information at each implies (``lowest`` is one of them)."""
-        return precision_spread(self.covariance_trace, partial(trajectory_step, self.m))
+        """``spread2(a, b)`` (:func:`rangeslam.verdict.judge.precision_spread`) of the steps in
+        the variances the information at each implies (``lowest`` is one of them)."""
+        return precision_spread(self.point_variances, partial(trajectory_step, self.m))
 
 
 def judge_metric(problem: SlamProblem, sigma: float) -> JudgeMetric:

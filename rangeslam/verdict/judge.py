@@ -250,22 +250,52 @@ def information_distance(
 
 
 def precision_spread(
-    covariance_trace: Callable[[Alternative], float],
+    point_variances: Callable[[Alternative], np.ndarray],
     step: Callable[[Alternative, Alternative], np.ndarray],
 ) -> Callable[[Alternative, Alternative], float]:
-    """``spread2(a, b)`` for :func:`judge`'s ``precision``: the squared length of ``step(a, b)``
-    (b's points of interest moved onto a's by the gauge, minus a's: (n d,) metres) over the
-    smaller ``covariance_trace`` of a and b (m^2: the trace of the covariance of those points
-    that candidate's information implies, the sum of their variances): b's squared RMS distance
-    per point from a in units of the RMS variance per point of the more precise of the two.
-    Either may be the truth, so the step must be within the precision the data give at each:
-    an imprecise minimum does not make a precise one near."""
+    """``spread2(a, b)`` for :func:`judge`'s ``precision``: the largest over the points of
+    interest of b's squared distance from a (``step(a, b)``: b's points moved onto a's by the
+    gauge, minus a's, (n d,) metres) over that point's variance (``point_variances``: (n,) m^2,
+    the trace of the point's d x d covariance that a candidate's information implies), the
+    smaller of a's and b's. Each point must lie within its own stated precision, so a weak point
+    does not excuse a move of well-determined ones; either candidate may be the truth, so an
+    imprecise minimum does not make a precise one near."""
 
     def spread2(a: Alternative, b: Alternative) -> float:
-        total = min(covariance_trace(a), covariance_trace(b))
-        return float(np.sum(step(a, b) ** 2)) / max(total, np.finfo(float).tiny)
+        variances = np.minimum(point_variances(a), point_variances(b))
+        moved = np.sum(step(a, b).reshape(len(variances), -1) ** 2, axis=1)
+        return float(np.max(moved / np.maximum(variances, np.finfo(float).tiny)))
 
     return spread2
+
+
+def information_point_variances(information: np.ndarray, d: int) -> np.ndarray:
+    """(n,) the variance of each of n points (trace of its d x d block, squared units of the
+    unknowns) in the pseudo-inverse of ``information`` (n d, n d): eigenvalues under RANK_RTOL^2
+    of the largest (singular values of the whitened Jacobian under RANK_RTOL: the gauge's, as
+    :func:`rangeslam.verdict.gauge_free_covariance` counts them) left out."""
+    values, vectors = np.linalg.eigh(information)
+    keep = values > RANK_RTOL**2 * max(values[-1], np.finfo(float).tiny)
+    diagonal = (vectors[:, keep] ** 2) @ (1.0 / values[keep])
+    return diagonal.reshape(-1, d).sum(axis=1)
+
+
+def jacobian_point_variances(jac: np.ndarray, rows: np.ndarray, d: int) -> np.ndarray:
+    """(len(rows),) the variance of each of the points ``rows`` (d columns each, row-major) under
+    the whitened Jacobian ``jac`` (R, p), the other columns profiled out (projected away, as
+    :func:`information_distance` profiles them): singular values under RANK_RTOL of the largest
+    (the gauge's) left out."""
+    cols = (rows[:, None] * d + np.arange(d)[None, :]).ravel()
+    nuisance = np.setdiff1d(np.arange(jac.shape[1]), cols)
+    j_i = jac[:, cols]
+    if nuisance.size:
+        u, s_n, _ = np.linalg.svd(jac[:, nuisance], full_matrices=False)
+        u = u[:, s_n > RANK_RTOL * s_n[0]]
+        j_i = j_i - u @ (u.T @ j_i)
+    _, singular, vt = np.linalg.svd(j_i, full_matrices=False)
+    keep = singular > RANK_RTOL * max(singular[0], np.finfo(float).tiny)
+    diagonal = (vt[keep] ** 2).T @ (1.0 / singular[keep] ** 2)
+    return diagonal.reshape(-1, d).sum(axis=1)
 
 
 def marginal_precision(
@@ -277,43 +307,25 @@ def marginal_precision(
     """:func:`judge`'s ``precision`` for a model whose whitened Jacobian (R, N d + q) at a
     candidate is ``jacobian_at(candidate)`` (points row-major, then extra unknowns): the spread
     (:func:`precision_spread`) of the points ``interest`` (their step after the best rigid
-    motion, with reflection when ``reflection``), in the trace of their marginal covariance at
-    each candidate (the pseudo-inverse of the Schur complement of the nuisance block, as
-    :func:`information_distance` profiles it; kept per candidate)."""
+    motion, with reflection when ``reflection``) in their marginal variances at each candidate
+    (:func:`jacobian_point_variances`, kept per candidate)."""
     rows = np.asarray(interest, dtype=int)
-    traces: dict[int, tuple[Alternative, float]] = {}
+    kept: dict[int, tuple[Alternative, np.ndarray]] = {}
 
-    def trace(candidate: Alternative) -> float:
-        kept = traces.get(id(candidate))
-        if kept is None or kept[0] is not candidate:
+    def variances(candidate: Alternative) -> np.ndarray:
+        hit = kept.get(id(candidate))
+        if hit is None or hit[0] is not candidate:
             d = np.asarray(candidate.points).shape[1]
-            kept = (candidate, _marginal_trace(jacobian_at(candidate), rows, d))
-            traces[id(candidate)] = kept
-        return kept[1]
+            hit = (candidate, jacobian_point_variances(jacobian_at(candidate), rows, d))
+            kept[id(candidate)] = hit
+        return hit[1]
 
     def step(a: Alternative, b: Alternative) -> np.ndarray:
         ref, pts = np.asarray(a.points)[rows], np.asarray(b.points)[rows]
         return (align(pts, ref, reflection=reflection).aligned - ref).ravel()
 
-    spread2 = precision_spread(trace, step)
+    spread2 = precision_spread(variances, step)
     return lambda lowest: spread2
-
-
-def _marginal_trace(jac: np.ndarray, rows: np.ndarray, d: int) -> float:
-    """Trace (squared units of the columns) of the marginal covariance of the points ``rows``
-    (d columns each, row-major) under the whitened Jacobian ``jac`` (R, p): the other columns
-    profiled out (projected away), the rest pseudo-inverted (singular values under RANK_RTOL of
-    the largest are the gauge's)."""
-    cols = (rows[:, None] * d + np.arange(d)[None, :]).ravel()
-    nuisance = np.setdiff1d(np.arange(jac.shape[1]), cols)
-    j_i = jac[:, cols]
-    if nuisance.size:
-        u, s_n, _ = np.linalg.svd(jac[:, nuisance], full_matrices=False)
-        u = u[:, s_n > RANK_RTOL * s_n[0]]
-        j_i = j_i - u @ (u.T @ j_i)
-    singular = np.linalg.svd(j_i, compute_uv=False)
-    keep = singular > RANK_RTOL * singular[0]
-    return float(np.sum(singular[keep] ** -2.0))
 
 
 def same_answer(
@@ -321,19 +333,15 @@ def same_answer(
     answer: Alternative,
     dof: int,
     level: float = CHI2_LEVEL,
-    spread2: Callable[[Alternative, Alternative], float] | None = None,
 ) -> Callable[[Alternative], bool]:
     """The judge's first row alone, for a search that counts the starts reaching its answer:
     a predicate, true for a candidate whose information distance delta^2 from ``answer``
     (``distance2`` of :func:`information_distance` in the information at ``answer``) is within
-    :func:`distance_level` of ``dof`` unknowns, i.e. inside the answer's confidence region, or
-    (with ``spread2``, :func:`judge`'s ``precision`` at ``answer``) within its stated precision
-    at the level: the same answer, whatever its cost."""
-    q_far, q_cost = distance_level(dof, level), cost_level(level)
-    return lambda alt: (
-        distance2(answer, alt, ()) <= q_far
-        or (spread2 is not None and spread2(answer, alt) <= q_cost)
-    )
+    :func:`distance_level` of ``dof`` unknowns, i.e. inside the answer's confidence region: the
+    same answer, whatever its cost. (The judge's precision test needs both costs: the
+    searches' counts do not make it.)"""
+    q_far = distance_level(dof, level)
+    return lambda alt: distance2(answer, alt, ()) <= q_far
 
 
 def judge(
@@ -358,15 +366,14 @@ def judge(
         counted: which candidates count as starts for ``reached`` and ``minima`` (random starts;
             refits of part of the data do not sample the basins).
         level: the chi-square level (default CHI2_LEVEL).
-        precision: ``precision(lowest)`` gives ``spread2(a, b)`` (e.g.
-            :func:`precision_spread`): b's squared RMS step per point from a, after the gauge,
-            over the RMS variance per point of the estimate (the more precise of a and b's).
-            An alternative whose
-            spread2 is within the cost level lies within the answer's stated precision at the
-            level (the RMS standard deviation the result reports, times
-            :func:`rangeslam.verdict.level_sigmas`): the same answer at that precision, even
-            outside the confidence region (a valley the quadratic model at the lowest does not
-            describe). None: the confidence region alone.
+        precision: ``precision(lowest)`` gives ``spread2(a, b)`` (:func:`precision_spread`:
+            the largest over the points of b's squared step from a, after the gauge, over that
+            point's variance, the smaller of a's and b's). An alternative within the cost level
+            of the lowest whose spread2 is also within it lies within the estimate's precision
+            at the level (each point within :func:`rangeslam.verdict.level_sigmas` standard
+            deviations of it): the same answer at that precision, even outside the confidence
+            region (a valley the quadratic model at the lowest does not describe). None: the
+            confidence region alone.
     """
     pool = [answer, *alternatives]
     q_cost, q_far = cost_level(level), distance_level(dof, level)
@@ -378,7 +385,9 @@ def judge(
     comparisons = []
 
     def near(a: Alternative, b: Alternative, distance: float) -> bool:
-        return distance <= q_far or (spread2 is not None and spread2(a, b) <= q_cost)
+        # within the confidence region; or as likely (the cost level) and within the precision
+        as_likely = abs(a.deviance - b.deviance) <= q_cost
+        return distance <= q_far or (spread2 is not None and as_likely and spread2(a, b) <= q_cost)
 
     for alt in pool:
         if alt is lowest:
