@@ -17,10 +17,17 @@ test of two point hypotheses), and theta' is another answer when ``delta^2`` is 
 chi-square(dof) quantile (outside the answer's confidence region). Hence, with the answer the
 lowest candidate (a lower one replaces it):
 
-| delta^2 <= q(dof) | the same answer: it confirms it (a start that reached it) |
+| delta^2 <= q(dof), or Delta <= q(1) and every point within its precision | the same answer:
+  it confirms it (a start that reached it) |
 | Delta <= q(1), far | a rival: NOT_IDENTIFIABLE; or, when the alternative is a named discrete
   gauge of the geometry (a source's side of coplanar receivers), an ambiguity of those points |
 | Delta > q(1), far | a worse minimum: ruled out by the data |
+
+"Within its precision" (where the estimator gives :func:`judge` its ``precision``): each point
+of theta' within sqrt(q(1)) standard deviations of theta's, its variance the smaller of the two
+candidates' (:func:`precision_spread`): minima closer than the precision the result states are
+one answer at that precision, where the quadratic model at the lowest does not describe the
+valley between them.
 
 How long to search is a separate rule (:func:`unseen_minima`, Boender and Rinnooy Kan 1987):
 from how many random starts reached how many distinct minima, the posterior expected number of
