@@ -106,7 +106,7 @@ def test_point_variances_are_the_schur_complement_covariance(rng, thickness):
     from the information's Schur complement, agree, by one convention for the gauge (singular
     values under RANK_RTOL, eigenvalues under its square): in a well-spread scene and in a
     near-planar one (receivers within 0.1 mm of a plane)."""
-    from rangeslam.verdict.judge import information_point_variances, jacobian_point_variances
+    from rangeslam.verdict.judge import jacobian_point_variances
     from rangeslam.verdict.thresholds import RANK_RTOL
 
     pts, m, k = scene(rng)
@@ -117,7 +117,9 @@ def test_point_variances_are_the_schur_complement_covariance(rng, thickness):
     r, n = slice(0, 3 * m), slice(3 * m, None)
     f_nn = np.linalg.pinv(info[n, n], rcond=RANK_RTOL**2, hermitian=True)
     schur = info[r, r] - info[r, n] @ f_nn @ info[n, r]
-    from_info = information_point_variances(schur, 3)
+    values, vectors = np.linalg.eigh(schur)
+    keep = values > RANK_RTOL**2 * values[-1]
+    from_info = ((vectors[:, keep] ** 2) @ (1.0 / values[keep])).reshape(-1, 3).sum(axis=1)
     from_jac = jacobian_point_variances(jac, np.arange(m), 3)
     assert from_jac == pytest.approx(from_info, rel=1e-3)
     answer = Alternative(pts, 0.0, "answer")
@@ -447,3 +449,16 @@ def test_reached_lowest_counts_the_starts_at_the_lowest():
     assert lowest.add((4.0, "a")) is True and (lowest.best, lowest.hits) == ((4.0, "a"), 3)
     assert lowest.add((3.0, "c")) is False and (lowest.hits, lowest.confirmed) == (1, False)
     assert made == [(5.0, "a"), (4.0, "a")]  # the test at (3.0, "c") is not yet needed
+
+
+def test_no_precision_is_stated_beyond_the_precision_test(rng):
+    """A candidate whose RMS standard deviation per point exceeds the precision test's limit
+    states no useful precision: nothing is near it (spread2 infinite), at either end."""
+    pts, m, k = scene(rng)
+    answer = Alternative(pts, 0.0, "answer")
+    other = Alternative(pts + 1e-3, 0.0, "random start")
+    variances = {id(answer): np.full(m + k, 0.01**2), id(other): np.full(m + k, 0.2**2)}
+    spread = precision_spread(lambda alt: variances[id(alt)], _rigid_step(m + k), rms_limit=0.1)
+    assert spread(answer, other) == np.inf and spread(other, answer) == np.inf
+    variances[id(other)][:] = 0.05**2
+    assert np.isfinite(spread(answer, other))

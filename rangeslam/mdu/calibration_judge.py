@@ -43,7 +43,7 @@ from rangeslam.verdict.judge import (
     random_search,
     same_answer,
 )
-from rangeslam.verdict.thresholds import SEARCH_BUDGET
+from rangeslam.verdict.thresholds import PRECISION_FRACTION, SEARCH_BUDGET
 
 if TYPE_CHECKING:
     from rangeslam.mdu.calibration import CalibrationProblem, Candidate
@@ -172,7 +172,9 @@ def judge_calibration(
         return information_distance(jacobian_at(lowest), interest=receivers)
 
     dof = unknowns_up_to_rigid_motion(m, problem.dim)
-    precision = marginal_precision(jacobian_at, receivers)
+    precision = marginal_precision(
+        jacobian_at, receivers, rms_limit=PRECISION_FRACTION * problem.scale
+    )
 
     def run(alternatives):
         return judge(main, alternatives, metric=metric, dof=dof,

@@ -63,12 +63,12 @@ from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
-    information_point_variances,
+    jacobian_point_variances,
     judge,
     precision_spread,
     random_search,
 )
-from rangeslam.verdict.thresholds import RANK_RTOL, SEARCH_BUDGET
+from rangeslam.verdict.thresholds import PRECISION_FRACTION, RANK_RTOL, SEARCH_BUDGET
 
 __all__ = [
     "FIT_ERRORS",
@@ -156,14 +156,11 @@ def _block_refit(problem: SlamProblem, proposal: Proposal, sigma: float) -> np.n
     return stacked(fit)
 
 
-def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) -> np.ndarray:
-    """(M d, M d) the information of the trajectory at ``pts`` (M + K, d), the landmarks
-    profiled out: the Schur complement F_xx - F_xl F_ll^+ F_lx of F = J^T J, J the whitened
-    Jacobian of the graph at range sigma ``sigma`` (metres): range rows over sigma (for a robust
-    graph, the ranges its kernel weighs, within level_sigmas() of sigma) and the step priors' rows
-    (:func:`rangeslam.mdu.core.step_prior_rows`, in range-noise units, over sigma). A landmark
-    direction without information (one off a planar walk, at the plane) is left out of F_ll^+
-    (singular values under RANK_RTOL of the largest)."""
+def graph_jacobian(problem: SlamProblem, pts: np.ndarray, sigma: float) -> np.ndarray:
+    """(R, (M + K) d) the whitened Jacobian of the graph at ``pts`` (M + K, d) and range sigma
+    ``sigma`` (metres): range rows over sigma (for a robust graph, the ranges its kernel weighs,
+    within level_sigmas() of sigma) and the step priors' rows
+    (:func:`rangeslam.mdu.core.step_prior_rows`, in range-noise units, over sigma)."""
     m, n_points = problem.ranges.shape[0], sum(problem.ranges.shape)
     used = problem.observed
     if problem.robust:  # the ranges the kernel weighs there
@@ -173,9 +170,17 @@ def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) 
     prior = step_prior_rows(
         problem.bounds, problem.step_prior, problem.step_sigma, pts[:m], sigma, n_points
     )
-    if prior is not None:
-        jac = np.vstack([jac, prior / sigma])
-    x = m * problem.dim
+    return jac if prior is None else np.vstack([jac, prior / sigma])
+
+
+def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) -> np.ndarray:
+    """(M d, M d) the information of the trajectory at ``pts`` (M + K, d), the landmarks
+    profiled out: the Schur complement F_xx - F_xl F_ll^+ F_lx of F = J^T J, J the whitened
+    Jacobian of the graph (:func:`graph_jacobian`) at range sigma ``sigma`` (metres). A landmark
+    direction without information (one off a planar walk, at the plane) is left out of F_ll^+
+    (singular values under RANK_RTOL of the largest)."""
+    jac = graph_jacobian(problem, pts, sigma)
+    x = problem.ranges.shape[0] * problem.dim
     info = jac.T @ jac
     f_ll = info[x:, x:]
     return (
@@ -280,20 +285,26 @@ class JudgeMetric:
         return trajectory_distance(self.information(lowest), self.m)
 
     def point_variances(self, candidate: Alternative) -> np.ndarray:
-        """(M,) each step's variance (m^2) at ``candidate``: the pseudo-inverse of the
-        trajectory's information there (:func:`rangeslam.verdict.judge.
-        information_point_variances`; kept per candidate)."""
+        """(M,) each step's variance (m^2) at ``candidate``, the landmarks profiled out, from
+        the graph's whitened Jacobian there (:func:`rangeslam.verdict.judge.
+        jacobian_point_variances`: the gauge cut on its singular values, where round-off is
+        1e-16 of the largest, not on the eigenvalues of the Schur complement, where it is
+        larger; kept per candidate)."""
         hit = self._variances.get(id(candidate))
         if hit is None or hit[0] is not candidate:
-            info = trajectory_information(self.problem, candidate.points, self.sigma)
-            hit = (candidate, information_point_variances(info, self.problem.dim))
+            jac = graph_jacobian(self.problem, candidate.points, self.sigma)
+            steps = np.arange(self.m)
+            hit = (candidate, jacobian_point_variances(jac, steps, self.problem.dim))
             self._variances[id(candidate)] = hit
         return hit[1]
 
     def precision(self, lowest: Alternative):
         """``spread2(a, b)`` (:func:`rangeslam.verdict.judge.precision_spread`) of the steps in
-        the variances the information at each implies (``lowest`` is one of them)."""
-        return precision_spread(self.point_variances, partial(trajectory_step, self.m))
+        the variances the information at each implies (``lowest`` is one of them), infinite
+        where either's RMS standard deviation fails the precision test (PRECISION_FRACTION of
+        the median range)."""
+        limit = PRECISION_FRACTION * self.problem.scale
+        return precision_spread(self.point_variances, partial(trajectory_step, self.m), limit)
 
 
 def judge_metric(problem: SlamProblem, sigma: float) -> JudgeMetric:

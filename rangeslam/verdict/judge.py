@@ -259,6 +259,7 @@ def information_distance(
 def precision_spread(
     point_variances: Callable[[Alternative], np.ndarray],
     step: Callable[[Alternative, Alternative], np.ndarray],
+    rms_limit: float = np.inf,
 ) -> Callable[[Alternative, Alternative], float]:
     """``spread2(a, b)`` for :func:`judge`'s ``precision``: the largest over the points of
     interest of b's squared distance from a (``step(a, b)``: b's points moved onto a's by the
@@ -266,25 +267,21 @@ def precision_spread(
     the trace of the point's d x d covariance that a candidate's information implies), the
     smaller of a's and b's. Each point must lie within its own stated precision, so a weak point
     does not excuse a move of well-determined ones; either candidate may be the truth, so an
-    imprecise minimum does not make a precise one near."""
+    imprecise minimum does not make a precise one near. ``rms_limit`` (metres): the precision
+    test's limit on the RMS standard deviation per point (PRECISION_FRACTION of the scene); at a
+    candidate beyond it the data state no useful precision, and spread2 is infinite (the
+    precision must hold wherever the truth may lie, as :func:`rangeslam.verdict.weak_moves`
+    probes it)."""
 
     def spread2(a: Alternative, b: Alternative) -> float:
-        variances = np.minimum(point_variances(a), point_variances(b))
+        at_a, at_b = point_variances(a), point_variances(b)
+        if max(np.mean(at_a), np.mean(at_b)) > rms_limit**2:
+            return float("inf")
+        variances = np.minimum(at_a, at_b)
         moved = np.sum(step(a, b).reshape(len(variances), -1) ** 2, axis=1)
         return float(np.max(moved / np.maximum(variances, np.finfo(float).tiny)))
 
     return spread2
-
-
-def information_point_variances(information: np.ndarray, d: int) -> np.ndarray:
-    """(n,) the variance of each of n points (trace of its d x d block, squared units of the
-    unknowns) in the pseudo-inverse of ``information`` (n d, n d): eigenvalues under RANK_RTOL^2
-    of the largest (singular values of the whitened Jacobian under RANK_RTOL: the gauge's, as
-    :func:`rangeslam.verdict.gauge_free_covariance` counts them) left out."""
-    values, vectors = np.linalg.eigh(information)
-    keep = values > RANK_RTOL**2 * max(values[-1], np.finfo(float).tiny)
-    diagonal = (vectors[:, keep] ** 2) @ (1.0 / values[keep])
-    return diagonal.reshape(-1, d).sum(axis=1)
 
 
 def jacobian_point_variances(jac: np.ndarray, rows: np.ndarray, d: int) -> np.ndarray:
@@ -310,12 +307,13 @@ def marginal_precision(
     interest: Sequence[int],
     *,
     reflection: bool = True,
+    rms_limit: float = np.inf,
 ) -> Callable[[Alternative], Callable[[Alternative, Alternative], float]]:
     """:func:`judge`'s ``precision`` for a model whose whitened Jacobian (R, N d + q) at a
     candidate is ``jacobian_at(candidate)`` (points row-major, then extra unknowns): the spread
     (:func:`precision_spread`) of the points ``interest`` (their step after the best rigid
     motion, with reflection when ``reflection``) in their marginal variances at each candidate
-    (:func:`jacobian_point_variances`, kept per candidate)."""
+    (:func:`jacobian_point_variances`, kept per candidate), ``rms_limit`` as there (metres)."""
     rows = np.asarray(interest, dtype=int)
     kept: dict[int, tuple[Alternative, np.ndarray]] = {}
 
@@ -331,7 +329,7 @@ def marginal_precision(
         ref, pts = np.asarray(a.points)[rows], np.asarray(b.points)[rows]
         return (align(pts, ref, reflection=reflection).aligned - ref).ravel()
 
-    spread2 = precision_spread(variances, step)
+    spread2 = precision_spread(variances, step, rms_limit)
     return lambda lowest: spread2
 
 
