@@ -123,7 +123,7 @@ def test_point_variances_are_the_schur_complement_covariance(rng, thickness):
     from_jac = jacobian_point_variances(jac, np.arange(m), 3)
     assert from_jac == pytest.approx(from_info, rel=1e-3)
     answer = Alternative(pts, 0.0, "answer")
-    spread2 = marginal_precision(lambda alt: jac, np.arange(m))(answer)
+    spread2 = marginal_precision(lambda alt: jac, np.arange(m))
     assert spread2(answer, answer) == pytest.approx(0.0, abs=1e-12)
 
 
@@ -155,9 +155,7 @@ def test_an_alternative_within_the_stated_precision_is_the_same_answer(seed):
         variances = moved * 4.0 / cost_level()  # every point well within its precision ...
         variances[worst] = scale * moved[worst] / cost_level()  # ... but the worst one
         spread = precision_spread(lambda alt, v=variances: v, _rigid_step(m + k))
-        out = judge(
-            answer, [far], metric=metric_for(m, k), dof=dof, precision=lambda low, s=spread: s
-        )
+        out = judge(answer, [far], metric=metric_for(m, k), dof=dof, precision=spread)
         assert out.comparisons[0].kind == kind
         assert out.status is (Status.CONVERGED if kind == SAME else Status.NOT_IDENTIFIABLE)
 
@@ -171,7 +169,7 @@ def test_the_precision_does_not_excuse_a_decisive_cost_gap(rng):
     lower_points = _outside_the_region(rng, pts, m, k, answer, dof)
     lower = Alternative(lower_points, answer.deviance - 2 * cost_level(), "the refit without 1")
     wide = precision_spread(lambda alt: np.full(m + k, 1e6), _rigid_step(m + k))
-    out = judge(answer, [lower], metric=metric_for(m, k), dof=dof, precision=lambda low: wide)
+    out = judge(answer, [lower], metric=metric_for(m, k), dof=dof, precision=wide)
     assert out.answer is lower and out.comparisons[0].kind == LOWER
 
 
@@ -204,7 +202,7 @@ def test_minima_within_the_precision_count_as_one(rng):
     for variance, minima in ((1e6, 2), (1e-12, 3)):
         spread = precision_spread(lambda alt, v=variance: np.full(m + k, v), _rigid_step(m + k))
         out = judge(answer, [a, b], metric=metric_for(m, k), dof=dof,
-                    counted=lambda alt: bool(alt.payload), precision=lambda low, s=spread: s)  # fmt: skip
+                    counted=lambda alt: bool(alt.payload), precision=spread)  # fmt: skip
         assert out.minima == minima
 
 

@@ -490,8 +490,8 @@ def slam(
 def judged_answer(problem: SlamProblem, found: EdmSearch, rng):
     """The search's best run judged against every alternative (with ``refine``:
     :func:`judge_slam` on the graph of the search's reference sigma): the lowest candidate,
-    when lower by more than the level or not the same answer (:func:`replaced`), replaces it (refined again as an EDM answer is,
-    :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
+    when lower by more than the level or not the same answer (:func:`replaced`), replaces it
+    (refined again as an EDM answer is, :func:`edm_run`, named by where it came from); the verdict (:func:`slam_verdict`) and then
     the judge's status (a rival: NOT_IDENTIFIABLE). A converged 3-D answer is then refitted in
     its plane where the nested test keeps it (:func:`rangeslam.mdu.planar_walk.planar_answer`):
     the plane refines the estimate and its covariance, but the verdict is the 3-D model's (a
@@ -538,10 +538,10 @@ def replaced(
 ) -> tuple[SlamRun, tuple[str, ...]]:
     """``best``, or the judge's lowest candidate when it replaced the answer and either is not
     the same answer by the judge's test (outside its confidence region and its precision) or
-    fits better by more than the level (within both it is the same answer; the landmarks may differ where the trajectory does not: replacing it by any
-    lower point of the region made Fig. 5's covariances optimistic, benchmarks/README.md).
-    Refined from its
-    points as an EDM answer is (the noise settled, covariances), ``start`` its origin. Returns
+    fits better by more than the level (within both it is the same answer; the landmarks may
+    differ where the trajectory does not: replacing it by any lower point of the region made
+    Fig. 5's covariances optimistic, benchmarks/README.md). Refined from its points as an EDM
+    answer is (the noise settled, covariances), ``start`` its origin. Returns
     (run, failures): when that refinement fails, ``best`` and the failure in words (the caller
     reports it: the answer kept is then not the most likely one)."""
     j = judged.judgement

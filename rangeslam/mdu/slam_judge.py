@@ -35,7 +35,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
-from functools import partial
 
 import numpy as np
 
@@ -63,9 +62,8 @@ from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
-    jacobian_point_variances,
     judge,
-    precision_spread,
+    marginal_precision,
     random_search,
 )
 from rangeslam.verdict.thresholds import PRECISION_FRACTION, RANK_RTOL, SEARCH_BUDGET
@@ -81,7 +79,6 @@ __all__ = [
     "subgraph_fit",
     "trajectory_distance",
     "trajectory_information",
-    "trajectory_step",
 ]
 
 # what a GTSAM run may raise from a start far off: its own failure, a graph it refuses, or
@@ -189,23 +186,18 @@ def trajectory_information(problem: SlamProblem, pts: np.ndarray, sigma: float) 
     )
 
 
-def trajectory_step(m: int, a: Alternative, b: Alternative, skip=()) -> np.ndarray:
-    """(M d,) b's trajectory (the first ``m`` rows of its points) brought onto a's by the best
-    rigid motion with reflection (the gauge of ranges and step lengths), minus a's, metres;
-    steps in ``skip`` are left out of the alignment and of the step (zero)."""
-    ref, pts = np.asarray(a.points[:m], dtype=float), np.asarray(b.points[:m], dtype=float)
-    keep = np.setdiff1d(np.arange(m), [r for r in skip if r < m])
-    aligned = ref.copy()
-    aligned[keep] = align(pts[keep], ref[keep], reflection=True).aligned
-    return (aligned - ref).ravel()
-
-
 def trajectory_distance(information: np.ndarray, m: int):
-    """``distance2(a, b, skip)`` for :func:`judge`: delta^2 of b's trajectory from a's
-    (:func:`trajectory_step`) in the trajectory's ``information`` (M d, M d)."""
+    """``distance2(a, b, skip)`` for :func:`judge`: delta^2 of b's trajectory (the first ``m``
+    rows of its points) from a's in the trajectory's ``information`` (M d, M d), b's trajectory
+    first brought onto a's by the best rigid motion with reflection (the gauge of ranges and
+    step lengths); steps in ``skip`` are left out of the alignment and of the step."""
 
     def distance2(a: Alternative, b: Alternative, skip=()) -> float:
-        step = trajectory_step(m, a, b, skip)
+        ref, pts = np.asarray(a.points[:m], dtype=float), np.asarray(b.points[:m], dtype=float)
+        keep = np.setdiff1d(np.arange(m), [r for r in skip if r < m])
+        aligned = ref.copy()
+        aligned[keep] = align(pts[keep], ref[keep], reflection=True).aligned
+        step = (aligned - ref).ravel()
         return float(step @ information @ step)
 
     return distance2
@@ -265,15 +257,22 @@ def block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
 class JudgeMetric:
     """The judge's ``metric`` and ``precision`` for a walk, at range sigma ``sigma`` (metres):
     at the lowest candidate, the trajectory's distance (:func:`trajectory_distance`) in its
-    information (:func:`trajectory_information`, made once per lowest), and the steps' spread
-    (:func:`rangeslam.verdict.judge.precision_spread`: each step's move against its variance,
-    the smaller of the two candidates')."""
+    information (:func:`trajectory_information`, made once per lowest); and the steps' spread
+    (:func:`rangeslam.verdict.judge.marginal_precision` of the steps in the graph's whitened
+    Jacobian, :func:`graph_jacobian`, the landmarks profiled out: the gauge cut on its singular
+    values, where round-off is 1e-16 of the largest, not on the Schur complement's eigenvalues,
+    where it is larger), infinite where either candidate's RMS standard deviation fails the
+    precision test (PRECISION_FRACTION of the median range)."""
 
     def __init__(self, problem: SlamProblem, sigma: float):
         self.problem, self.sigma = problem, sigma
         self.m = problem.ranges.shape[0]
         self._at: tuple[Alternative, np.ndarray] | None = None
-        self._variances: dict[int, tuple[Alternative, np.ndarray]] = {}
+        self.precision = marginal_precision(
+            lambda candidate: graph_jacobian(problem, candidate.points, sigma),
+            np.arange(self.m),
+            rms_limit=PRECISION_FRACTION * problem.scale,
+        )
 
     def information(self, lowest: Alternative) -> np.ndarray:
         """(M d, M d) the trajectory's information at ``lowest`` (kept for the last one)."""
@@ -283,28 +282,6 @@ class JudgeMetric:
 
     def __call__(self, lowest: Alternative):
         return trajectory_distance(self.information(lowest), self.m)
-
-    def point_variances(self, candidate: Alternative) -> np.ndarray:
-        """(M,) each step's variance (m^2) at ``candidate``, the landmarks profiled out, from
-        the graph's whitened Jacobian there (:func:`rangeslam.verdict.judge.
-        jacobian_point_variances`: the gauge cut on its singular values, where round-off is
-        1e-16 of the largest, not on the eigenvalues of the Schur complement, where it is
-        larger; kept per candidate)."""
-        hit = self._variances.get(id(candidate))
-        if hit is None or hit[0] is not candidate:
-            jac = graph_jacobian(self.problem, candidate.points, self.sigma)
-            steps = np.arange(self.m)
-            hit = (candidate, jacobian_point_variances(jac, steps, self.problem.dim))
-            self._variances[id(candidate)] = hit
-        return hit[1]
-
-    def precision(self, lowest: Alternative):
-        """``spread2(a, b)`` (:func:`rangeslam.verdict.judge.precision_spread`) of the steps in
-        the variances the information at each implies (``lowest`` is one of them), infinite
-        where either's RMS standard deviation fails the precision test (PRECISION_FRACTION of
-        the median range)."""
-        limit = PRECISION_FRACTION * self.problem.scale
-        return precision_spread(self.point_variances, partial(trajectory_step, self.m), limit)
 
 
 def judge_metric(problem: SlamProblem, sigma: float) -> JudgeMetric:

@@ -64,7 +64,10 @@ __all__ = [
     "distance_level",
     "indistinguishable",
     "information_distance",
+    "jacobian_point_variances",
     "judge",
+    "marginal_precision",
+    "point_columns",
     "precision_spread",
     "random_search",
     "same_answer",
@@ -215,6 +218,12 @@ def distance_level(dof: int, level: float = CHI2_LEVEL) -> float:
     return float(chi2.ppf(level, max(int(dof), 1)))
 
 
+def point_columns(rows: np.ndarray, d: int) -> np.ndarray:
+    """The columns (len(rows) d,) of the points ``rows`` among unknowns stored d per point,
+    row-major."""
+    return (np.asarray(rows)[:, None] * d + np.arange(d)[None, :]).ravel()
+
+
 def information_distance(
     jacobian: np.ndarray, *, reflection: bool = True, interest: Sequence[int] | None = None
 ) -> Callable[[Alternative, Alternative, Sequence[int]], float]:
@@ -231,9 +240,6 @@ def information_distance(
     the rigid motion that best aligns those points alone."""
     n_cols = jacobian.shape[1]
 
-    def columns(rows: np.ndarray, d: int) -> np.ndarray:
-        return (rows[:, None] * d + np.arange(d)[None, :]).ravel()
-
     def distance2(a: Alternative, b: Alternative, skip: Sequence[int] = ()) -> float:
         ref, pts = np.asarray(a.points, dtype=float), np.asarray(b.points, dtype=float)
         d = ref.shape[1]
@@ -241,11 +247,11 @@ def information_distance(
         keep = np.setdiff1d(rows, np.asarray(skip, dtype=int))
         moved = align(pts[keep], ref[keep], reflection=reflection)
         step = np.zeros(n_cols)
-        step[columns(keep, d)] = (moved.aligned - ref[keep]).ravel()
+        step[point_columns(keep, d)] = (moved.aligned - ref[keep]).ravel()
         if interest is None:
             step[ref.size :] = np.asarray(b.extra) - np.asarray(a.extra)
             return float(np.sum((jacobian @ step) ** 2))
-        nuisance = np.setdiff1d(np.arange(n_cols), columns(rows, d))
+        nuisance = np.setdiff1d(np.arange(n_cols), point_columns(rows, d))
         moved_rows = jacobian @ step
         fitted = (
             jacobian[:, nuisance]
@@ -289,7 +295,7 @@ def jacobian_point_variances(jac: np.ndarray, rows: np.ndarray, d: int) -> np.nd
     the whitened Jacobian ``jac`` (R, p), the other columns profiled out (projected away, as
     :func:`information_distance` profiles them): singular values under RANK_RTOL of the largest
     (the gauge's) left out."""
-    cols = (rows[:, None] * d + np.arange(d)[None, :]).ravel()
+    cols = point_columns(rows, d)
     nuisance = np.setdiff1d(np.arange(jac.shape[1]), cols)
     j_i = jac[:, cols]
     if nuisance.size:
@@ -308,7 +314,7 @@ def marginal_precision(
     *,
     reflection: bool = True,
     rms_limit: float = np.inf,
-) -> Callable[[Alternative], Callable[[Alternative, Alternative], float]]:
+) -> Callable[[Alternative, Alternative], float]:
     """:func:`judge`'s ``precision`` for a model whose whitened Jacobian (R, N d + q) at a
     candidate is ``jacobian_at(candidate)`` (points row-major, then extra unknowns): the spread
     (:func:`precision_spread`) of the points ``interest`` (their step after the best rigid
@@ -329,8 +335,7 @@ def marginal_precision(
         ref, pts = np.asarray(a.points)[rows], np.asarray(b.points)[rows]
         return (align(pts, ref, reflection=reflection).aligned - ref).ravel()
 
-    spread2 = precision_spread(variances, step, rms_limit)
-    return lambda lowest: spread2
+    return precision_spread(variances, step, rms_limit)
 
 
 def same_answer(
@@ -357,7 +362,7 @@ def judge(
     dof: int,
     counted: Callable[[Alternative], bool] = lambda alt: True,
     level: float = CHI2_LEVEL,
-    precision: Callable[[Alternative], Callable[[Alternative, Alternative], float]] | None = None,
+    precision: Callable[[Alternative, Alternative], float] | None = None,
 ) -> Judgement:
     """Every alternative against the lowest candidate, by the one test (module docstring).
 
@@ -371,10 +376,10 @@ def judge(
         counted: which candidates count as starts for ``reached`` and ``minima`` (random starts;
             refits of part of the data do not sample the basins).
         level: the chi-square level (default CHI2_LEVEL).
-        precision: ``precision(lowest)`` gives ``spread2(a, b)`` (:func:`precision_spread`:
-            the largest over the points of b's squared step from a, after the gauge, over that
-            point's variance, the smaller of a's and b's). An alternative within the cost level
-            of the lowest whose spread2 is also within it lies within the estimate's precision
+        precision: ``spread2(a, b)`` (:func:`precision_spread`: the largest over the points of
+            b's squared step from a, after the gauge, over that point's variance, the smaller of
+            a's and b's). An alternative within the cost level of the lowest whose spread2 is
+            also within it lies within the estimate's precision
             at the level (each point within :func:`rangeslam.verdict.level_sigmas` standard
             deviations of it): the same answer at that precision, even outside the confidence
             region (a valley the quadratic model at the lowest does not describe). None: the
@@ -384,7 +389,6 @@ def judge(
     q_cost, q_far = cost_level(level), distance_level(dof, level)
     lowest = min(pool, key=lambda a: a.deviance)  # the answer judged: the most likely
     distance2 = metric(lowest)
-    spread2 = precision(lowest) if precision is not None else None
     # the expected gaps are the answer's: they count while the lowest is the answer itself
     answer_lowest = lowest is answer or distance2(lowest, answer, ()) <= q_far
     comparisons = []
@@ -392,7 +396,9 @@ def judge(
     def near(a: Alternative, b: Alternative, distance: float) -> bool:
         # within the confidence region; or as likely (the cost level) and within the precision
         as_likely = abs(a.deviance - b.deviance) <= q_cost
-        return distance <= q_far or (spread2 is not None and as_likely and spread2(a, b) <= q_cost)
+        return distance <= q_far or (
+            precision is not None and as_likely and precision(a, b) <= q_cost
+        )
 
     for alt in pool:
         if alt is lowest:
