@@ -11,13 +11,19 @@ from rangeslam import align
 from rangeslam.evaluation.verdict_cases import make_case
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu import slam
-from rangeslam.mdu.core import ConvexIterationOptions
+from rangeslam.mdu.core import ConvexIterationOptions, unknowns_up_to_rigid_motion
 from rangeslam.mdu.planar_walk import PLANAR_CHECK
 from rangeslam.mdu.slam import parse_slam
 from rangeslam.mdu.slam_graph import graph_deviance, graph_fit, stacked
-from rangeslam.mdu.slam_judge import subgraph_fit
+from rangeslam.mdu.slam_judge import (
+    answer_region,
+    subgraph_fit,
+    trajectory_distance,
+    trajectory_information,
+)
 from rangeslam.sim.scenes import add_range_noise, walk_in_random_room
 from rangeslam.sim.trajectories import step_lengths
+from rangeslam.verdict.judge import Alternative, distance_level
 
 RIGHT = 0.01  # metres: benchmarks/bench_robust_slam.py's right answer
 
@@ -177,3 +183,49 @@ def test_a_minimum_within_the_precision_must_state_one():
     assert not case.identifiable
     out = slam(case.run.args[0], **case.run.keywords)
     assert not out.converged, out.message
+
+
+def _answer_and_region(rng):
+    """A 1 mm walk's answer (GTSAM from the truth) and its :func:`answer_region`."""
+    traj, landmarks, ranges, bounds = _walk(rng, 8, 0)
+    problem = _problem(ranges, bounds, 1e-3, None)
+    truth = np.vstack([traj, landmarks])
+    points = stacked(graph_fit(problem, truth, 1e-3))
+    answer = Alternative(points, graph_deviance(problem, points, 1e-3), "the answer")
+    return problem, truth, answer, answer_region(problem, answer, 1e-3)
+
+
+def test_points_in_the_answers_basin_are_reached_and_return_to_it(rng):
+    """The trajectory moved from the answer by delta^2 = 0.2-0.9 of the region's level along
+    random directions of its information (the landmarks held): reached, and GTSAM from there
+    comes back to the answer (delta^2 under 1e-3). The answer itself is reached."""
+    problem, _, answer, reached = _answer_and_region(rng)
+    m, d = problem.ranges.shape[0], problem.dim
+    assert reached(answer.points)
+    info = trajectory_information(problem, answer.points, 1e-3)
+    distance2 = trajectory_distance(info, m)
+    level = distance_level(unknowns_up_to_rigid_motion(m, d))
+    w, v = np.linalg.eigh(info)
+    seen = w > 1e-9 * w.max()
+    for share in (0.2, 0.5, 0.9):
+        z = rng.standard_normal(int(seen.sum()))
+        step = v[:, seen] @ (z / np.sqrt(w[seen]))
+        step *= np.sqrt(share * level / (step @ info @ step))
+        moved = answer.points.copy()
+        moved[:m] += step.reshape(m, d)
+        assert reached(moved)
+        back = Alternative(stacked(graph_fit(problem, moved, 1e-3)), 0.0, "back")
+        assert distance2(answer, back) < 1e-3
+
+
+def test_a_lower_minimum_or_a_distant_walk_is_not_reached(rng):
+    """With the truth as the 'answer' (not the minimum of its noisy ranges), the minimum inside
+    its region costs less than it by about the distance between them: the cost does not rise
+    as the truth's information says, not its basin. A walk with one step moved 20 cm is outside
+    the region."""
+    problem, truth, answer, _ = _answer_and_region(rng)
+    at_truth = Alternative(truth, graph_deviance(problem, truth, 1e-3), "the truth")
+    assert not answer_region(problem, at_truth, 1e-3)(answer.points)
+    far = answer.points.copy()
+    far[4] += [0.2, 0.0, 0.0]
+    assert not answer_region(problem, answer, 1e-3)(far)

@@ -17,12 +17,14 @@ another answer, 10^5-10^6 information units away). Alternatives:
 
 - the search's other convex-iteration runs and GTSAM from random starts
   (:func:`rangeslam.mdu.slam_graph.random_start`; a robust graph from the least-squares fit
-  there, :func:`_start_fit`), counted by the stopping rule
+  there, :func:`_start_fit`; a fit that has entered the answer's basin, :func:`answer_region`,
+  is judged where it stands: LM from there returns to the answer), counted by the stopping rule
   (:func:`rangeslam.verdict.judge.search_complete`) or ended by the budget SEARCH_BUDGET
   (``extra_starts`` when larger);
 - leave-one-block-out refits from the answer (:func:`block_proposals` by landmark,
   :func:`window_proposals` by windows of max(2, M // 4) steps): GTSAM without the block's ranges
-  (the graph of the other points, :func:`subgraph_fit`), then on the full graph from there.
+  (the graph of the other points, :func:`subgraph_fit`), then on the full graph from there
+  (unless the fit without the block stayed in the answer's basin).
 
 The landmarks' mirror images (:func:`rangeslam.mdu.alternatives.mirror_proposals`) are not
 judged here: they do not move the trajectory on a planar walk and are reported as
@@ -62,6 +64,8 @@ from rangeslam.verdict.checks import level_sigmas
 from rangeslam.verdict.judge import (
     Alternative,
     JudgedSearch,
+    cost_level,
+    distance_level,
     judge,
     marginal_precision,
     random_search,
@@ -71,6 +75,7 @@ from rangeslam.verdict.thresholds import PRECISION_FRACTION, RANK_RTOL, SEARCH_B
 __all__ = [
     "FIT_ERRORS",
     "JudgeMetric",
+    "answer_region",
     "block_alternatives",
     "counted_as_start",
     "judge_metric",
@@ -90,6 +95,11 @@ FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
 # creeps along it inside the answer's uncertainty (an exact planar walk: 900-1300 iterations a
 # refit, 24 refits 25 times the cost of the fit judged) and is judged where it stands.
 _REFIT_ITERATIONS = (200, 5000)
+# LM iteration limits of a random start, run one after another: a fit that has reached the
+# answer's basin after one (:func:`answer_region`) is judged where it stands, any other goes on.
+# (From random starts on 8-step walks, one run of 5000: median 88 iterations, 11 of 146 fits
+# over 500, 2.8 s of their 7.0 s.)
+_START_ITERATIONS = (25, 50, 100, 200, 5000)
 
 
 def subgraph_fit(
@@ -129,13 +139,16 @@ def subgraph_fit(
     return out
 
 
-def _block_refit(problem: SlamProblem, proposal: Proposal, sigma: float) -> np.ndarray | None:
+def _block_refit(
+    problem: SlamProblem, proposal: Proposal, sigma: float, reached
+) -> np.ndarray | None:
     """The refit of a leave-one-block-out proposal: first without its block (at the graph's
-    floor at least: LM does not move below it from afar), then on the full graph from there, at
-    ``sigma`` itself (near the answer, LM moves at any sigma: going through the floor first, as
-    :func:`rangeslam.mdu.slam_graph.refine_run` does from a distant start, made exact data
-    creep back 900 iterations a refit); each fit as :data:`_REFIT_ITERATIONS` says. None when a
-    GTSAM run failed."""
+    floor at least: LM does not move below it from afar), then, unless that fit stayed in the
+    answer's basin (``reached``, :func:`answer_region`: the full graph from there returns to the
+    answer), on the full graph from there, at ``sigma`` itself (near the answer, LM moves at any
+    sigma: going through the floor first, as :func:`rangeslam.mdu.slam_graph.refine_run` does
+    from a distant start, made exact data creep back 900 iterations a refit); each fit as
+    :data:`_REFIT_ITERATIONS` says. None when a GTSAM run failed."""
     try:
         pts = subgraph_fit(
             problem,
@@ -143,6 +156,8 @@ def _block_refit(problem: SlamProblem, proposal: Proposal, sigma: float) -> np.n
             max(sigma, problem.floor),
             problem.observed & ~proposal.without,
         )
+        if reached(pts):
+            return pts
         for limit in _REFIT_ITERATIONS:
             fit = graph_fit(problem, pts, sigma, max_iterations=limit)
             if fit.converged:
@@ -203,29 +218,36 @@ def trajectory_distance(information: np.ndarray, m: int):
     return distance2
 
 
-def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float):
+def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float, reached):
     """GTSAM from a random start ``pts`` (M + K, d) at range sigma ``sigma``: with a robust
     kernel, first by least squares (the graph without the kernel), then on the problem's graph
     from there, as the search's runs start the kernel from the SDP's least-squares answer. (The
     kernel straight from a random start ignores most ranges: on 1 mm walks with a wrong pick,
     LM hit 5000 iterations at 30-50 cm off, 2 s each; from least squares 4 of 6 starts reached
-    the right minimum in 0.05 s.)"""
-    if problem.robust:
-        gaussian = dataclasses.replace(problem, robust=None)
-        pts = stacked(refine_run(gaussian, pts, sigma, covariances=False)[0])
-    return refine_run(problem, pts, sigma, covariances=False)[0]
+    the right minimum in 0.05 s.) Each graph's fit in the stages of :data:`_START_ITERATIONS`:
+    after a short run, one that ``reached(points)`` (the answer's confidence region) goes no
+    further on that graph."""
+    graphs = [dataclasses.replace(problem, robust=None), problem] if problem.robust else [problem]
+    for graph in graphs:
+        for limit in _START_ITERATIONS:
+            fit = refine_run(graph, pts, sigma, covariances=False, max_iterations=limit)[0]
+            pts = stacked(fit)
+            if fit.converged or reached(pts):
+                break
+    return fit
 
 
-def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list[str]):
-    """GTSAM from GTSAM-style random starts without end, each an Alternative (counted), or None
-    where GTSAM failed (the failure appended to ``failures``)."""
+def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list[str], reached):
+    """GTSAM from GTSAM-style random starts without end (:func:`_start_fit`, ``reached`` its
+    test of the answer's region), each an Alternative (counted), or None where GTSAM failed (the
+    failure appended to ``failures``)."""
     r, observed = problem.ranges, problem.observed
     nominal = nominal_steps(problem.bounds, r, observed)
     size = float(np.max(r[observed]))
     for j in itertools.count():
         x0, s0 = random_start(nominal, r.shape[1], problem.dim, size, rng)
         try:
-            fit = _start_fit(problem, np.vstack([x0, s0]), sigma)
+            fit = _start_fit(problem, np.vstack([x0, s0]), sigma, reached)
         except FIT_ERRORS as exc:
             failures.append(f"random start {j}: {exc}")
             yield None
@@ -236,18 +258,42 @@ def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list
         )
 
 
-def block_alternatives(problem: SlamProblem, points: np.ndarray, sigma: float):
-    """The leave-one-block-out refits of the answer ``points``: without one landmark, without
-    one window of max(2, M // 4) steps (module docstring); those whose GTSAM run failed are
-    left out."""
-    m, observed = problem.ranges.shape[0], problem.observed
+def answer_region(problem: SlamProblem, answer: Alternative, sigma: float):
+    """``reached(points)``: whether ``points`` (M + K, d) lie in the answer's basin as its
+    quadratic model describes it: the trajectory inside the answer's confidence region (delta^2
+    from ``answer`` in the trajectory's information there, :func:`trajectory_distance`, within
+    :func:`rangeslam.verdict.judge.distance_level`) and the deviance above the answer's by at
+    least delta^2 less the cost level (:func:`rangeslam.verdict.judge.cost_level`). LM from such
+    points descends to the answer's minimum (the region's edge costs more than they do), the
+    same answer to the judge; points in a flat valley, where the cost rises less than the
+    information says (two minima 0.02 noise variances apart at delta^2 43), are not reached."""
+    m = problem.ranges.shape[0]
+    distance2 = trajectory_distance(trajectory_information(problem, answer.points, sigma), m)
+    q_far = distance_level(unknowns_up_to_rigid_motion(m, problem.dim))
+
+    def reached(points: np.ndarray) -> bool:
+        delta2 = distance2(answer, Alternative(points, np.nan, "a fit on its way"))
+        if delta2 > q_far:
+            return False
+        gap = graph_deviance(problem, points, sigma) - answer.deviance
+        return gap >= delta2 - cost_level()
+
+    return reached
+
+
+def block_alternatives(problem: SlamProblem, answer: Alternative, sigma: float):
+    """The leave-one-block-out refits of the ``answer``: without one landmark, without one
+    window of max(2, M // 4) steps (module docstring; :func:`_block_refit`); those whose GTSAM
+    run failed are left out."""
+    m, observed, points = problem.ranges.shape[0], problem.observed, answer.points
+    reached = answer_region(problem, answer, sigma)
     fixed = itertools.chain(
         block_proposals(points, observed, blocks="columns", names=("step", "landmark")),
         window_proposals(points, observed, max(2, m // 4)),
     )
     alternatives = []
     for proposal in fixed:
-        refit = _block_refit(problem, proposal, sigma)
+        refit = _block_refit(problem, proposal, sigma, reached)
         if refit is not None:
             dev = graph_deviance(problem, refit, sigma)
             alternatives.append(Alternative(refit, dev, proposal.origin, payload=False))
@@ -318,7 +364,10 @@ def random_minima(
         return judge(answer, found, metric=metric, dof=dof, counted=counted_as_start,
                      precision=metric.precision)  # fmt: skip
 
-    randoms = _random_alternatives(problem, sigma, rng, [] if failures is None else failures)
+    randoms = _random_alternatives(
+        problem, sigma, rng, [] if failures is None else failures,
+        answer_region(problem, answer, sigma),
+    )  # fmt: skip
     found, _ = random_search(run, counted, randoms, budget=budget, at_least=at_least)
     return found
 
@@ -332,7 +381,7 @@ def judge_slam(
     m = problem.ranges.shape[0]
     points = np.vstack([answer.receivers, answer.sources])
     main = Alternative(points, graph_deviance(problem, points, sigma), "the answer", payload=True)
-    alternatives = block_alternatives(problem, points, sigma)
+    alternatives = block_alternatives(problem, main, sigma)
     runs_made = [
         Alternative(p, graph_deviance(problem, p, sigma), f"convex-iteration run {i}", payload=True)
         for i, p in enumerate(np.vstack([r.receivers, r.sources]) for r in runs)
