@@ -417,7 +417,11 @@ def test_dechorate_loudspeaker_and_ceiling(dechorate_dir):
     err = wall_errors(rec, d.room_size)
     assert err[5] < 0.03  # ceiling
     assert sum(err[k] < 0.10 for k in REFLECTIVE.values()) >= 1
-    assert res.status is Status.OUT_OF_RANGE  # the walls found do not close a room
+    # the 12 microphones lie in a 0.54 m slab (z 0.95-1.49 m): wall 2's image fits as well on
+    # the other side of their plane (4.67 noise variances), and the walls found do not close a
+    # room; both are said
+    assert res.status is Status.NOT_IDENTIFIABLE and "the other side" in res.message
+    assert "do not bound a room" in res.message
 
 
 # Why the lateral walls are out of reach (measured, scratch analysis, geometry and echo_toa.csv used

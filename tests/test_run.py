@@ -559,8 +559,10 @@ def test_dechorate_npz_with_the_measured_preset(dechorate_dir, tmp_path, capsys)
     errs = evaluate_run(res, source=loaded.source, room_size=loaded.room_size)
     assert errs.source_error < 0.05
     assert errs.wall_errors[SHOEBOX_WALLS.index("ceiling zH")] < 0.03
-    assert not res.converged and res.status is Status.OUT_OF_RANGE
-    assert "do not bound a room" in res.message
+    # a wall's other side through the microphones' 0.54 m slab fits as well (NOT_IDENTIFIABLE),
+    # and the walls found do not bound a room
+    assert not res.converged and res.status is Status.NOT_IDENTIFIABLE
+    assert "the other side" in res.message and "do not bound a room" in res.message
     out = tmp_path / "out"
     code = main(
         ["run", str(dechorate_dir / "rirs_src0_12mics.npz"), "--measured", "--out", str(out)]

@@ -1,6 +1,6 @@
 """The one judge on a robust room reconstruction (:func:`rangeslam.localization.reconstruct_room`):
-does another placement of a loudspeaker or a wall, made from the ranges the fit left out, fit
-the data as well?
+does another placement of a loudspeaker or a wall, made from the ranges the fit left out or
+from the other side of a wall's image, fit the data as well?
 
 A robust fit kept some ranges and dropped the rest. The question past its breakdown point is
 not how many it dropped but whether the dropped ones say something else: if they cohere into
@@ -14,6 +14,11 @@ within the threshold, is the column's alternative. Random wrong ranges cohere wi
 three of them fix a point, and a fourth rarely agrees. A second true wall hidden in the dropped
 echoes does.
 
+The second generator (:func:`mirror_alternatives`) asks each wall whether it fits as well on
+the other side of its image: an image far from a nearly flat array has a mirror image through
+the array's plane at almost the same ranges, and the bisector of the loudspeaker and that point
+is another wall (a wall said CONVERGED 23 degrees off, its true place 2.1 noise variances above).
+
 Every candidate is scored on one robust objective over every observed range: the truncated
 quadratic (MSAC) sum of min(r^2, thr^2) / sigma^2, with ``thr`` the fit's inlier bound and
 ``sigma`` its noise scale. (The fit itself chooses its inliers by studentized residuals, so a
@@ -22,7 +27,8 @@ candidate, the answer's included.) The subsets are all d-subsets of a column's d
 220 at most for 12 microphones in 3-D; a large array would want them drawn. The distance is ||J (theta' - theta)||^2 / sigma^2 with J
 the Jacobian of the lowest candidate's kept ranges (the microphones are known: no gauge). Then
 :func:`rangeslam.verdict.judge.judge`: a lower alternative means the fit kept the wrong ranges
-(OUTLIERS), an equal one far off a rival (NOT_IDENTIFIABLE).
+(OUTLIERS; a lower other side: the fit stopped on the wrong side, NO_AGREEMENT), an equal one
+far off a rival (NOT_IDENTIFIABLE).
 """
 
 from __future__ import annotations
@@ -37,13 +43,14 @@ from rangeslam.localization.room_reconstruction import (
     JointWallModel,
     RoomProblem,
     bisector_walls,
+    image_points,
     sphere_intersections,
 )
 from rangeslam.status import Status
-from rangeslam.verdict.checks import level_sigmas
+from rangeslam.verdict.checks import level_sigmas, mirror_point
 from rangeslam.verdict.judge import LOWER, RIVAL, Alternative, cost_level, judge
 
-__all__ = ["column_alternatives", "judge_room", "msac_deviance"]
+__all__ = ["column_alternatives", "judge_room", "mirror_alternatives", "msac_deviance"]
 
 
 def msac_deviance(model: JointWallModel, theta: np.ndarray, thr: float, sigma: float) -> float:
@@ -108,6 +115,34 @@ def column_alternatives(model: JointWallModel, theta: np.ndarray, kept: np.ndarr
         yield Alternative(cand.reshape(-1, d), msac_deviance(model, cand, thr, sigma), what)
 
 
+def mirror_alternatives(model: JointWallModel, theta: np.ndarray, kept: np.ndarray, thr: float,
+                        sigma: float):  # fmt: skip
+    """Yield, for each wall and loudspeaker j whose echoes off it kept at least d + 1 ranges,
+    the wall placed by the other side of j's image: the image's reflection through the plane
+    of the microphones that heard it, refined on their kept ranges
+    (:func:`rangeslam.verdict.mirror_point`), then refitted as a dropped ranges' place is, the
+    wall the bisector of j and that point (an :class:`Alternative` with payload "mirror"). A
+    far image heard by a nearly flat array fits its ranges on either side (Fig. 3-like 8
+    microphones 0.6 m thick, 1 cm: a wall's other side 2.1 noise variances above the answer's,
+    its normal 23 degrees away)."""
+    d = model.d
+    sources, walls = model.unpack(theta)
+    images = image_points(sources, walls)  # (J, K, d)
+    for j, k in itertools.product(range(model.j_n), range(model.c_n - 1)):
+        heard = kept[j, :, 1 + k]
+        if heard.sum() <= d:
+            continue
+        mirror = mirror_point(images[j, k], model.mics[heard], model.ranges[j, heard, 1 + k])
+        if mirror is None:
+            continue
+        cand = _with_point(model, theta, j, 1 + k, _refit_point(model, j, 1 + k, mirror, thr))
+        if cand is None or not np.all(np.isfinite(cand)):
+            continue
+        what = f"wall {k}: the other side of loudspeaker {j}'s image off it"
+        yield Alternative(cand.reshape(-1, d), msac_deviance(model, cand, thr, sigma), what,
+                          payload="mirror")  # fmt: skip
+
+
 def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Status, str]]:
     """(status, text) of the judgement of a robust fit's answer against the
     :func:`column_alternatives` of its dropped ranges (module docstring); empty when it stands.
@@ -116,7 +151,10 @@ def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Statu
     sigma = thr / level_sigmas()
     answer = Alternative(fit.theta.reshape(-1, prob.dim), msac_deviance(model, fit.theta, thr,
                                                                         sigma), "the answer")  # fmt: skip
-    alternatives = list(column_alternatives(model, fit.theta, fit.use, thr, sigma))
+    alternatives = [
+        *column_alternatives(model, fit.theta, fit.use, thr, sigma),
+        *mirror_alternatives(model, fit.theta, fit.use, thr, sigma),
+    ]
     if not alternatives:
         return []
 
@@ -134,6 +172,9 @@ def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Statu
     judgement = judge(answer, alternatives, metric=metric, dof=fit.theta.size)
     own = next((c for c in judgement.comparisons if c.alternative is answer), None)
     lowest = judgement.answer.origin  # the answer is judged against the lowest candidate
+    if own is not None and own.kind == LOWER and judgement.answer.payload == "mirror":
+        return [(Status.NO_AGREEMENT, f"{lowest} fits the data better (robust cost lower by "
+                 f"{own.delta_cost:.3g} noise variances): the fit stopped on the wrong side; ")]  # fmt: skip
     if own is not None and own.kind == LOWER:  # the answer is worse by more than the level
         return [(Status.OUTLIERS, f"{lowest} fits the data better (robust cost lower by "
                  f"{own.delta_cost:.3g} noise variances): the fit kept the wrong ranges; ")]  # fmt: skip

@@ -74,6 +74,7 @@ __all__ = [
     "RoomProblem",
     "RoomReconstruction",
     "bisector_walls",
+    "image_points",
     "reconstruct_room",
     "sphere_intersections",
 ]
@@ -143,7 +144,7 @@ def _as_list(value, name: str) -> tuple[list, bool]:
     raise InvalidInputError(f"{name} must be an (M, 1+K) array or a non-empty list of them")
 
 
-def _images(sources: np.ndarray, walls: np.ndarray) -> np.ndarray:
+def image_points(sources: np.ndarray, walls: np.ndarray) -> np.ndarray:
     """(J, K, d) mirror images of sources (J, d) in the planes w_k (K, d) (w = o n, centred coords).
 
     With n = w/|w| and o = |w|: s' = (I - 2 n n^T) s + 2 o n = s - 2 (w.s) w / |w|^2 + 2 w.
@@ -164,7 +165,7 @@ def _points_and_jacobian(sources: np.ndarray, walls: np.ndarray):
     eye = np.eye(d)
     rho = np.einsum("kd,kd->k", walls, walls)
     q = sources @ walls.T
-    pts = np.concatenate([sources[:, None, :], _images(sources, walls)], axis=1)
+    pts = np.concatenate([sources[:, None, :], image_points(sources, walls)], axis=1)
     d_src = np.empty((j_n, 1 + k_n, d, d))
     d_src[:, 0] = eye
     householder = eye[None] - 2.0 * np.einsum("ka,kb->kab", walls, walls) / rho[:, None, None]
@@ -197,7 +198,7 @@ class JointWallModel:
 
     def all_residuals(self, theta: np.ndarray) -> np.ndarray:
         s, w = self.unpack(theta)
-        pts = np.concatenate([s[:, None, :], _images(s, w)], axis=1)
+        pts = np.concatenate([s[:, None, :], image_points(s, w)], axis=1)
         dist = np.linalg.norm(self.mics[None, :, None, :] - pts[:, None, :, :], axis=3)
         return dist - self.ranges
 
@@ -304,7 +305,7 @@ def _select_walls(mics, r_s, observed, sources, thr, n_hyp, rng) -> np.ndarray:
                 f"wall {k} (column {1 + k}): no loudspeaker has {d + 1} observed echoes from "
                 f"microphones spanning {d}-D to locate it"
             )
-        imgs = _images(sources, cands).transpose(1, 0, 2)  # (H, J, d)
+        imgs = image_points(sources, cands).transpose(1, 0, 2)  # (H, J, d)
         dist = np.linalg.norm(mics[None, None, :, :] - imgs[:, :, None, :], axis=3)
         res2 = (dist - r_s[None, :, :, 1 + k]) ** 2
         score = np.where(observed[None, :, :, 1 + k], np.minimum(res2, thr**2), 0.0).sum(
@@ -324,7 +325,7 @@ def _relocate_sources(mics, r_s, observed, sources, walls, thr, n_hyp, rng) -> n
     way keeps its position in ``sources`` (J, d).
     """
     j_n, m_n, c_n = r_s.shape
-    mirrored = _images(mics, walls)  # (M, K, d): microphone m mirrored in wall k
+    mirrored = image_points(mics, walls)  # (M, K, d): microphone m mirrored in wall k
     anchors = np.concatenate([mics[:, None, :], mirrored], axis=1).reshape(m_n * c_n, -1)
     out = sources.copy()
     for j in range(j_n):
@@ -698,7 +699,7 @@ def _room_result(prob: RoomProblem, fit: JointFit, problems, rms_s: float, hint:
     s_s, w_s = final.unpack(fit.theta)
     offsets_s = np.linalg.norm(w_s, axis=1)
     normals = w_s / offsets_s[:, None]
-    images_s = _images(s_s, w_s)
+    images_s = image_points(s_s, w_s)
     # Orientation: outward normals point from the sources to their images.
     side = np.einsum("jkd,kd->jk", images_s - s_s[:, None, :], normals)
     if np.any(side <= 0):
