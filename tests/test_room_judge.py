@@ -141,17 +141,20 @@ def test_a_wall_on_the_wrong_side_is_not_converged():
     assert not out.converged and "wall 0: the other side" in out.message, out.message
 
 
-def test_a_wall_fitted_on_the_wrong_side_of_its_image_is_told(rng):
+def test_a_wall_fitted_on_the_wrong_side_of_its_image_is_refused(rng):
     """The fit's wall placed by the other side of its image where that side fits far worse (the
-    worst of the slab's mirror alternatives, over 10 times the level above the truth): the
-    judge's mirror of it is the true wall, lower by more than the level, and the verdict says
-    the fit stopped on the wrong side (NO_AGREEMENT)."""
+    worst of the slab's mirror alternatives, over 10 times the level above the truth), the fit
+    keeping the ranges within its threshold: refused, never CONVERGED (OUTLIERS when it dropped
+    that wall's ranges, as it does here: the true wall is where they place it; NO_AGREEMENT
+    when a fit kept them and the other side is lower)."""
     mics, r, model, theta, thr, sigma = _slab_scene(rng)
     base = msac_deviance(model, theta, thr, sigma)
     wrong = max(mirror_alternatives(model, theta, model.use, thr, sigma), key=lambda a: a.deviance)
     assert wrong.deviance - base > 10 * cost_level()
     prob = RoomProblem(mics, r[None], model.use, mics.mean(axis=0), float(np.median(r)),
                        model.mics, model.ranges)  # fmt: skip
-    fit = JointFit(wrong.points.ravel(), model.use, sigma, 0, None)
+    kept = model.use & (np.abs(model.all_residuals(wrong.points.ravel())) <= thr)
+    fit = JointFit(wrong.points.ravel(), kept, sigma, 0, None)
     (status, text), *_ = judge_room(prob, fit, thr)
-    assert status is Status.NO_AGREEMENT and "wrong side" in text, text
+    assert status in (Status.OUTLIERS, Status.NO_AGREEMENT), text
+    assert f"wall {wrong.origin.split()[1]}" in text, text

@@ -146,13 +146,15 @@ def rival_check(
     except InvalidInputError as exc:  # the bounds against the ranges at this sigma
         return Check(Status.INCONSISTENT, f"the graph of the filter's data is refused: {exc}")
     try:
-        own = stacked(refine_run(problem, np.vstack([receivers, sources]), sigma,
-                                 covariances=False)[0])  # fmt: skip
+        fit = refine_run(problem, np.vstack([receivers, sources]), sigma, covariances=False)[0]
     except FIT_ERRORS:
         return Check(Status.CONVERGED, "the graph could not be refined from the filter's answer")
+    own = stacked(fit)
     answer = Alternative(own, graph_deviance(problem, own, sigma), "the filter's answer", payload=1)
-    # the answer and the random starts together at most SEARCH_BUDGET
-    starts = random_minima(problem, answer, [], sigma, rng, budget=SEARCH_BUDGET - 1)
+    # the answer and the random starts together at most SEARCH_BUDGET; a start's fit stops early
+    # in the answer's basin only when the answer is the graph's minimum (its refit converged)
+    early = None if fit.converged else (lambda points: False)
+    starts = random_minima(problem, answer, [], sigma, rng, budget=SEARCH_BUDGET - 1, reached=early)
     metric = judge_metric(problem, sigma)
     judgement = judge(
         answer,

@@ -145,7 +145,8 @@ def mirror_alternatives(model: JointWallModel, theta: np.ndarray, kept: np.ndarr
 
 def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Status, str]]:
     """(status, text) of the judgement of a robust fit's answer against the
-    :func:`column_alternatives` of its dropped ranges (module docstring); empty when it stands.
+    :func:`column_alternatives` of its dropped ranges and the :func:`mirror_alternatives` of its
+    walls (module docstring); empty when it stands.
     ``thr``: the fit's inlier bound, scaled units (its noise scale is thr / level_sigmas())."""
     model = JointWallModel(prob.mics_s, prob.ranges_s, prob.observed)
     sigma = thr / level_sigmas()

@@ -123,16 +123,11 @@ def settle_noise(problem: SlamProblem, pts: np.ndarray) -> tuple[np.ndarray, flo
 
 
 def refine_run(
-    problem: SlamProblem,
-    pts: np.ndarray,
-    sigma: float | None = None,
-    *,
-    covariances: bool = True,
-    max_iterations: int = 5000,
+    problem: SlamProblem, pts: np.ndarray, sigma: float | None = None, *, covariances: bool = True
 ) -> tuple[GraphFit, float]:
     """GTSAM from ``pts`` (with covariances unless ``covariances=False``); the range sigma of its
     final graph. ``sigma``: that of the graph (default: ``noise_std``, or found from the
-    residuals when unknown). ``max_iterations``: LM's limit of each fit at a given sigma."""
+    residuals when unknown)."""
     if sigma is None and problem.noise_std is None:
         # The weight of the step prior against the ranges depends on the sigma.
         pts, sigma = settle_noise(problem, pts)
@@ -140,17 +135,13 @@ def refine_run(
         sigma = problem.noise_std
     floor = problem.floor
     if sigma >= floor:
-        fit = graph_fit(problem, pts, sigma, covariances=covariances, max_iterations=max_iterations)
-        return fit, sigma
+        return graph_fit(problem, pts, sigma, covariances=covariances), sigma
     # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
     # step at all): first at the floor, then at sigma itself, or for exact data (where the
     # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
     target = sigma if sigma > 0 else EXACT_POLISH * floor
-    fit = graph_fit(problem, pts, floor, max_iterations=max_iterations)
-    fit = graph_fit(
-        problem, stacked(fit), target, covariances=covariances, max_iterations=max_iterations
-    )
-    return fit, target
+    fit = graph_fit(problem, pts, floor)
+    return graph_fit(problem, stacked(fit), target, covariances=covariances), target
 
 
 def graph_deviance(problem: SlamProblem, pts: np.ndarray, sigma: float) -> float:

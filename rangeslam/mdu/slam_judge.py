@@ -70,7 +70,12 @@ from rangeslam.verdict.judge import (
     marginal_precision,
     random_search,
 )
-from rangeslam.verdict.thresholds import PRECISION_FRACTION, RANK_RTOL, SEARCH_BUDGET
+from rangeslam.verdict.thresholds import (
+    EXACT_RTOL,
+    PRECISION_FRACTION,
+    RANK_RTOL,
+    SEARCH_BUDGET,
+)
 
 __all__ = [
     "FIT_ERRORS",
@@ -96,7 +101,8 @@ FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
 # refit, 24 refits 25 times the cost of the fit judged) and is judged where it stands.
 _REFIT_ITERATIONS = (200, 5000)
 # LM iteration limits of a random start, run one after another: a fit that has reached the
-# answer's basin after one (:func:`answer_region`) is judged where it stands, any other goes on.
+# answer's basin after one (:func:`answer_region`) is judged where it stands, any other goes on
+# until LM ends within a stage.
 # (From random starts on 8-step walks, one run of 5000: median 88 iterations, 11 of 146 fits
 # over 500, 2.8 s of their 7.0 s.)
 _START_ITERATIONS = (25, 50, 100, 200, 5000)
@@ -224,16 +230,22 @@ def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float, reached):
     from there, as the search's runs start the kernel from the SDP's least-squares answer. (The
     kernel straight from a random start ignores most ranges: on 1 mm walks with a wrong pick,
     LM hit 5000 iterations at 30-50 cm off, 2 s each; from least squares 4 of 6 starts reached
-    the right minimum in 0.05 s.) Each graph's fit in the stages of :data:`_START_ITERATIONS`:
-    after a short run, one that ``reached(points)`` (the answer's confidence region) goes no
-    further on that graph."""
+    the right minimum in 0.05 s.) Each graph's fit runs in the stages of
+    :data:`_START_ITERATIONS` at the graph's floor at least, until LM ends within a stage or the
+    points are in the answer's basin (``reached``, :func:`answer_region`); below the floor it is
+    then finished at ``sigma`` as :func:`rangeslam.mdu.slam_graph.refine_run` finishes a run
+    (LM does not move below the floor from afar: a stage there stopped far off "converged")."""
     graphs = [dataclasses.replace(problem, robust=None), problem] if problem.robust else [problem]
+    staged = max(sigma, problem.floor)
     for graph in graphs:
         for limit in _START_ITERATIONS:
-            fit = refine_run(graph, pts, sigma, covariances=False, max_iterations=limit)[0]
+            fit = graph_fit(graph, pts, staged, max_iterations=limit)
             pts = stacked(fit)
-            if fit.converged or reached(pts):
+            if fit.iterations < limit or reached(pts):
                 break
+        if sigma < staged:
+            fit = refine_run(graph, pts, sigma, covariances=False)[0]
+            pts = stacked(fit)
     return fit
 
 
@@ -260,16 +272,21 @@ def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list
 
 def answer_region(problem: SlamProblem, answer: Alternative, sigma: float):
     """``reached(points)``: whether ``points`` (M + K, d) lie in the answer's basin as its
-    quadratic model describes it: the trajectory inside the answer's confidence region (delta^2
-    from ``answer`` in the trajectory's information there, the landmarks profiled out,
-    :func:`trajectory_distance`, within :func:`rangeslam.verdict.judge.distance_level`) and the
-    deviance above the answer's by delta^2 (what the model says for that trajectory with the
-    landmarks at their best) within the cost level (:func:`rangeslam.verdict.judge.cost_level`).
+    quadratic model describes it, near enough that no other minimum is nearer:
+    - the trajectory within half the radius of the answer's confidence region (delta^2 from
+      ``answer`` in the trajectory's information there, the landmarks profiled out,
+      :func:`trajectory_distance`, at most a quarter of
+      :func:`rangeslam.verdict.judge.distance_level`): nearer the answer than the midpoint
+      between it and any minimum outside the region;
+    - the deviance above the answer's by at least half of delta^2 and at most delta^2 plus the
+      cost level (:func:`rangeslam.verdict.judge.cost_level`): the cost rises from the answer
+      as its information says, the landmarks near their best.
     LM from such points descends to the answer's minimum, the same answer to the judge. Not
-    reached: points in a flat valley, where the cost rises less than the information says (two
-    minima 0.02 noise variances apart at delta^2 43), and points whose landmarks are far from
-    their best (a refit without one landmark turned as a whole, that landmark left behind:
-    14 000 noise variances above the answer, its trajectory 20 information units away).
+    reached: points in a flat valley, where the cost rises far less than the information says
+    (two minima 0.02 noise variances apart at delta^2 43), and points whose landmarks are far
+    from their best (a refit without one landmark turned as a whole, that landmark left behind:
+    14 000 noise variances above the answer, its trajectory 20 information units away). Both
+    bounds only decide when a fit may stop early: a point not reached goes on to LM's end.
     """
     m = problem.ranges.shape[0]
     distance2 = trajectory_distance(trajectory_information(problem, answer.points, sigma), m)
@@ -277,10 +294,11 @@ def answer_region(problem: SlamProblem, answer: Alternative, sigma: float):
 
     def reached(points: np.ndarray) -> bool:
         delta2 = distance2(answer, Alternative(points, np.nan, "a fit on its way"))
-        if delta2 > q_far:
+        if delta2 > q_far / 4:  # farther than half the region's radius
             return False
         gap = graph_deviance(problem, points, sigma) - answer.deviance
-        return abs(gap - delta2) <= cost_level()
+        round_off = EXACT_RTOL * max(abs(answer.deviance), 1.0)  # the deviance's own
+        return delta2 / 2 - round_off <= gap <= delta2 + cost_level()
 
     return reached
 
@@ -355,12 +373,14 @@ def random_minima(
     budget: int,
     at_least: int = 0,
     failures: list[str] | None = None,
+    reached=None,
 ) -> list[Alternative]:
     """``counted`` (the starts made so far beside ``answer``) and GTSAM from random starts
     (:func:`_random_alternatives`), made until the stopping rule
     (:func:`rangeslam.verdict.judge.search_complete`, ``answer`` counted) is met after
     ``at_least`` of them, or ``budget`` were made (a failed run counts as made, its failure
-    appended to ``failures``)."""
+    appended to ``failures``). ``reached``: when a start's fit may stop early (default
+    :func:`answer_region` of ``answer``, which must be a minimum of the graph)."""
     dof = unknowns_up_to_rigid_motion(problem.ranges.shape[0], problem.dim)
     metric = judge_metric(problem, sigma)
 
@@ -368,10 +388,11 @@ def random_minima(
         return judge(answer, found, metric=metric, dof=dof, counted=counted_as_start,
                      precision=metric.precision)  # fmt: skip
 
+    if reached is None:
+        reached = answer_region(problem, answer, sigma)
     randoms = _random_alternatives(
-        problem, sigma, rng, [] if failures is None else failures,
-        answer_region(problem, answer, sigma),
-    )  # fmt: skip
+        problem, sigma, rng, [] if failures is None else failures, reached
+    )
     found, _ = random_search(run, counted, randoms, budget=budget, at_least=at_least)
     return found
 
