@@ -216,10 +216,6 @@ def test_points_on_the_way_in_the_answers_basin_return_to_it(rng):
     assert early > 0
 
 
-def m_of(problem) -> int:
-    return problem.ranges.shape[0]
-
-
 def test_a_lower_minimum_or_a_distant_walk_is_not_reached(rng):
     """With the truth as the 'answer' (not the minimum of its noisy ranges), the minimum inside
     its region costs less than it by about the distance between them: the cost does not rise
@@ -238,5 +234,6 @@ def test_a_lower_minimum_or_a_distant_walk_is_not_reached(rng):
     turn = 2 * np.pi / 180
     c, s = np.cos(turn), np.sin(turn)
     turned = answer.points @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    turned[m_of(problem) + 2] = answer.points[m_of(problem) + 2]
+    landmark = problem.ranges.shape[0] + 2
+    turned[landmark] = answer.points[landmark]
     assert not region(turned)

@@ -173,12 +173,14 @@ def judge_room(prob: RoomProblem, fit: JointFit, thr: float) -> list[tuple[Statu
     judgement = judge(answer, alternatives, metric=metric, dof=fit.theta.size)
     own = next((c for c in judgement.comparisons if c.alternative is answer), None)
     lowest = judgement.answer.origin  # the answer is judged against the lowest candidate
-    if own is not None and own.kind == LOWER and judgement.answer.payload == "mirror":
-        return [(Status.NO_AGREEMENT, f"{lowest} fits the data better (robust cost lower by "
-                 f"{own.delta_cost:.3g} noise variances): the fit stopped on the wrong side; ")]  # fmt: skip
     if own is not None and own.kind == LOWER:  # the answer is worse by more than the level
-        return [(Status.OUTLIERS, f"{lowest} fits the data better (robust cost lower by "
-                 f"{own.delta_cost:.3g} noise variances): the fit kept the wrong ranges; ")]  # fmt: skip
+        status, why = (
+            (Status.NO_AGREEMENT, "the fit stopped on the wrong side")
+            if judgement.answer.payload == "mirror"
+            else (Status.OUTLIERS, "the fit kept the wrong ranges")
+        )
+        return [(status, f"{lowest} fits the data better (robust cost lower by "
+                 f"{own.delta_cost:.3g} noise variances): {why}; ")]  # fmt: skip
     if own is not None and own.kind == RIVAL:  # said from the answer's side
         return [(Status.NOT_IDENTIFIABLE, f"{lowest} fits the data as well (cost gap "
                  f"{own.delta_cost:.3g} <= {cost_level():.3g} noise variances) at information "

@@ -108,6 +108,22 @@ _REFIT_ITERATIONS = (200, 5000)
 _START_ITERATIONS = (25, 50, 100, 200, 5000)
 
 
+def _fit_in_stages(fit_from, pts: np.ndarray, limits: Sequence[int], done):
+    """LM in stages: ``fit_from(points, limit)`` (a GraphFit from ``points``, at most ``limit``
+    iterations) for each limit of ``limits`` in turn, each from where the last one ended, until
+    ``done(fit, limit)``. Returns the last fit."""
+    for limit in limits:
+        fit = fit_from(pts, limit)
+        if done(fit, limit):
+            break
+        pts = stacked(fit)
+    return fit
+
+
+def _converged(fit, limit: int) -> bool:
+    return fit.converged
+
+
 def subgraph_fit(
     problem: SlamProblem, pts: np.ndarray, sigma: float, kept: np.ndarray
 ) -> np.ndarray:
@@ -127,17 +143,18 @@ def subgraph_fit(
             np.where(gaps == 1, lower[rows[:-1]], 0.0),
             np.array([upper[a:b].sum() for a, b in itertools.pairwise(rows)]),
         )
-    rec, src = pts[rows], pts[m + cols]
-    for limit in _REFIT_ITERATIONS:
-        fit = refine_graph(
-            rec, src, problem.ranges[np.ix_(rows, cols)],
+    n_rows = len(rows)
+
+    def fit_from(sub: np.ndarray, limit: int):
+        return refine_graph(
+            sub[:n_rows], sub[n_rows:], problem.ranges[np.ix_(rows, cols)],
             noise_std=sigma, mask=kept[np.ix_(rows, cols)], step_bounds=bounds,
             step_sigma=problem.step_sigma, step_prior=problem.step_prior, robust=problem.robust,
             covariances=False, max_iterations=limit,
         )  # fmt: skip
-        if fit.converged:
-            break
-        rec, src = fit.receivers, fit.sources
+
+    sub = np.vstack([pts[rows], pts[m + cols]])
+    fit = _fit_in_stages(fit_from, sub, _REFIT_ITERATIONS, _converged)
     out = pts.copy()
     nearest = np.clip(np.searchsorted(rows, np.arange(m), side="right") - 1, 0, None)
     out[:m] += (fit.receivers - pts[rows])[nearest]
@@ -164,11 +181,10 @@ def _block_refit(
         )
         if reached(pts):
             return pts
-        for limit in _REFIT_ITERATIONS:
-            fit = graph_fit(problem, pts, sigma, max_iterations=limit)
-            if fit.converged:
-                break
-            pts = stacked(fit)
+        fit = _fit_in_stages(
+            lambda p, limit: graph_fit(problem, p, sigma, max_iterations=limit),
+            pts, _REFIT_ITERATIONS, _converged,
+        )  # fmt: skip
     except FIT_ERRORS:
         return None
     return stacked(fit)
@@ -238,11 +254,12 @@ def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float, reached):
     graphs = [dataclasses.replace(problem, robust=None), problem] if problem.robust else [problem]
     staged = max(sigma, problem.floor)
     for graph in graphs:
-        for limit in _START_ITERATIONS:
-            fit = graph_fit(graph, pts, staged, max_iterations=limit)
-            pts = stacked(fit)
-            if fit.iterations < limit or reached(pts):
-                break
+        fit = _fit_in_stages(
+            lambda p, limit, graph=graph: graph_fit(graph, p, staged, max_iterations=limit),
+            pts, _START_ITERATIONS,
+            lambda fit, limit: fit.iterations < limit or reached(stacked(fit)),
+        )  # fmt: skip
+        pts = stacked(fit)
         if sigma < staged:
             fit = refine_run(graph, pts, sigma, covariances=False)[0]
             pts = stacked(fit)
@@ -303,12 +320,11 @@ def answer_region(problem: SlamProblem, answer: Alternative, sigma: float):
     return reached
 
 
-def block_alternatives(problem: SlamProblem, answer: Alternative, sigma: float):
+def block_alternatives(problem: SlamProblem, answer: Alternative, sigma: float, reached):
     """The leave-one-block-out refits of the ``answer``: without one landmark, without one
-    window of max(2, M // 4) steps (module docstring; :func:`_block_refit`); those whose GTSAM
-    run failed are left out."""
+    window of max(2, M // 4) steps (module docstring; :func:`_block_refit`, ``reached`` its
+    :func:`answer_region`); those whose GTSAM run failed are left out."""
     m, observed, points = problem.ranges.shape[0], problem.observed, answer.points
-    reached = answer_region(problem, answer, sigma)
     fixed = itertools.chain(
         block_proposals(points, observed, blocks="columns", names=("step", "landmark")),
         window_proposals(points, observed, max(2, m // 4)),
@@ -406,7 +422,8 @@ def judge_slam(
     m = problem.ranges.shape[0]
     points = np.vstack([answer.receivers, answer.sources])
     main = Alternative(points, graph_deviance(problem, points, sigma), "the answer", payload=True)
-    alternatives = block_alternatives(problem, main, sigma)
+    reached = answer_region(problem, main, sigma)
+    alternatives = block_alternatives(problem, main, sigma, reached)
     runs_made = [
         Alternative(p, graph_deviance(problem, p, sigma), f"convex-iteration run {i}", payload=True)
         for i, p in enumerate(np.vstack([r.receivers, r.sources]) for r in runs)
@@ -415,7 +432,7 @@ def judge_slam(
     counted = random_minima(
         problem, main, runs_made, sigma, rng,
         budget=max(SEARCH_BUDGET, problem.extra_starts), at_least=problem.extra_starts,
-        failures=failures,
+        failures=failures, reached=reached,
     )  # fmt: skip
     metric = judge_metric(problem, sigma)
     judgement = judge(
