@@ -146,6 +146,20 @@ def test_unknown_noise_one_start_says_the_budget_ended_its_search(rng):
     assert not once.converged or align(once.receivers, x, reflection=True).rmse < 3e-3
 
 
+def test_auto_says_when_the_redundancy_is_too_small_to_look_for_wrong_picks(rng):
+    """robust="auto" with fewer redundant ranges than unknowns (10 x 8: 32 for 48) fits least
+    squares and says it did not search for wrong picks, whatever the verdict; robust=False says
+    nothing of the kind (nor does enough redundancy: tests/test_verdicts.py, 16 x 10)."""
+    x, s = rng.uniform(0, 2, (10, 3)), rng.uniform(-2, 4, (8, 3))
+    noisy = add_range_noise(range_matrix(x, s), 1e-3, rng=rng)
+    small = calibrate(noisy, max_attempts=1, rng=rng)
+    assert small.message.startswith(
+        "robust='auto': wrong picks not searched for (32 redundant ranges for 48 unknowns"
+    )
+    plain = calibrate(noisy, robust=False, max_attempts=1, rng=rng)
+    assert "not searched for" not in plain.message
+
+
 def test_unknown_noise_vote_on_a_well_posed_array(rng):
     """10 receivers, 8 sources, 1 mm noise, noise_std unknown: all 4 runs are made, the vote
     passes and the error is at the CRLB level (at most 3x)."""

@@ -421,7 +421,8 @@ def test_beacon_calibration_out_of_range():
 def test_calibrate_auto_robust_on_wrong_picks(rng):
     """10% wrong picks (+0.2 to 1 m) on 16 x 10 ranges, defaults: robust="auto" notices the tail
     and refits robustly; a converged answer is within 3x the bound of the clean ranges. With
-    fewer redundant ranges than unknowns (8 x 7) it stays with least squares and flags them."""
+    fewer redundant ranges than unknowns (8 x 7) it stays with least squares, says it did not
+    search for them, and flags them."""
     from rangeslam.verdict.crlb import mdu_crlb
 
     x, s = rng.uniform(0, [5, 4, 2.6], (16, 3)), rng.uniform(0, [5, 4, 2.6], (10, 3))
@@ -430,13 +431,14 @@ def test_calibrate_auto_robust_on_wrong_picks(rng):
     wrong[0, 0] = True
     ranges[wrong] += rng.uniform(0.2, 1.0, int(wrong.sum()))
     res = rangeslam.calibrate(ranges, rng=rng)
-    assert "robust='auto'" in res.message
+    assert "robust='auto'" in res.message and "not searched for" not in res.message
     if res.converged:
         bound = mdu_crlb(x, s, 0.01, mask=~wrong).receiver_rmse
         assert rangeslam.align(res.receivers, x, reflection=True).rmse <= 3 * bound
     small = ranges[:8, :7]
     res = rangeslam.calibrate(small, rng=rng)
-    assert not res.converged and "robust='auto'" not in res.message
+    assert not res.converged and "wrong picks not searched for (17 redundant" in res.message
+    assert "wrong picks were searched for" not in res.message
 
 
 def test_noise_std_zero_is_exact_data_to_the_consistency_check(rng):

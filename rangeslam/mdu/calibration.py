@@ -544,8 +544,8 @@ def calibrate(
             (SEARCH_BUDGET), not the stopping rule, ended is NO_AGREEMENT (dropping ranges lets
             a wrong configuration pass). True or "cauchy": always robust. ``"auto"`` (default):
             least squares first; robust once a fit's residuals carry a heavy tail or the search
-            ends INCONSISTENT, OUTLIERS or NO_AGREEMENT (the message says so), given at least as
-            many redundant ranges as unknowns. ``False`` or None: never robust ("huber" and
+            ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, given at least as many redundant
+            ranges as unknowns (the message says which, and when there were fewer). ``False`` or None: never robust ("huber" and
             "tukey", of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`, are refused).
         max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I
             with the fit weight times 1, 10, 0.1 and 100, then from random Z cycling the same
@@ -581,9 +581,22 @@ def calibrate(
         ConvexIterationOptions(max_attempts, fit_weight, iterations[robust], gap_tol, edm_start),
     )  # fmt: skip
     rng = as_rng(rng)
-    if not (auto and problem.refine and enough_for_robust(problem)):
+    if not (auto and problem.refine):
         return solve_calibration(problem, rng)
     return auto_robust_calibration(problem, iterations[True], rng)
+
+
+def unsearched_note(problem: CalibrationProblem) -> str:
+    """robust="auto"'s note when the redundancy is too small to search for wrong picks
+    (:func:`enough_for_robust`): least squares spreads a wrong pick over ranges of high leverage,
+    where neither the tail test nor the judge sees it."""
+    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
+    redundancy = int(problem.observed.sum()) - unknowns
+    return (
+        f"robust='auto': wrong picks not searched for ({redundancy} redundant ranges for "
+        f"{unknowns} unknowns; a robust fit needs as many): a wrong pick least squares absorbs "
+        "would go unseen; "
+    )
 
 
 def auto_robust_calibration(
@@ -591,7 +604,12 @@ def auto_robust_calibration(
 ) -> Calibration:
     """robust="auto": least squares on all ranges unless a first short run shows a heavy
     residual tail, and the robust fit (``robust_iterations`` SDP solves per run) when the tail
-    shows or the least-squares search ends in AUTO_ROBUST_STATUSES; the message says which."""
+    shows or the least-squares search ends in AUTO_ROBUST_STATUSES; the message says which.
+    Least squares alone, the message saying so, with too few redundant ranges to look for wrong
+    picks (:func:`enough_for_robust`)."""
+    if not enough_for_robust(problem):
+        result = solve_calibration(problem, rng)
+        return dataclasses.replace(result, message=unsearched_note(problem) + result.message)
     robust_problem = dataclasses.replace(
         problem,
         robust=True,
