@@ -243,6 +243,19 @@ def test_noise_std_zero_is_exact_to_every_verdict():
     assert verdict_noise(0.002, 0.004, 1e-8) == 0.002
 
 
+@pytest.mark.parametrize("noise_std", [1e-155, 5e-324])
+def test_a_noise_level_below_round_off_is_exact_data(rng, noise_std):
+    """A noise_std far below the ranges' round-off (the fuzz's 1e-155 m: whitened by it, the
+    graph's information overflowed and eigh raised LinAlgError) is fitted as exact data: the
+    walk recovered to round-off and converged, as with noise_std=0."""
+    traj, landmarks = _scene(rng, 8)
+    steps = step_lengths(traj)
+    exact = range_matrix(traj, landmarks)
+    out = slam(exact, step_bounds=(0.8 * steps, 1.2 * steps), noise_std=noise_std, rng=rng)
+    assert out.converged, out.message
+    assert align(out.receivers, traj, reflection=True).rmse < 1e-6
+
+
 def test_without_a_noise_level_the_search_makes_one_run_and_the_judge_searches(rng):
     """Without noise_std no test of one run can reject a wrong minimum: the cheap search stops
     after its first convex-iteration run (no runs until the verdict passes), the judge's random

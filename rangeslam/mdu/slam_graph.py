@@ -138,8 +138,9 @@ def refine_run(
         return graph_fit(problem, pts, sigma, covariances=covariances), sigma
     # Below the floor LM does not move from a distant start (at 1e-6 of the scale it made no
     # step at all): first at the floor, then at sigma itself, or for exact data (where the
-    # floor would let the step prior pull by up to mm) with the ranges weighed as exact.
-    target = sigma if sigma > 0 else EXACT_POLISH * floor
+    # floor would let the step prior pull by up to mm) with the ranges weighed as exact. A
+    # sigma below that is exact data too: whitened by 1e-155 m, the graph's error overflowed.
+    target = max(sigma, EXACT_POLISH * floor)
     fit = graph_fit(problem, pts, floor)
     return graph_fit(problem, stacked(fit), target, covariances=covariances), target
 
