@@ -158,3 +158,52 @@ def test_a_wall_fitted_on_the_wrong_side_of_its_image_is_refused(rng):
     (status, text), *_ = judge_room(prob, fit, thr)
     assert status in (Status.OUTLIERS, Status.NO_AGREEMENT), text
     assert f"wall {wrong.origin.split()[1]}" in text, text
+
+
+def _fit_keeping(model, theta, kept, prob):
+    """A JointFit of least squares on the ranges ``kept`` from ``theta`` (as the robust fit
+    leaves it), its sigma the residual RMS over the redundancy."""
+    from scipy.optimize import least_squares
+
+    sub = JointWallModel(model.mics, model.ranges, kept)
+    fit = least_squares(sub.residuals, theta, jac=sub.jacobian, method="trf", x_scale="jac")
+    sigma = float(np.sqrt(np.sum(fit.fun**2) / (kept.sum() - theta.size)))
+    return JointFit(fit.x, kept, sigma, fit.nfev, None)
+
+
+def test_right_ranges_a_robust_fit_left_out_are_put_back(rng):
+    """Clean ranges (1 cm), a fit that left out the 3 with the largest residuals: they are no
+    wrong picks by the mean-shift test, so every range is kept, the fit refitted on all of them
+    and the note says so (seeds 589343267 and 1169768358 of the verdict benchmark: 4 and 2 right
+    ranges left out at a noise scale the fit set itself, walls 2.5-3x their bound off)."""
+    from rangeslam.localization.room_reconstruction import supported_drops
+
+    mics, source, _ = _scene(rng)
+    r = add_range_noise(echo_ranges(ROOM, mics, source), 1e-2, rng=rng)
+    model, theta = _model_at_truth(mics, source, r)
+    prob = RoomProblem(mics, r[None], model.use, mics.mean(axis=0), float(np.median(r)),
+                       model.mics, model.ranges)  # fmt: skip
+    worst = np.argsort(np.abs(model.all_residuals(theta)).ravel())[-3:]
+    kept = model.use.copy()
+    kept.ravel()[worst] = False
+    fit, note = supported_drops(prob, _fit_keeping(model, theta, kept, prob))
+    assert fit.use.all() and "the 3 ranges the robust fit left out are no wrong picks" in note
+
+
+def test_wrong_picks_a_robust_fit_left_out_stay_out(rng):
+    """3 echoes 0.2-1 m late (20-100 sigma at 1 cm) left out by the fit: the mean-shift test
+    calls them wrong (p far below the level) and the robust fit stands, without a note."""
+    from rangeslam.localization.room_reconstruction import supported_drops
+
+    mics, source, _ = _scene(rng)
+    r = add_range_noise(echo_ranges(ROOM, mics, source), 1e-2, rng=rng)
+    wrong = rng.permutation(12)[:3]
+    r[wrong, 1 + rng.integers(6)] += rng.uniform(0.2, 1.0, 3)
+    model, theta = _model_at_truth(mics, source, r)
+    prob = RoomProblem(mics, r[None], model.use, mics.mean(axis=0), float(np.median(r)),
+                       model.mics, model.ranges)  # fmt: skip
+    kept = model.use & (np.abs(model.all_residuals(theta)) < 0.1 / prob.scale)
+    assert kept.sum() == kept.size - 3
+    robust = _fit_keeping(model, theta, kept, prob)
+    fit, note = supported_drops(prob, robust)
+    assert fit is robust and note == ""
