@@ -187,7 +187,7 @@ def test_right_ranges_a_robust_fit_left_out_are_put_back(rng):
     kept = model.use.copy()
     kept.ravel()[worst] = False
     fit, note = supported_drops(prob, _fit_keeping(model, theta, kept, prob))
-    assert fit.use.all() and "the 3 ranges the robust fit left out are no wrong picks" in note
+    assert fit.use.all() and "the 3 ranges the robust fit left out: no wrong picks" in note
 
 
 def test_wrong_picks_a_robust_fit_left_out_stay_out(rng):

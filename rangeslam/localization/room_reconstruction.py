@@ -622,9 +622,10 @@ def supported_drops(prob: RoomProblem, fit: JointFit) -> tuple[JointFit, str]:
     p = dropped_ranges_pvalue(ssr_all, ssr_kept, n_obs, n_kept, fit.theta.size)
     if p <= 1.0 - CHI2_LEVEL:
         return fit, ""
+    what = "range" if n_obs - n_kept == 1 else f"{n_obs - n_kept} ranges"
     return full, (
-        f"the {n_obs - n_kept} ranges the robust fit left out are no wrong picks (mean-shift "
-        f"test, p = {p:.2g}): every range kept; "
+        f"the {what} the robust fit left out: no wrong picks by the mean-shift test "
+        f"(p = {p:.2g}), every range kept; "
     )
 
 
