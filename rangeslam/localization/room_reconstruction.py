@@ -65,9 +65,8 @@ from rangeslam.verdict import (
     information_check,
     noise_upper_bound,
 )
-from rangeslam.verdict.breakdown import dropped_ranges_pvalue
 from rangeslam.verdict.checks import level_sigmas
-from rangeslam.verdict.thresholds import CHI2_LEVEL, EXACT_RTOL, RELATIVE_RMS
+from rangeslam.verdict.thresholds import EXACT_RTOL, RELATIVE_RMS
 
 __all__ = [
     "JointFit",
@@ -602,33 +601,6 @@ def _joint_passes(
     return JointFit(theta, use, sigma, nfev, fit.failure)
 
 
-def supported_drops(prob: RoomProblem, fit: JointFit) -> tuple[JointFit, str]:
-    """The robust fit, or, when the ranges it left out are no wrong picks by the mean-shift test
-    at the verdicts' level (:func:`rangeslam.verdict.breakdown.dropped_ranges_pvalue` above
-    1 - CHI2_LEVEL), the least-squares fit on every range from its answer, with a note. (A
-    robust fit whose noise scale it estimated from the ranges it chose can settle low and keep
-    leaving out right ranges: on a clean shoebox at 1 cm, 4 of 56 left out at a scale of 7 mm,
-    the walls 4.4 cm off, where every range gives 1.8 cm.)"""
-    observed, kept = prob.observed, fit.use
-    n_obs, n_kept = int(observed.sum()), int(kept.sum())
-    if fit.failure is not None or n_kept == n_obs:
-        return fit, ""
-    model = JointWallModel(prob.mics_s, prob.ranges_s, observed)
-    full = _reweighted_fit(model, fit.theta, observed.copy(), robust=False, fixed_thr=None)
-    if full.failure is not None:
-        return fit, ""
-    ssr_all = float(np.sum(model.all_residuals(full.theta)[observed] ** 2))
-    ssr_kept = float(np.sum(model.all_residuals(fit.theta)[kept] ** 2))
-    p = dropped_ranges_pvalue(ssr_all, ssr_kept, n_obs, n_kept, fit.theta.size)
-    if p <= 1.0 - CHI2_LEVEL:
-        return fit, ""
-    what = "range" if n_obs - n_kept == 1 else f"{n_obs - n_kept} ranges"
-    return full, (
-        f"the {what} the robust fit left out: no wrong picks by the mean-shift test "
-        f"(p = {p:.2g}), every range kept; "
-    )
-
-
 def _support_problems(prob: RoomProblem, fit: JointFit, sigma0: float, check_scale: bool):
     """The reasons (status, text) to distrust a joint fit, in the message's order: its own
     failure, walls or loudspeakers that most of their ranges disagree with, a rank-deficient fit,
@@ -815,9 +787,7 @@ def reconstruct_room(
     fixed_thr = None if inlier_threshold is None else float(inlier_threshold) / prob.scale
     fit = _joint_passes(prob, sources0, start.sigma0, robust, fixed_thr, max_hypotheses, rng)
     check_scale = robust and fixed_thr is None
-    fit, note = supported_drops(prob, fit) if check_scale else (fit, "")
     problems, rms_s = _support_problems(prob, fit, start.sigma0, check_scale)
-    problems += [(None, note)] if note else []
     problems += _verdict_problems(prob, fit)
     if robust and fit.failure is None:
         from rangeslam.localization.room_judge import judge_room  # it builds on this module

@@ -9,9 +9,6 @@ regression", JASA 1984). Two counts, both on the (M, K) masks of the ranges obse
 - a point (a receiver's row, or a source's column where ``judge_sources``) that kept at most half
   of its own ranges is placed against the other half of its data.
 
-The converse question, whether what it left out was wrong at all, is
-:func:`dropped_ranges_pvalue`: the likelihood ratio of the mean-shift outlier model.
-
 Measured on robust ``slam`` walks (M = 8, 1 mm, 1-2 wrong picks): a wrong answer 16.6 cm off
 kept 3 of one step's 7 ranges and 3 of one landmark's 8 (8 of 56 ranges dropped, under half the
 17 redundant ones); another placed a landmark on 2 of its 8 ranges. Right answers drop at most
@@ -21,13 +18,11 @@ the wrong picks, one or two of a point's ranges.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import gammaln
-from scipy.stats import f as f_dist
 
 from rangeslam.status import Status
 from rangeslam.verdict.checks import PASSED, Check
 
-__all__ = ["breakdown_check", "dropped_ranges_pvalue", "outvoted_points"]
+__all__ = ["breakdown_check", "outvoted_points"]
 
 
 def outvoted_points(kept: np.ndarray, observed: np.ndarray, axis: int) -> np.ndarray:
@@ -73,21 +68,3 @@ def breakdown_check(
                 "half or more of its data disagree with where it is placed; ",
             )
     return PASSED
-
-
-def dropped_ranges_pvalue(ssr_all: float, ssr_kept: float, n_obs: int, n_kept: int, n_params: int):
-    """The p-value of "the ranges a robust fit left out are no wrong picks": the mean-shift
-    outlier model (each left-out range its own offset) against Gaussian noise on every range, by
-    the F test of the least-squares residual sums of squares on all ``n_obs`` ranges
-    (``ssr_all``) and on the ``n_kept`` kept (``ssr_kept``), ``n_params`` unknowns; Bonferroni
-    over the C(n_obs, k) sets of k = n_obs - n_kept ranges the fit could have left out (Beckman
-    and Cook, "Outlier..........s", Technometrics 25, 1983). Small: they are wrong picks. 1.0
-    when nothing was left out or no redundancy is left to test with."""
-    k, dof = n_obs - n_kept, n_kept - n_params
-    if k <= 0 or dof <= 0:
-        return 1.0
-    if ssr_kept <= 0.0:
-        return 0.0 if ssr_all > 0.0 else 1.0
-    stat = max(ssr_all - ssr_kept, 0.0) / k / (ssr_kept / dof)
-    log_sets = gammaln(n_obs + 1) - gammaln(k + 1) - gammaln(n_obs - k + 1)
-    return float(min(1.0, np.exp(f_dist.logsf(stat, k, dof) + log_sets)))
