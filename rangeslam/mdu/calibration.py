@@ -185,6 +185,16 @@ class CalibrationProblem:
         """RMS residual of exact data (round-off only), metres."""
         return _EXACT_RTOL[bool(self.refine)] * self.scale
 
+    @property
+    def unknowns(self) -> int:
+        """Coordinates of the M + K points up to a rigid motion."""
+        return unknowns_up_to_rigid_motion(self.n_points, self.dim)
+
+    @property
+    def redundancy(self) -> int:
+        """Observed ranges minus :attr:`unknowns`."""
+        return int(self.observed.sum()) - self.unknowns
+
 
 @dataclass(frozen=True)
 class Start:
@@ -364,9 +374,7 @@ def calibration_breakdown(best: Candidate, problem: CalibrationProblem):
     to it: the receivers are what is calibrated, and a source's column may hold picks of several
     reflections (the right dEchorate answer with defaults keeps 15 of source 3's 30 ranges, a
     consistent phantom among them)."""
-    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
-    redundancy = int(problem.observed.sum()) - unknowns
-    return breakdown_check(best.inliers, problem.observed, redundancy, judge_sources=False)
+    return breakdown_check(best.inliers, problem.observed, problem.redundancy, judge_sources=False)
 
 
 def calibration_verdict(
@@ -544,9 +552,9 @@ def calibrate(
             (SEARCH_BUDGET), not the stopping rule, ended is NO_AGREEMENT (dropping ranges lets
             a wrong configuration pass). True or "cauchy": always robust. ``"auto"`` (default):
             least squares first; robust once a fit's residuals carry a heavy tail or the search
-            ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, given at least as many redundant
-            ranges as unknowns (the message says which, and when there were fewer). ``False`` or None: never robust ("huber" and
-            "tukey", of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`, are refused).
+            ends INCONSISTENT, OUTLIERS or NO_AGREEMENT, given as many redundant ranges as
+            unknowns (the message says which, or that there were fewer). ``False``/None: never
+            ("huber", "tukey" of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`: refused).
         max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I
             with the fit weight times 1, 10, 0.1 and 100, then from random Z cycling the same
             weights.
@@ -590,12 +598,10 @@ def unsearched_note(problem: CalibrationProblem) -> str:
     """robust="auto"'s note when the redundancy is too small to search for wrong picks
     (:func:`enough_for_robust`): least squares spreads a wrong pick over ranges of high leverage,
     where neither the tail test nor the judge sees it."""
-    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
-    redundancy = int(problem.observed.sum()) - unknowns
     return (
-        f"robust='auto': wrong picks not searched for ({redundancy} redundant ranges for "
-        f"{unknowns} unknowns; a robust fit needs as many): a wrong pick least squares absorbs "
-        "would go unseen; "
+        f"robust='auto': wrong picks not searched for ({problem.redundancy} redundant ranges "
+        f"for {problem.unknowns} unknowns; a robust fit needs as many): a wrong pick least "
+        "squares absorbs would go unseen; "
     )
 
 
@@ -638,8 +644,7 @@ def enough_for_robust(problem: CalibrationProblem) -> bool:
     unknowns. With fewer, dropping ranges lets wrong configurations fit (measured on the Fig. 3
     scene, redundancy 6 of 36: a robust fit of clean ranges ended 0.9 m off), so least squares
     is used and wrong picks are reported, not searched for."""
-    unknowns = unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
-    return int(problem.observed.sum()) - unknowns >= unknowns
+    return problem.redundancy >= problem.unknowns
 
 
 def probe_has_tail(problem: CalibrationProblem, rng) -> bool:
@@ -675,8 +680,9 @@ def heavy_tail(cand: Candidate, problem: CalibrationProblem, statuses: tuple[Sta
     candidate's residuals one of ``statuses`` (OUTLIERS: a tail no noise explains)."""
     observed = problem.observed
     residuals = cand.fit.residuals[observed]
-    redundancy = int(observed.sum()) - unknowns_up_to_rigid_motion(problem.n_points, problem.dim)
-    check = consistency_check(residuals, None, redundancy, None, problem.scale, problem.exact_rms)
+    check = consistency_check(
+        residuals, None, problem.redundancy, None, problem.scale, problem.exact_rms
+    )
     return check.status in statuses
 
 
