@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -26,6 +28,7 @@ from rangeslam.verdict.judge import (
     precision_spread,
     random_search,
     search_complete,
+    starts_to_complete,
     unseen_minima,
 )
 
@@ -417,7 +420,7 @@ def test_random_search_stops_by_the_rule_the_budget_or_at_least():
 
     def run(found):
         assert all(alt is not None for alt in found)
-        return type("Seen", (), {"minima": 1})()
+        return type("Seen", (), {"minima": 1, "answer": answer})()
 
     found, made = random_search(run, [], draws(), budget=20)
     assert (len(found), made) == (6, 6) and search_complete(len(found) + 1, 1)
@@ -427,6 +430,44 @@ def test_random_search_stops_by_the_rule_the_budget_or_at_least():
     assert (len(found), made) == (6, 3)  # the search's own starts count
     assert random_search(run, [], draws(), budget=4)[1] == 4
     assert random_search(run, [], draws(), budget=20, at_least=9)[1] == 9
+
+
+@pytest.mark.parametrize("minima", [1, 2, 3, 6])
+def test_random_search_asks_the_rule_only_when_it_can_hold(minima):
+    """The rule holds first at 2 w^2 + 3 w + 2 starts for w minima seen; a search of a constant
+    w stops there (or at the budget) and asks the judge twice, not once per draw (a judgement
+    per draw made a 100-start search of 36 minima cost 20 s)."""
+    calls, answer = [], Alternative(np.zeros((1, 2)), 0.0, "the answer")
+
+    def run(found):
+        calls.append(len(found))
+        return type("Seen", (), {"minima": minima, "answer": answer})()
+
+    draws = (Alternative(np.zeros((1, 2)), 0.0, f"random start {j}") for j in itertools.count())
+    need = starts_to_complete(minima)
+    assert search_complete(need, minima) and not search_complete(need - 1, minima)
+    found, made = random_search(run, [], draws, budget=1000)
+    assert len(found) + 1 == need and made == need - 1
+    assert len(calls) == 2
+    found, made = random_search(run, [], draws, budget=need - 3)
+    assert made == need - 3 and len(calls) == 3
+
+
+def test_random_search_asks_again_at_a_new_lowest_where_the_minima_may_fall():
+    """A draw below the lowest judged may merge the minima counted (here 6 fall to 1 once a
+    lower start appears): the rule is asked at once, and the search stops where asking after
+    every draw would (7 starts), not at the 92 that 6 minima need."""
+    answer = Alternative(np.zeros((1, 2)), 0.0, "the answer")
+    deviances = [5.0, 4.0, 3.0, 2.0, 1.0, -1.0] + [0.0] * 200
+
+    def run(found):
+        lowest = min([answer, *found], key=lambda a: a.deviance)
+        return type("Seen", (), {"minima": 1 if lowest.deviance < 0 else 6, "answer": lowest})()
+
+    draws = (Alternative(np.zeros((1, 2)), d, f"random start {j}") for j, d in enumerate(deviances))
+    found, made = random_search(run, [], draws, budget=1000)
+    assert len(found) + 1 == starts_to_complete(1) == 7 and made == 6
+    assert search_complete(len(found) + 1, run(found).minima)
 
 
 def test_reached_lowest_counts_the_starts_at_the_lowest():

@@ -560,7 +560,8 @@ def calibrate(
             weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
             (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with
-            ``refine``); the judge's random starts are at most this many too.
+            ``refine``); the judge's are at most this many too (all of them, unless the
+            stopping rule ends them, when the answer came from a random start).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per run (1 to MAX_SDP_ITERATIONS); None: 50, 3 if robust.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
@@ -718,15 +719,25 @@ def judged_outcome(
     (:func:`rangeslam.verdict.judge.cost_level`) is judged in turn, its own alternatives (the
     refits without each block among them) generated from it: a descent over minima, at most
     SEARCH_BUDGET judgements. The last lowest, when not the search's answer, replaces it (fitted
-    as the search fits a start, the message saying where it came from)."""
+    as the search fits a start, the message saying where it came from).
+
+    When the answer came from one of the search's random starts (no convex-iteration run
+    reached it), the SDP's starts have missed and random starts are the search: the judge draws
+    them until the stopping rule ends them or ``random_starts`` are made in all, not within
+    SEARCH_BUDGET (a minimum lower than an accepted one can pass the residual test too)."""
     best = outcome.best
     sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), outcome.noise_floor)
     answer = _points(best)
     starts = [_points(c) for c in outcome.candidates if c is not best]
     inliers = best.inliers if problem.robust else None
+    draws = None if best.completion is not None else problem.random_starts - outcome.random_starts
     points, hops, settled = answer, [], False
     for _ in range(SEARCH_BUDGET):
-        judged = judge_calibration(problem, points, sigma, rng, inliers=inliers, starts=starts)
+        judged = judge_calibration(
+            problem, points, sigma, rng, inliers=inliers, starts=starts, draws=draws
+        )
+        if draws is not None:  # the draws made count against the limit, their minima on
+            draws, starts = max(draws - judged.draws, 0), counted_points(judged)
         lowest = judged.judgement.answer
         if lowest.points is points:
             settled = True
@@ -754,9 +765,15 @@ def judged_outcome(
     same = settled and not problem.robust
     if not (same and same_calibration(problem, points, sigma)(_points(cand))):
         judged = judge_calibration(
-            problem, _points(cand), sigma, rng, inliers=inliers, starts=starts
+            problem, _points(cand), sigma, rng, inliers=inliers, starts=starts, draws=draws
         )
     return dataclasses.replace(outcome, best=cand), judged
+
+
+def counted_points(judged: JudgedSearch) -> list[np.ndarray]:
+    """The points (M + K, d) of the starts a judgement counted (the search's, its random ones
+    and the judged answer), its lowest left out: the starts of a judgement at that lowest."""
+    return [c.alternative.points for c in judged.judgement.comparisons if c.alternative.payload]
 
 
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:

@@ -34,6 +34,7 @@ from rangeslam.solvers.least_squares import (
 from rangeslam.status import Status
 from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.judge import (
+    DRAWS_BUDGET,
     LOWER,
     Alternative,
     JudgedSearch,
@@ -151,13 +152,16 @@ def judge_calibration(
     *,
     inliers=None,
     starts=(),
+    draws: int | None = None,
 ) -> JudgedSearch:
     """The answer (M + K, d) against every alternative, at the objective's ``sigma`` (metres).
 
-    ``starts``: the search's other fitted starts (M + K, d) (the SDP's runs), counted by the
-    stopping rule with the answer; random starts follow until the rule ends them or SEARCH_BUDGET
-    starts are made in all (at most ``random_starts``). ``inliers``: a robust answer's kept ranges, where random starts make their
-    first fit."""
+    ``starts``: the other fitted starts (M + K, d) (the search's, and in a descent the judged
+    answer before and earlier judgements' random starts), counted by the stopping rule with the
+    answer; random starts follow until the rule ends them or the budget:
+    ``draws`` random starts, or with None SEARCH_BUDGET starts in all (at most
+    ``random_starts``). ``inliers``: a robust answer's kept ranges, where random starts make
+    their first fit."""
     m, observed = problem.ranges.shape[0], problem.observed
     main = Alternative(answer, _deviance(answer, problem, sigma), "the answer", payload=True)
     jac = _information_jacobian(answer, problem, sigma)
@@ -196,9 +200,13 @@ def judge_calibration(
         for p in random_proposals(problem.n_points, problem.dim, problem.scale, rng)
     )
     # the answer is a start too: len(counted) + 1 starts in all
-    budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
-    counted, _ = random_search(run, counted, randoms, budget=budget)
-    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1)
+    words = DRAWS_BUDGET
+    if draws is None:
+        budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
+    else:
+        budget, words = draws, "the random_starts limit"
+    counted, made = random_search(run, counted, randoms, budget=budget)
+    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1, budget=words, draws=made)
 
 
 def _sources_note(best: Candidate, problem: CalibrationProblem) -> str:
