@@ -30,10 +30,13 @@ from rangeslam._validation import as_flag, as_rng, check_int, frozen
 from rangeslam.errors import InvalidInputError, SolverError
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.calibration_judge import (
+    ambiguity_words,
+    counted_points,
     judge_calibration,
     judged_status,
     objective_scale,
     same_calibration,
+    spread,
 )
 from rangeslam.mdu.core import (
     MAX_ATTEMPTS,
@@ -478,7 +481,7 @@ def calibration_result(
             CheckRecord("verdict", float("nan"), float("nan"), status is Status.CONVERGED, message),
         )
         n_judged, reached = len(j.comparisons), j.reached
-        message = "; ".join(filter(None, (message, judged.words(), _ambiguity_words(j))))
+        message = "; ".join(filter(None, (message, judged.words(), ambiguity_words(j))))
     return Calibration(
         receivers=frozen(receivers),
         sources=frozen(sources),
@@ -503,12 +506,6 @@ def calibration_result(
         judged=n_judged,
         reached=reached,
     )
-
-
-def _ambiguity_words(judgement) -> str:
-    """The named ambiguities the judge found, in words ("" if none)."""
-    named = sorted({c.alternative.ambiguity for c in judgement.ambiguities})
-    return "; ".join(f"ambiguous: {w}" for w in named)
 
 
 @single_blas_thread
@@ -556,12 +553,11 @@ def calibrate(
             unknowns (the message says which, or that there were fewer). ``False``/None: never
             ("huber", "tukey" of :data:`rangeslam.solvers.robust_kernels.ROBUST_VALUES`: refused).
         max_attempts: convex-iteration runs at most (1 to MAX_ATTEMPTS, 1000): four from Z = I
-            with the fit weight times 1, 10, 0.1 and 100, then from random Z cycling the same
-            weights.
+            with the fit weight times 1, 10, 0.1 and 100, then from random Z, the same weights.
         random_starts: when no convex-iteration run passes, least squares from up to this many
             (0 to MAX_RANDOM_STARTS, 100000) random starting points (a last resort; only with
-            ``refine``); the judge's are at most this many too (all of them, unless the
-            stopping rule ends them, when the answer came from a random start).
+            ``refine``); the judge's are at most this many too (all, unless the stopping rule
+            ends them, when the answer came from a random start).
         fit_weight: lambda of eq. (10), on data scaled to unit median range.
         max_iterations: SDP solves per run (1 to MAX_SDP_ITERATIONS); None: 50, 3 if robust.
         gap_tol: a run stops when the N - d smallest eigenvalues of G sum to at most this
@@ -719,12 +715,9 @@ def judged_outcome(
     (:func:`rangeslam.verdict.judge.cost_level`) is judged in turn, its own alternatives (the
     refits without each block among them) generated from it: a descent over minima, at most
     SEARCH_BUDGET judgements. The last lowest, when not the search's answer, replaces it (fitted
-    as the search fits a start, the message saying where it came from).
-
-    When the answer came from one of the search's random starts (no convex-iteration run
-    reached it), the SDP's starts have missed and random starts are the search: the judge draws
-    them until the stopping rule ends them or ``random_starts`` are made in all, not within
-    SEARCH_BUDGET (a minimum lower than an accepted one can pass the residual test too)."""
+    as the search fits a start, the message saying where it came from). An answer from a random
+    start (every SDP run missed it) has random starts for its search: the judge draws them to
+    ``random_starts`` in all or the stopping rule (a lower minimum may pass the residual test)."""
     best = outcome.best
     sigma = objective_scale(problem, best.ssr, int(best.inliers.sum()), outcome.noise_floor)
     answer = _points(best)
@@ -770,12 +763,6 @@ def judged_outcome(
     return dataclasses.replace(outcome, best=cand), judged
 
 
-def counted_points(judged: JudgedSearch) -> list[np.ndarray]:
-    """The points (M + K, d) of the starts a judgement counted (the search's, its random ones
-    and the judged answer), its lowest left out: the starts of a judgement at that lowest."""
-    return [c.alternative.points for c in judged.judgement.comparisons if c.alternative.payload]
-
-
 def _cauchy_cost(fit: UnfoldingFit, ranges, observed, scale: float) -> float:
     """Cauchy cost sum log(1 + (res / scale)^2) over the observed ranges."""
     m = len(fit.receivers)
@@ -807,10 +794,3 @@ def _accepted(c: Candidate, problem: CalibrationProblem) -> bool:
         c.ssr, int(c.inliers.sum()), problem.n_points, problem.dim, problem.noise_std,
         problem.exact_rms,
     )  # fmt: skip
-
-
-def spread(cand: Candidate) -> float:
-    """The noise level a candidate's inlier residuals imply, metres (0 without redundancy)."""
-    n_in = int(cand.inliers.sum())
-    dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
-    return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0

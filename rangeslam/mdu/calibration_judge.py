@@ -50,10 +50,13 @@ if TYPE_CHECKING:
     from rangeslam.mdu.calibration import CalibrationProblem, Candidate
 
 __all__ = [
+    "ambiguity_words",
+    "counted_points",
     "judge_calibration",
     "judged_status",
     "objective_scale",
     "same_calibration",
+    "spread",
 ]
 
 
@@ -251,3 +254,22 @@ def judged_status(
             f"noise_std, or raise max_attempts); {_sources_note(best, problem)}"
         )
     return Status.CONVERGED, message
+
+
+def counted_points(judged: JudgedSearch) -> list[np.ndarray]:
+    """The points (M + K, d) of the starts a judgement counted (the search's, its random ones
+    and the judged answer), its lowest left out: the starts of a judgement at that lowest."""
+    return [c.alternative.points for c in judged.judgement.comparisons if c.alternative.payload]
+
+
+def spread(cand: Candidate) -> float:
+    """The noise level a candidate's inlier residuals imply, metres (0 without redundancy)."""
+    n_in = int(cand.inliers.sum())
+    dof = n_in - unknowns_up_to_rigid_motion(sum(cand.inliers.shape), cand.fit.receivers.shape[1])
+    return float(np.sqrt(cand.ssr / dof)) if dof > 0 else 0.0
+
+
+def ambiguity_words(judgement) -> str:
+    """The named ambiguities the judge found, in words ("" if none)."""
+    named = sorted({c.alternative.ambiguity for c in judgement.ambiguities})
+    return "; ".join(f"ambiguous: {w}" for w in named)
