@@ -65,11 +65,6 @@ STEP_PRIORS = ("uniform", "dead_zone")
 #: every direction. (A 6-step walk with bounds stopped at 5000 iterations 0.21 variances short,
 #: 7.8 mm off against a 6.1 cm bound; 1116 more iterations reached the predicted cost.)
 STATIONARY_CHI2 = 1.0
-#: LM stops first once an iteration lowers the cost by less than this many noise variances (a
-#: thousandth of one, far inside the judge's cost level), then goes on to the relative tolerance
-#: only where a Gauss-Newton step still predicts more than STATIONARY_CHI2 (a flat valley).
-#: Running every fit to the relative tolerance 1e-9 spent most of slam's judge creeping there.
-NEGLIGIBLE_CHI2 = 1e-3
 # Sigma of the gauge priors relative to noise_std. The pinned directions are unobservable, so how
 # tight does not change the estimate; 1e-2 keeps the factorisation well conditioned. The other
 # coordinates of the gauge points get no prior information at all (zero rows of the square-root
@@ -422,46 +417,14 @@ class LMRun:
 def run_levenberg_marquardt(
     gtsam, graph, points: np.ndarray, keys: list[int], lm: LMOptions
 ) -> LMRun:
-    """LM from ``points`` (N, d), stopping once an iteration lowers the cost by less than
-    :data:`NEGLIGIBLE_CHI2`; if a Gauss-Newton step from there still predicts more than
-    :data:`STATIONARY_CHI2` (a flat valley LM creeps along), on to the relative tolerance 1e-9
-    within the same iteration limit. Raises SolverError on a non-finite cost."""
+    """LM from ``points`` (N, d). Raises SolverError on a non-finite cost."""
     initial = gtsam.Values()
     for key, p in zip(keys, points, strict=True):
         initial.insert(key, p)
-    initial_error = float(graph.error(initial))
-    result, iterations = initial, 0
-    for tolerance in (0.5 * NEGLIGIBLE_CHI2, 1e-12):  # GTSAM's error is half the chi-square
-        left = int(lm.max_iterations) - iterations
-        if left <= 0:
-            break
-        optimizer = gtsam.LevenbergMarquardtOptimizer(
-            graph, result, lm_params(gtsam, lm, left, tolerance)
-        )
-        result = optimizer.optimize()
-        iterations += int(optimizer.iterations())
-        if (
-            iterations >= lm.max_iterations
-            or predicted_decrease(gtsam, graph, result) <= STATIONARY_CHI2
-        ):
-            break
-    error = float(graph.error(result))
-    if not np.isfinite(error):
-        raise SolverError("GTSAM Levenberg-Marquardt diverged", status=f"error {error}")
-    at = result.atPoint3 if points.shape[1] == 3 else result.atPoint2
-    est = np.array([at(key) for key in keys])
-    hit_limit = 0 < lm.max_iterations <= iterations
-    remaining = predicted_decrease(gtsam, graph, result) if hit_limit else 0.0
-    return LMRun(result, est, iterations, initial_error, error, remaining)
-
-
-def lm_params(gtsam, lm: LMOptions, iterations: int, absolute_tolerance: float):
-    """GTSAM's LevenbergMarquardtParams: at most ``iterations``, stopping at a relative decrease
-    of 1e-9 or an absolute one of ``absolute_tolerance`` (GTSAM's error units)."""
     params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(iterations))
+    params.setMaxIterations(int(lm.max_iterations))
     params.setRelativeErrorTol(1e-9)
-    params.setAbsoluteErrorTol(absolute_tolerance)
+    params.setAbsoluteErrorTol(1e-12)
     # GTSAM stops once the damping passes lambdaUpperBound (1e5 by default). In the curved, flat
     # valleys of few-step SLAM (sigma = 1 mm, M = 5) that stopped it 5-8 cm from the minimum,
     # which a bound of 1e12 reaches (measured: mean trajectory error 7 -> 1.7 cm).
@@ -472,7 +435,20 @@ def lm_params(gtsam, lm: LMOptions, iterations: int, absolute_tolerance: float):
     # returns. A floor at the round-off of whitened (unit) information leaves every step as it
     # was and lets the damping grow again.
     params.setlambdaLowerBound(_LAMBDA_FLOOR)
-    return params
+    initial_error = float(graph.error(initial))
+    result, iterations = initial, 0
+    if lm.max_iterations > 0:
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+        result = optimizer.optimize()
+        iterations = int(optimizer.iterations())
+    error = float(graph.error(result))
+    if not np.isfinite(error):
+        raise SolverError("GTSAM Levenberg-Marquardt diverged", status=f"error {error}")
+    at = result.atPoint3 if points.shape[1] == 3 else result.atPoint2
+    est = np.array([at(key) for key in keys])
+    hit_limit = 0 < lm.max_iterations <= iterations
+    remaining = predicted_decrease(gtsam, graph, result) if hit_limit else 0.0
+    return LMRun(result, est, iterations, initial_error, error, remaining)
 
 
 def predicted_decrease(gtsam, graph, values) -> float:
