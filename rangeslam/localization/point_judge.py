@@ -241,7 +241,7 @@ def judge_point(objective: PointObjective, x: np.ndarray, rng) -> JudgedSearch:
 
     counted, made = random_search(run, [], iter(random), budget=n_random)
     failures += [f"random start {j} did not fit" for j in range(made) if random[j] is None]
-    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1, failures)
+    return JudgedSearch.of(run(alternatives + counted), len(counted) + 1, failures, draws=made)
 
 
 def region_precision(objective: PointObjective, x: np.ndarray, limit: float) -> float:

@@ -355,7 +355,8 @@ def reranked(cands: list[Candidate], problem: CalibrationProblem):
 
     The Cauchy scale the runs were ranked by comes from the first, unrefined SDP fit (7.5-27 cm
     on dEchorate-style picks of about 1 cm noise), where a wrong configuration that drops few
-    ranges outranks the right one. ``floor`` is the least inlier spread (:func:`spread`) of a
+    ranges outranks the right one. ``floor`` is the least inlier spread
+    (:func:`~rangeslam.mdu.calibration_judge.spread`) of a
     candidate within the breakdown rule (:func:`calibration_breakdown`), metres: every candidate
     is ranked by its Cauchy cost at that scale, and "confirmed" means the judge calls another
     candidate the same answer at that scale (:func:`same_calibration`)."""

@@ -5,7 +5,8 @@ The objective is the estimator's own: the sum of squared residuals over sigma^2 
 or for a robust calibration the Cauchy deviance 2 sum log(1 + (r / s)^2) over every observed
 range at one scale s (``noise_std``, else the least inlier spread the search reached), not over
 the ranges each candidate kept. Alternatives: random starts until the stopping rule
-(:func:`rangeslam.verdict.judge.search_complete`) or the ``random_starts`` budget; the answer
+(:func:`rangeslam.verdict.judge.search_complete`) or SEARCH_BUDGET starts in all (the
+``random_starts`` left, when the answer came from a random start); the answer
 refitted without each source and without each receiver (:func:`block_proposals`); each point
 mirrored in the plane of the points it is ranged to (:func:`mirror_proposals`); the answer folded
 (:func:`fold_proposal`).

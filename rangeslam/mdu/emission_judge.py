@@ -128,7 +128,7 @@ def judged_emission_search(
     budget = min(problem.random_starts, left)
     counted, made = random_search(run, others, randoms(), budget=budget)
     words = DRAWS_BUDGET if budget == left else "the random_starts limit"
-    return JudgedSearch.of(run(counted), len(counted) + 1, budget=words), made
+    return JudgedSearch.of(run(counted), len(counted) + 1, budget=words, draws=made), made
 
 
 def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):

@@ -565,7 +565,9 @@ def random_search(
     counted (:func:`starts_to_complete`), or at once when a draw lies below the lowest it
     judged: while the lowest stays, a new start adds a minimum or joins one, so w cannot fall
     and the search stops where asking after every draw would, without a judgement per draw
-    (their cost grows as the square of the draws: 20 s for 100 starts at 36 minima)."""
+    (their cost grows as the square of the draws: 20 s for 100 starts at 36 minima). This
+    holds for a ``run`` that is :func:`judge` of the starts in the order given (the answer and
+    any fixed alternatives first), as every estimator's is."""
     found, made, ask_at, lowest = list(found), 0, 0, np.inf
     while made < budget:
         if made >= at_least and len(found) + 1 >= ask_at:
