@@ -160,14 +160,12 @@ def test_emission_judge_draws_random_starts_until_the_stopping_rule(rng):
         calls.append(points.shape)
         return EmissionCandidate(best.ssr, SimpleNamespace(x=best.fit.x.copy(), fun=best.fit.fun))
 
-    judged, drawn = judged_emission_search(
-        problem, scaled, _only_the_answer(found), at_the_answer, rng
-    )
-    assert judged.complete and judged.judgement.minima == 1 and drawn == len(calls)
+    judged = judged_emission_search(problem, scaled, _only_the_answer(found), at_the_answer, rng)
+    assert judged.complete and judged.judgement.minima == 1 and judged.draws == len(calls)
     assert judged.starts == 7 == len(calls) + 1 and judged.expected == 1.5
     assert calls[0] == (sum(problem.ranges.shape), 3)
     assert judged.judgement.status is Status.CONVERGED
-    searched, words = lowest_found(_only_the_answer(found), judged, drawn)
+    searched, words = lowest_found(_only_the_answer(found), judged)
     assert searched.best is best and words == ""
     assert searched.random_starts == found.random_starts + len(calls)
 
@@ -183,18 +181,18 @@ def test_emission_judge_replaces_an_answer_a_random_start_undercuts(rng):
     pts[[0, 1]] = pts[[1, 0]]  # far off: two receivers exchanged
     lower = EmissionCandidate(0.01 * best.ssr, SimpleNamespace(x=x, fun=0.1 * best.fit.fun))
     draws = iter([None, lower])
-    judged, drawn = judged_emission_search(
+    judged = judged_emission_search(
         problem, scaled, _only_the_answer(found), lambda points: next(draws, None), rng
     )
     assert judged.judgement.answer.payload is lower
     assert not judged.complete and judged.budget == DRAWS_BUDGET
-    searched, words = lowest_found(_only_the_answer(found), judged, drawn)
+    searched, words = lowest_found(_only_the_answer(found), judged)
     assert searched.best is lower
     assert words.startswith("random start 1 reached a lower minimum")
-    assert searched.random_starts == found.random_starts + drawn == found.random_starts + 7
+    assert searched.random_starts == found.random_starts + judged.draws == found.random_starts + 7
     limited = dataclasses.replace(problem, random_starts=1)
-    judged, drawn = judged_emission_search(
+    judged = judged_emission_search(
         limited, scaled, _only_the_answer(found), lambda points: None, rng
     )
-    assert drawn == 1 and judged.budget == "the random_starts limit"
+    assert judged.draws == 1 and judged.budget == "the random_starts limit"
     assert "stopped by the random_starts limit" in judged.words()

@@ -37,6 +37,7 @@ from rangeslam.verdict import noise_upper_bound, verdict_noise
 from rangeslam.verdict.judge import (
     DRAWS_BUDGET,
     LOWER,
+    RANDOM_STARTS_LIMIT,
     Alternative,
     JudgedSearch,
     information_distance,
@@ -208,7 +209,7 @@ def judge_calibration(
     if draws is None:
         budget = min(problem.random_starts, max(SEARCH_BUDGET - len(counted) - 1, 0))
     else:
-        budget, words = draws, "the random_starts limit"
+        budget, words = draws, RANDOM_STARTS_LIMIT
     counted, made = random_search(run, counted, randoms, budget=budget)
     return JudgedSearch.of(run(alternatives + counted), len(counted) + 1, budget=words, draws=made)
 

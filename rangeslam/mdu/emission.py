@@ -489,14 +489,12 @@ def fit_emission_start(scaled: ScaledUnfolding, pts: np.ndarray) -> EmissionCand
     return EmissionCandidate(ssr, fit)
 
 
-def lowest_found(
-    found: EmissionSearch, judged: JudgedSearch, drawn: int
-) -> tuple[EmissionSearch, str]:
+def lowest_found(found: EmissionSearch, judged: JudgedSearch) -> tuple[EmissionSearch, str]:
     """The search with the judge's answer (its lowest candidate) as the best, and the judge's
-    ``drawn`` random starts counted in (as the search counts its own: diverged fits too); the
-    words saying so when that replaced the search's answer ("" if not)."""
+    random starts (``judged.draws``) counted in (as the search counts its own: diverged fits
+    too); the words saying so when that replaced the search's answer ("" if not)."""
     j = judged.judgement
-    found = dataclasses.replace(found, random_starts=found.random_starts + drawn)
+    found = dataclasses.replace(found, random_starts=found.random_starts + judged.draws)
     own = j.replacement
     if own is None:
         return found, ""
@@ -727,10 +725,10 @@ def judged_emission(
     """Step 4: the search's answer judged after the judge's random starts
     (:func:`judged_emission_search`; its lowest the answer, :func:`lowest_found`), the verdict
     (:func:`emission_verdict`) and the result."""
-    judged, drawn = judged_emission_search(
+    judged = judged_emission_search(
         problem, scaled, found, lambda pts: fit_emission_start(scaled, pts), rng
     )
-    found, replaced = lowest_found(found, judged, drawn)
+    found, replaced = lowest_found(found, judged)
     status, message = emission_verdict(problem, scaled, found, judged.judgement)
     message = "; ".join(filter(None, (replaced, message)))
     return emission_result(problem, scaled, found, status, message, judged)

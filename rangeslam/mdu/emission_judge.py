@@ -20,6 +20,7 @@ import numpy as np
 from rangeslam.mdu.core import unknowns_up_to_rigid_motion
 from rangeslam.verdict.judge import (
     DRAWS_BUDGET,
+    RANDOM_STARTS_LIMIT,
     Alternative,
     JudgedSearch,
     information_distance,
@@ -103,7 +104,7 @@ def judged_emission_search(
     found: EmissionSearch,
     fit_start: Callable[[np.ndarray], EmissionCandidate | None],
     rng: np.random.Generator,
-) -> tuple[JudgedSearch, int]:
+) -> JudgedSearch:
     """:func:`judge_emission` after random starts: ``fit_start(points)`` (the search's fit of
     the model from scaled points (M + K, d) normal about the origin, with the starting offsets;
     None when it diverged) until the stopping rule (:func:`rangeslam.verdict.judge.
@@ -111,7 +112,7 @@ def judged_emission_search(
     in all (at most ``problem.random_starts`` draws). A search that stopped at the first
     minimum passing the residual test, unconfirmed, is judged against what those starts
     reach: a lower minimum replaces it, an equal one far off is its rival. Returns the
-    judgement and the draws made (a diverged fit counts as drawn, not as a start)."""
+    judgement, its ``draws`` the draws made (a diverged fit counts as drawn, not as a start)."""
     run, others, sigma = _emission_judge(problem, scaled, found)
     n_points = sum(problem.ranges.shape)
 
@@ -127,8 +128,8 @@ def judged_emission_search(
     left = max(SEARCH_BUDGET - len(others) - 1, 0)
     budget = min(problem.random_starts, left)
     counted, made = random_search(run, others, randoms(), budget=budget)
-    words = DRAWS_BUDGET if budget == left else "the random_starts limit"
-    return JudgedSearch.of(run(counted), len(counted) + 1, budget=words, draws=made), made
+    words = DRAWS_BUDGET if budget == left else RANDOM_STARTS_LIMIT
+    return JudgedSearch.of(run(counted), len(counted) + 1, budget=words, draws=made)
 
 
 def _emission_judge(problem: EmissionProblem, scaled: ScaledUnfolding, found: EmissionSearch):

@@ -51,6 +51,7 @@ __all__ = [
     "AMBIGUITY",
     "DRAWS_BUDGET",
     "LOWER",
+    "RANDOM_STARTS_LIMIT",
     "RIVAL",
     "SAME",
     "WORSE",
@@ -161,6 +162,8 @@ class Judgement:
 
 #: The budget of a search of random starts, in words: SEARCH_BUDGET draws.
 DRAWS_BUDGET = "the budget (SEARCH_BUDGET)"
+#: ... and when an estimator's ``random_starts`` caps the draws.
+RANDOM_STARTS_LIMIT = "the random_starts limit"
 
 
 @dataclass(frozen=True)
