@@ -13,6 +13,7 @@ from rangeslam._robust import MAD_TO_STD
 from rangeslam.geometry.edm import range_matrix
 from rangeslam.mdu.core import least_steps
 from rangeslam.mdu.slam_verdict import EXACT_POLISH, SlamProblem
+from rangeslam.solvers.graph_minpack import minpack_refine
 from rangeslam.solvers.gtsam_graph import GraphFit, refine_graph
 
 __all__ = [
@@ -61,11 +62,22 @@ def graph_fit(
     covariances: bool = False,
     max_iterations: int = 5000,
     plane: np.ndarray | None = None,
+    minpack: bool = False,
 ) -> GraphFit:
     """GTSAM on the problem's ranges and step priors from ``pts`` (M + K, d), range sigma
     ``sigma`` metres; with ``plane`` (a (3,) normal) the receivers held in their plane across it
-    (:func:`rangeslam.solvers.gtsam_graph.refine_graph`'s ``receiver_plane``)."""
+    (:func:`rangeslam.solvers.gtsam_graph.refine_graph`'s ``receiver_plane``). With ``minpack``
+    the same Gaussian graph by MINPACK (:func:`rangeslam.solvers.graph_minpack.minpack_refine`:
+    no robust kernel, plane or covariances)."""
     m = problem.ranges.shape[0]
+    if minpack:
+        if problem.robust is not None or plane is not None or covariances:
+            raise ValueError("graph_fit: minpack fits a Gaussian graph without covariances")
+        return minpack_refine(
+            pts[:m], pts[m:], problem.ranges, noise_std=sigma, mask=problem.observed,
+            step_bounds=problem.bounds, step_sigma=problem.step_sigma,
+            step_prior=problem.step_prior, max_iterations=max_iterations,
+        )  # fmt: skip
     return refine_graph(
         pts[:m],
         pts[m:],
@@ -149,5 +161,7 @@ def graph_deviance(problem: SlamProblem, pts: np.ndarray, sigma: float) -> float
     """-2 log likelihood of ``pts`` (M + K, d) on the graph of range sigma ``sigma`` (metres),
     dimensionless: twice GTSAM's error (half the whitened squared sum) over every observed range
     and step prior, with the robust kernel's cost where there is one; evaluated where the points
-    are (no iteration)."""
-    return 2.0 * graph_fit(problem, pts, sigma, max_iterations=0).error
+    are (no iteration; a Gaussian graph's by :mod:`rangeslam.solvers.graph_minpack`, the same
+    cost without building GTSAM's graph)."""
+    gaussian = problem.robust is None
+    return 2.0 * graph_fit(problem, pts, sigma, max_iterations=0, minpack=gaussian).error

@@ -241,24 +241,29 @@ def trajectory_distance(information: np.ndarray, m: int):
 
 
 def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float, reached):
-    """GTSAM from a random start ``pts`` (M + K, d) at range sigma ``sigma``: with a robust
+    """A fit from a random start ``pts`` (M + K, d) at range sigma ``sigma``: with a robust
     kernel, first by least squares (the graph without the kernel), then on the problem's graph
     from there, as the search's runs start the kernel from the SDP's least-squares answer. (The
     kernel straight from a random start ignores most ranges: on 1 mm walks with a wrong pick,
     LM hit 5000 iterations at 30-50 cm off, 2 s each; from least squares 4 of 6 starts reached
-    the right minimum in 0.05 s.) Each graph's fit runs in the stages of
-    :data:`_START_ITERATIONS` at the graph's floor at least, until LM ends within a stage or the
-    points are in the answer's basin (``reached``, :func:`answer_region`); below the floor it is
-    then finished at ``sigma`` as :func:`rangeslam.mdu.slam_graph.refine_run` finishes a run
-    (LM does not move below the floor from afar: a stage there stopped far off "converged")."""
+    the right minimum in 0.05 s.) The least-squares graph is fitted by MINPACK to its end
+    (:mod:`rangeslam.solvers.graph_minpack`: GTSAM's cost, fewer and cheaper iterations from
+    afar); a robust graph by GTSAM in the stages of :data:`_START_ITERATIONS`, until LM ends
+    within a stage or the points are in the answer's basin (``reached``,
+    :func:`answer_region`). Both at the graph's floor at least; below it the fit is then
+    finished at ``sigma`` as :func:`rangeslam.mdu.slam_graph.refine_run` finishes a run (LM
+    does not move below the floor from afar: a stage there stopped far off "converged")."""
     graphs = [dataclasses.replace(problem, robust=None), problem] if problem.robust else [problem]
     staged = max(sigma, problem.floor)
     for graph in graphs:
-        fit = _fit_in_stages(
-            lambda p, limit, graph=graph: graph_fit(graph, p, staged, max_iterations=limit),
-            pts, _START_ITERATIONS,
-            lambda fit, limit: fit.iterations < limit or reached(stacked(fit)),
-        )  # fmt: skip
+        if graph.robust is None:  # MINPACK, to its end
+            fit = graph_fit(graph, pts, staged, max_iterations=_START_ITERATIONS[-1], minpack=True)
+        else:
+            fit = _fit_in_stages(
+                lambda p, limit, graph=graph: graph_fit(graph, p, staged, max_iterations=limit),
+                pts, _START_ITERATIONS,
+                lambda fit, limit: fit.iterations < limit or reached(stacked(fit)),
+            )  # fmt: skip
         pts = stacked(fit)
         if sigma < staged:
             fit = refine_run(graph, pts, sigma, covariances=False)[0]
