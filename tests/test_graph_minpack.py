@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from rangeslam import InvalidInputError, align
 from rangeslam.geometry.edm import range_matrix
-from rangeslam.solvers.graph_minpack import graph_terms, minpack_fit, minpack_refine
+from rangeslam.solvers.graph_minpack import graph_terms, minpack_fit, minpack_refine, start_frame
 from rangeslam.solvers.gtsam_graph import parse_graph_problem, refine_graph
 from rangeslam.status import Status
 
@@ -48,6 +48,36 @@ def test_the_cost_is_gtsams_wherever_the_points_are(rng, prior):
         gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=0, **kw)
         assert minpack.error == pytest.approx(gtsam_fit.error, rel=1e-10)
         assert minpack.iterations == 0 and minpack.converged
+
+
+def test_a_receivers_plane_costs_and_holds_as_in_gtsams_graph(rng):
+    """With ``receiver_plane`` the same cost as GTSAM's graph (the plane's priors included) at
+    any points, and the fit keeps the receivers in the plane through their start's centroid, at
+    GTSAM's minimum or below it (GTSAM's LM stops early in the landmarks' flat valleys)."""
+    x, s, steps = _walk(rng)
+    x[:, 2] = 1.0 + 0.01 * rng.standard_normal(len(x))  # a walk almost on a floor
+    ranges = range_matrix(x, s) + 0.01 * rng.standard_normal((len(x), len(s)))
+    kw = dict(noise_std=0.01, step_bounds=(0.8 * steps, 1.2 * steps), receiver_plane=[0, 0, 1])
+    x0, s0 = x + 0.05 * rng.standard_normal(x.shape), s + 0.05 * rng.standard_normal(s.shape)
+    gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=0, **kw)
+    assert minpack.error == pytest.approx(gtsam_fit.error, rel=1e-10)
+    gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=5000, **kw)
+    assert minpack.converged, minpack.message
+    # held by priors of sigma GAUGE_TIGHT noise_std (0.1 mm), as in GTSAM's graph
+    np.testing.assert_allclose(minpack.receivers[:, 2], x0[:, 2].mean(), atol=1e-5)
+    assert minpack.error <= gtsam_fit.error * (1 + 1e-6)
+
+
+def test_the_start_frame_moves_only_within_a_plane(rng):
+    points = rng.standard_normal((9, 3))
+    normal = np.array([1.0, 2.0, 2.0]) / 3.0
+    turn = Rotation.from_rotvec(0.4 * normal).as_matrix()
+    moved = points @ turn.T + 2.0 * np.cross(normal, [1.0, 0.0, 0.0])  # a motion in the plane
+    back = start_frame(moved, points, normal)
+    np.testing.assert_allclose(back, points, atol=1e-12)
+    tilted = start_frame(points @ Rotation.from_rotvec([0.3, 0, 0]).as_matrix().T, points, normal)
+    np.testing.assert_allclose(tilted @ normal, (points @ Rotation.from_rotvec([0.3, 0, 0])
+                               .as_matrix().T) @ normal, atol=1e-12)  # fmt: skip
 
 
 def test_exact_recovery_without_noise(rng):

@@ -68,15 +68,15 @@ def graph_fit(
     ``sigma`` metres; with ``plane`` (a (3,) normal) the receivers held in their plane across it
     (:func:`rangeslam.solvers.gtsam_graph.refine_graph`'s ``receiver_plane``). With ``minpack``
     the same Gaussian graph by MINPACK (:func:`rangeslam.solvers.graph_minpack.minpack_refine`:
-    no robust kernel, plane or covariances)."""
+    no robust kernel or covariances)."""
     m = problem.ranges.shape[0]
     if minpack:
-        if problem.robust is not None or plane is not None or covariances:
+        if problem.robust is not None or covariances:
             raise ValueError("graph_fit: minpack fits a Gaussian graph without covariances")
         return minpack_refine(
             pts[:m], pts[m:], problem.ranges, noise_std=sigma, mask=problem.observed,
             step_bounds=problem.bounds, step_sigma=problem.step_sigma,
-            step_prior=problem.step_prior, max_iterations=max_iterations,
+            step_prior=problem.step_prior, max_iterations=max_iterations, receiver_plane=plane,
         )  # fmt: skip
     return refine_graph(
         pts[:m],

@@ -14,8 +14,10 @@ The same cost as GTSAM's graph (half the sum of squared whitened residuals, GTSA
 minimised by MINPACK's ``lmder`` (scipy's ``leastsq``) with the analytic Jacobian. The judge of
 :func:`rangeslam.slam` fits its random starts with it: from afar MINPACK's trust region takes
 fewer iterations than GTSAM's Levenberg-Marquardt to the same minima (benchmarks/README.md,
-"slam's random starts by MINPACK"). Robust kernels, odometry and a receivers' plane are GTSAM's
-alone: such problems are refused here (ValueError), and their callers keep GTSAM.
+"slam's random starts by MINPACK"). A receivers' plane enters as GTSAM's graph has it (each
+receiver's offset across it held by a linear prior of sigma GAUGE_TIGHT noise_std). Robust
+kernels and odometry are GTSAM's alone: such problems are refused here (ValueError), and their
+callers keep GTSAM.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from scipy.optimize import leastsq
 from rangeslam.errors import SolverError
 from rangeslam.geometry.alignment import align
 from rangeslam.solvers.gtsam_graph import (
+    GAUGE_TIGHT,
     GraphFit,
     GraphProblem,
     LMRun,
@@ -36,7 +39,7 @@ from rangeslam.solvers.gtsam_graph import (
     parse_graph_problem,
 )
 
-__all__ = ["GraphTerms", "graph_terms", "minpack_fit", "minpack_refine"]
+__all__ = ["GraphTerms", "graph_terms", "minpack_fit", "minpack_refine", "start_frame"]
 
 # MINPACK's relative tolerances on the cost's decrease and on the step (GTSAM's LM here stops at a
 # relative decrease of 1e-9): from 48 starts on 6 walks of 8 steps, 1e-12 to 1e-8 reached the same
@@ -57,6 +60,9 @@ class GraphTerms:
         sigma: (R,) metres: noise_std, the dead zone's scale outside the bounds, or the uniform
             prior's spread.
         zone: (R,) the dead zone's half-width over its sigma; 0 on a Gaussian row.
+        plane, plane_rows: with a receivers' plane, the linear rows (M, N d) that hold each
+            receiver's offset across it, over their sigma (GAUGE_TIGHT noise_std), and (M,)
+            where they hold it (the start's); None without.
     """
 
     dim: int
@@ -65,14 +71,19 @@ class GraphTerms:
     target: np.ndarray
     sigma: np.ndarray
     zone: np.ndarray
+    plane: np.ndarray | None = None
+    plane_rows: np.ndarray | None = None
 
     def residuals(self, z: np.ndarray) -> np.ndarray:
-        """(R,) the whitened residuals at the stacked points ``z`` (N d,)."""
+        """(R (+ M),) the whitened residuals at the stacked points ``z`` (N d,)."""
         e = (self._lengths(z)[0] - self.target) / self.sigma
-        return np.where(self.zone > 0, np.sign(e) * np.maximum(np.abs(e) - self.zone, 0.0), e)
+        res = np.where(self.zone > 0, np.sign(e) * np.maximum(np.abs(e) - self.zone, 0.0), e)
+        if self.plane_rows is None:
+            return res
+        return np.concatenate([res, self.plane_rows @ z - self.plane])
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
-        """(R, N d) the Jacobian of :meth:`residuals` at ``z``."""
+        """(R (+ M), N d) the Jacobian of :meth:`residuals` at ``z``."""
         lengths, diff = self._lengths(z)
         e = (lengths - self.target) / self.sigma
         weight = np.where(self.zone > 0, np.abs(e) > self.zone, 1.0) / self.sigma
@@ -82,7 +93,7 @@ class GraphTerms:
         at = np.arange(rows)[:, None], np.arange(d)[None, :]
         jac[at[0], self.ends[:, :1] * d + at[1]] = unit
         jac[at[0], self.ends[:, 1:] * d + at[1]] = -unit
-        return jac
+        return jac if self.plane_rows is None else np.vstack([jac, self.plane_rows])
 
     def _lengths(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = z.reshape(-1, self.dim)
@@ -95,8 +106,8 @@ def graph_terms(problem: GraphProblem) -> GraphTerms:
     (:func:`rangeslam.solvers.gtsam_graph.parse_graph_problem`). Raises ValueError for what only
     GTSAM's graph has: a robust kernel, odometry or a receivers' plane."""
     odometry = problem.odometry
-    if problem.robust is not None or problem.plane is not None:
-        raise ValueError("graph_terms: a robust kernel or a receivers' plane is GTSAM's alone")
+    if problem.robust is not None:
+        raise ValueError("graph_terms: a robust kernel is GTSAM's alone")
     if odometry.lengths is not None or odometry.vectors is not None:
         raise ValueError("graph_terms: odometry is GTSAM's alone")
     m, dim = problem.receivers.shape
@@ -116,9 +127,16 @@ def graph_terms(problem: GraphProblem) -> GraphTerms:
             target.append(0.5 * (lower + upper))
             sigma.append(spread)
             zone.append(0.5 * (upper - lower) / sig if i == 0 else np.zeros(m - 1))
+    plane = plane_rows = None
+    if problem.plane is not None:  # add_plane_priors: each receiver's offset across the plane
+        plane_rows = np.zeros((m, (m + len(problem.sources)) * dim))
+        for i in range(m):
+            plane_rows[i, i * dim : (i + 1) * dim] = problem.plane
+        plane_rows /= GAUGE_TIGHT * problem.noise_std
+        plane = plane_rows[:, : m * dim] @ problem.receivers.ravel()
     return GraphTerms(
         dim, m + len(problem.sources), np.vstack(ends), np.concatenate(target),
-        np.concatenate(sigma), np.concatenate(zone),
+        np.concatenate(sigma), np.concatenate(zone), plane, plane_rows,
     )  # fmt: skip
 
 
@@ -140,7 +158,7 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
         # ranges, its gauge free), costing nothing and changing no step. scipy's leastsq is
         # MINPACK's lmder with less wrapping than least_squares(method="lm"), the same iterates
         # (11% less time on the judge's fits).
-        pad = max(start.size - len(terms.target), 0)
+        pad = max(start.size - len(terms.residuals(start)), 0)
         z, _, info, _, code = leastsq(
             lambda v: np.concatenate([terms.residuals(v), np.zeros(pad)]), start,
             Dfun=lambda v: np.vstack([terms.jacobian(v), np.zeros((pad, v.size))]),
@@ -152,7 +170,7 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
             remaining = predicted_decrease(terms.residuals(z), terms.jacobian(z))
     # the gauge: the rigid motion that brings the estimate best onto the start (the cost does not
     # see it; GTSAM's graph pins it with priors at the start)
-    z = align(z.reshape(-1, terms.dim), start.reshape(-1, terms.dim)).aligned.ravel()
+    z = start_frame(z.reshape(-1, terms.dim), start.reshape(-1, terms.dim), problem.plane).ravel()
     error = 0.5 * float(np.sum(terms.residuals(z) ** 2))
     if not np.isfinite(error):
         raise SolverError("MINPACK Levenberg-Marquardt diverged", status=f"error {error}")
@@ -164,17 +182,33 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
 def minpack_refine(
     receivers, sources, ranges, *, noise_std: float, mask=None, step_bounds=None,
     step_sigma: float | None = None, step_prior: str = "uniform", max_iterations: int = 500,
+    receiver_plane=None,
 ) -> GraphFit:  # fmt: skip
     """:func:`rangeslam.solvers.gtsam_graph.refine_graph` on a Gaussian graph of ranges and step
-    priors (the same arguments, checked by the same door; no robust kernel, odometry or plane),
-    minimised by MINPACK (:func:`minpack_fit`), without covariances."""
+    priors, the receivers in a plane with ``receiver_plane`` (the same arguments, checked by the
+    same door; no robust kernel or odometry), minimised by MINPACK (:func:`minpack_fit`), without
+    covariances."""
     problem = parse_graph_problem(
         receivers, sources, ranges, noise_std=noise_std, mask=mask, step_bounds=step_bounds,
         step_sigma=step_sigma, step_prior=step_prior, step_lengths=None, step_vectors=None,
         odometry_sigma=None, robust=None, robust_scale=None, max_iterations=max_iterations,
         lambda_upper_bound=1e12,  # GTSAM's damping bound: checked, not used here
+        receiver_plane=receiver_plane,
     )  # fmt: skip
     return minpack_fit(problem)
+
+
+def start_frame(points: np.ndarray, start: np.ndarray, normal: np.ndarray | None) -> np.ndarray:
+    """``points`` (N, d) moved by the rigid motion that brings them best onto ``start`` (N, d);
+    with a plane's unit ``normal`` (d,), by the motions within the plane alone (a rotation about
+    the normal and a shift along the plane), which leave each point's offset across it as it
+    is."""
+    if normal is None:
+        return align(points, start).aligned
+    basis = np.linalg.svd(normal[None, :])[2]  # rows: the normal, then two across it
+    inside, across = (points @ basis[1:].T), points @ basis[0]
+    moved = align(inside, start @ basis[1:].T).aligned
+    return moved @ basis[1:] + np.outer(across, basis[0])
 
 
 def predicted_decrease(residuals: np.ndarray, jacobian: np.ndarray) -> float:

@@ -56,7 +56,7 @@ from rangeslam.solvers.robust_kernels import (
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 
-__all__ = ["STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
+__all__ = ["GAUGE_TIGHT", "STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
 
 #: Readings of step bounds in the graph (see the module docstring).
 STEP_PRIORS = ("uniform", "dead_zone")
@@ -65,11 +65,11 @@ STEP_PRIORS = ("uniform", "dead_zone")
 #: every direction. (A 6-step walk with bounds stopped at 5000 iterations 0.21 variances short,
 #: 7.8 mm off against a 6.1 cm bound; 1116 more iterations reached the predicted cost.)
 STATIONARY_CHI2 = 1.0
-# Sigma of the gauge priors relative to noise_std. The pinned directions are unobservable, so how
-# tight does not change the estimate; 1e-2 keeps the factorisation well conditioned. The other
-# coordinates of the gauge points get no prior information at all (zero rows of the square-root
-# information), so nothing observable is pulled.
-_GAUGE_TIGHT = 1e-2
+#: Sigma of the gauge priors (and of a receivers' plane) relative to noise_std. The pinned
+#: directions are unobservable, so how tight does not change the estimate; 1e-2 keeps the
+#: factorisation well conditioned. The other coordinates of the gauge points get no prior
+#: information at all (zero rows of the square-root information), so nothing observable is pulled.
+GAUGE_TIGHT = 1e-2
 # The least damping of Levenberg-Marquardt (see run_levenberg_marquardt): round-off against the
 # whitened information, whose diagonal is at least of order 1 (ranges over their sigma).
 _LAMBDA_FLOOR = 1e-16
@@ -263,7 +263,7 @@ def _partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std:
     LinearContainerFactor: no Python call per linearisation)."""
     lin = gtsam.Values()
     lin.insert(key, np.asarray(at, dtype=float).copy())
-    model = gtsam.noiseModel.Isotropic.Sigma(len(rows), _GAUGE_TIGHT * noise_std)
+    model = gtsam.noiseModel.Isotropic.Sigma(len(rows), GAUGE_TIGHT * noise_std)
     factor = gtsam.JacobianFactor(key, np.ascontiguousarray(rows), np.zeros(len(rows)), model)
     return gtsam.LinearContainerFactor(factor, lin)
 
@@ -362,7 +362,7 @@ def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem:
         return
     if problem.odometry.vectors is not None:
         prior_factor = gtsam.PriorFactorPoint3 if d == 3 else gtsam.PriorFactorPoint2
-        noise = gtsam.noiseModel.Isotropic.Sigma(d, _GAUGE_TIGHT * problem.noise_std)
+        noise = gtsam.noiseModel.Isotropic.Sigma(d, GAUGE_TIGHT * problem.noise_std)
         graph.add(prior_factor(keys[0], points[0], noise))
         return
     idx = _gauge_points(points)
