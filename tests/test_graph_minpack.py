@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.optimize import approx_fprime
 from scipy.spatial.transform import Rotation
 
 from rangeslam import InvalidInputError, align
@@ -61,6 +60,9 @@ def test_a_receivers_plane_costs_and_holds_as_in_gtsams_graph(rng):
     x0, s0 = x + 0.05 * rng.standard_normal(x.shape), s + 0.05 * rng.standard_normal(s.shape)
     gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=0, **kw)
     assert minpack.error == pytest.approx(gtsam_fit.error, rel=1e-10)
+    tilted = dict(kw, receiver_plane=[0.3, -0.2, 1.0])
+    gtsam_tilted, minpack_tilted = _both(x0, s0, ranges, max_iterations=0, **tilted)
+    assert minpack_tilted.error == pytest.approx(gtsam_tilted.error, rel=1e-10)
     gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=5000, **kw)
     assert minpack.converged, minpack.message
     # held by priors of sigma GAUGE_TIGHT noise_std (0.1 mm), as in GTSAM's graph
@@ -119,20 +121,46 @@ def test_the_fit_is_invariant_to_a_rigid_motion_of_the_data(rng):
     np.testing.assert_allclose(moved.receivers, first.receivers @ rot.T + shift, atol=1e-7)
 
 
-def test_the_jacobian_is_the_derivative_of_the_residuals(rng):
-    x, s, steps = _walk(rng)
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_jacobian_is_the_derivative_of_the_residuals(rng, dim):
+    """Range rows, the dead zone inside and outside its bounds, the uniform prior's rows and (in
+    3-D) a tilted receivers' plane, against central differences."""
+    x, s, _ = _walk(rng, dim=dim)
     ranges = range_matrix(x, s) + 0.01 * rng.standard_normal((len(x), len(s)))
-    start = np.vstack([x, s]) + 0.02 * rng.standard_normal((len(x) + len(s), 3))
+    start = np.vstack([x, s]) + 0.02 * rng.standard_normal((len(x) + len(s), dim))
+    normal = np.array([0.2, -0.3, 0.9]) / np.linalg.norm([0.2, -0.3, 0.9]) if dim == 3 else None
+    on_plane = start[: len(x)]
+    if normal is not None:  # where the door puts the start's receivers
+        on_plane = on_plane - np.outer((on_plane - on_plane.mean(axis=0)) @ normal, normal)
+    steps = np.linalg.norm(np.diff(on_plane, axis=0), axis=1)
+    outside = np.arange(len(steps)) % 2 == 1  # every other step beyond its bounds
     problem = parse_graph_problem(
         start[: len(x)], start[len(x) :], ranges, noise_std=0.01, mask=None,
-        step_bounds=(0.95 * steps, 1.05 * steps), step_sigma=None, step_prior="uniform",
-        step_lengths=None, step_vectors=None, odometry_sigma=None, robust=None, robust_scale=None,
-        max_iterations=10, lambda_upper_bound=1e12,
+        step_bounds=(np.where(outside, 1.2, 0.9) * steps, np.where(outside, 1.3, 1.1) * steps),
+        step_sigma=None, step_prior="uniform", step_lengths=None, step_vectors=None,
+        odometry_sigma=None, robust=None, robust_scale=None, max_iterations=10,
+        lambda_upper_bound=1e12, receiver_plane=normal,
     )  # fmt: skip
-    terms, z = graph_terms(problem), start.ravel()
-    numeric = np.array([approx_fprime(z, lambda v, i=i: terms.residuals(v)[i], 1e-7)
-                        for i in range(len(terms.target))])  # fmt: skip
-    np.testing.assert_allclose(terms.jacobian(z), numeric, atol=2e-3 * np.abs(numeric).max())
+    terms, z = graph_terms(problem), np.vstack([problem.receivers, problem.sources]).ravel()
+    step = 1e-7
+    numeric = np.column_stack([
+        (terms.residuals(z + step * e) - terms.residuals(z - step * e)) / (2 * step)
+        for e in np.eye(z.size)
+    ])  # fmt: skip
+    np.testing.assert_allclose(terms.jacobian(z), numeric, atol=1e-5 * np.abs(numeric).max())
+    dead = terms.zone > 0
+    inside = np.abs(terms.residuals(z)[: len(terms.target)][dead]) == 0
+    assert inside.any() and (~inside).any()  # both sides of the dead zone were differentiated
+
+
+def test_known_step_lengths_and_a_step_sigma_cost_as_in_gtsams_graph(rng):
+    x, s, steps = _walk(rng)
+    ranges = range_matrix(x, s) + 0.01 * rng.standard_normal((len(x), len(s)))
+    x0, s0 = x + 0.05 * rng.standard_normal(x.shape), s + 0.05 * rng.standard_normal(s.shape)
+    for bounds, step_sigma in (((steps, steps), None), ((0.9 * steps, 1.1 * steps), 0.003)):
+        kw = dict(noise_std=0.01, step_bounds=bounds, step_sigma=step_sigma)
+        gtsam_fit, minpack = _both(x0, s0, ranges, max_iterations=0, **kw)
+        assert minpack.error == pytest.approx(gtsam_fit.error, rel=1e-10)
 
 
 def test_the_iteration_limit_fails_only_short_of_the_minimum(rng):
@@ -170,6 +198,7 @@ def test_what_only_gtsam_has_is_refused(rng):
     for extra in (
         dict(robust="cauchy", step_lengths=None, step_vectors=None, odometry_sigma=None),
         dict(robust=None, step_lengths=steps, step_vectors=None, odometry_sigma=0.01),
+        dict(robust=None, step_lengths=None, step_vectors=np.diff(x, axis=0), odometry_sigma=0.01),
     ):
         problem = parse_graph_problem(x, s, range_matrix(x, s), **common, **extra)
         with pytest.raises(ValueError, match="GTSAM's alone"):

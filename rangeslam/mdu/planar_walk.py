@@ -52,7 +52,7 @@ def planar_answer(problem: SlamProblem, best: SlamRun) -> tuple[SlamRun, CheckRe
     None where the test does not apply (2-D, fewer than 4 steps, no GTSAM fit). Both models are
     minimised and scored on the graph of ``best``'s own range sigma (its covariances' too); a
     Gaussian graph's refit is brought near its minimum by MINPACK first (GTSAM's LM creeps along
-    the landmarks' flat valleys there: 70-2000 iterations against 30-180 Jacobians, on 12
+    the landmarks' flat valleys there: 15-2000 iterations against 30-180 Jacobians, on 12
     walks of 8 steps 2.9 s against 0.9 s; benchmarks/README.md, "slam's random starts by
     MINPACK"), GTSAM's fit and covariances from there. A refit that fails leaves ``best``, with
     the failure as the record's reason."""
@@ -63,8 +63,10 @@ def planar_answer(problem: SlamProblem, best: SlamRun) -> tuple[SlamRun, CheckRe
     answer = np.vstack([best.receivers, best.sources])
     normal = best_plane(best.receivers)[1]
     try:  # from the receivers projected onto the plane: MINPACK, then GTSAM's fit from there
-        near = graph_fit(problem, answer, sigma, plane=normal, minpack=problem.robust is None)
-        fit = graph_fit(problem, stacked(near), sigma, covariances=True, plane=normal)
+        start = answer
+        if problem.robust is None:
+            start = stacked(graph_fit(problem, answer, sigma, plane=normal, minpack=True))
+        fit = graph_fit(problem, start, sigma, covariances=True, plane=normal)
     except (SolverError, InvalidInputError, RuntimeError) as exc:
         return best, CheckRecord(PLANAR_CHECK, float("nan"), level, False, f"refit failed: {exc}")
     gap = graph_deviance(problem, stacked(fit), sigma) - graph_deviance(problem, answer, sigma)

@@ -15,10 +15,11 @@ reported as ``ambiguous_landmarks``) and moves the trajectory by less than its p
 same answer, not a rival (over all unknowns, each side flip of a 1 cm lemniscate walk was
 another answer, 10^5-10^6 information units away). Alternatives:
 
-- the search's other convex-iteration runs and GTSAM from random starts
-  (:func:`rangeslam.mdu.slam_graph.random_start`; a robust graph from the least-squares fit
-  there, :func:`_start_fit`; a fit that has entered the answer's basin, :func:`answer_region`,
-  is judged where it stands: LM from there returns to the answer), counted by the stopping rule
+- the search's other convex-iteration runs and fits from random starts
+  (:func:`rangeslam.mdu.slam_graph.random_start`; the least-squares graph by MINPACK to its end,
+  a robust graph by GTSAM from there, :func:`_start_fit`, where a fit that has entered the
+  answer's basin, :func:`answer_region`, is judged where it stands: LM from there returns to
+  the answer), counted by the stopping rule
   (:func:`rangeslam.verdict.judge.search_complete`) or ended by the budget SEARCH_BUDGET
   (``extra_starts`` when larger);
 - leave-one-block-out refits from the answer (:func:`block_proposals` by landmark,
@@ -100,9 +101,9 @@ FIT_ERRORS = (SolverError, InvalidInputError, RuntimeError)
 # creeps along it inside the answer's uncertainty (an exact planar walk: 900-1300 iterations a
 # refit, 24 refits 25 times the cost of the fit judged) and is judged where it stands.
 _REFIT_ITERATIONS = (200, 5000)
-# LM iteration limits of a random start, run one after another: a fit that has reached the
-# answer's basin after one (:func:`answer_region`) is judged where it stands, any other goes on
-# until LM ends within a stage.
+# LM iteration limits of a random start's robust stage (GTSAM), run one after another: a fit that
+# has reached the answer's basin after one (:func:`answer_region`) is judged where it stands, any
+# other goes on until LM ends within a stage; the least-squares stage (MINPACK) has the last one.
 # (From random starts on 8-step walks, one run of 5000: median 88 iterations, 11 of 146 fits
 # over 500, 2.8 s of their 7.0 s.)
 _START_ITERATIONS = (25, 50, 100, 200, 5000)
@@ -272,7 +273,7 @@ def _start_fit(problem: SlamProblem, pts: np.ndarray, sigma: float, reached):
 
 
 def _random_alternatives(problem: SlamProblem, sigma: float, rng, failures: list[str], reached):
-    """GTSAM from GTSAM-style random starts without end (:func:`_start_fit`, ``reached`` its
+    """Fits from GTSAM-style random starts without end (:func:`_start_fit`, ``reached`` its
     test of the answer's region), each an Alternative (counted), or None where GTSAM failed (the
     failure appended to ``failures``)."""
     r, observed = problem.ranges, problem.observed

@@ -34,6 +34,7 @@ from rangeslam.solvers.gtsam_graph import (
     GraphFit,
     GraphProblem,
     LMRun,
+    dead_zone_bounds,
     fit_result,
     lm_verdict,
     parse_graph_problem,
@@ -60,9 +61,9 @@ class GraphTerms:
         sigma: (R,) metres: noise_std, the dead zone's scale outside the bounds, or the uniform
             prior's spread.
         zone: (R,) the dead zone's half-width over its sigma; 0 on a Gaussian row.
-        plane, plane_rows: with a receivers' plane, the linear rows (M, N d) that hold each
-            receiver's offset across it, over their sigma (GAUGE_TIGHT noise_std), and (M,)
-            where they hold it (the start's); None without.
+        plane_rows: with a receivers' plane, the linear rows (M, N d) that hold each receiver's
+            offset across it, over their sigma (GAUGE_TIGHT noise_std); None without.
+        plane_offsets: (M,) where they hold them (the start's offsets, over the same sigma).
     """
 
     dim: int
@@ -71,8 +72,8 @@ class GraphTerms:
     target: np.ndarray
     sigma: np.ndarray
     zone: np.ndarray
-    plane: np.ndarray | None = None
     plane_rows: np.ndarray | None = None
+    plane_offsets: np.ndarray | None = None
 
     def residuals(self, z: np.ndarray) -> np.ndarray:
         """(R (+ M),) the whitened residuals at the stacked points ``z`` (N d,)."""
@@ -80,7 +81,7 @@ class GraphTerms:
         res = np.where(self.zone > 0, np.sign(e) * np.maximum(np.abs(e) - self.zone, 0.0), e)
         if self.plane_rows is None:
             return res
-        return np.concatenate([res, self.plane_rows @ z - self.plane])
+        return np.concatenate([res, self.plane_rows @ z - self.plane_offsets])
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         """(R (+ M), N d) the Jacobian of :meth:`residuals` at ``z``."""
@@ -104,7 +105,7 @@ class GraphTerms:
 def graph_terms(problem: GraphProblem) -> GraphTerms:
     """The :class:`GraphTerms` of a validated graph problem
     (:func:`rangeslam.solvers.gtsam_graph.parse_graph_problem`). Raises ValueError for what only
-    GTSAM's graph has: a robust kernel, odometry or a receivers' plane."""
+    GTSAM's graph has: a robust kernel or odometry."""
     odometry = problem.odometry
     if problem.robust is not None:
         raise ValueError("graph_terms: a robust kernel is GTSAM's alone")
@@ -117,7 +118,8 @@ def graph_terms(problem: GraphProblem) -> GraphTerms:
     sigma, zone = [np.full(len(pairs), problem.noise_std)], [np.zeros(len(pairs))]
     prior = problem.step_prior
     if prior is not None:  # the dead zone, then the uniform prior's Gaussian (add_step_priors)
-        lower, upper, sig = prior.bounds.lower, prior.bounds.upper, prior.sigma
+        bounds, sig = dead_zone_bounds(prior), prior.sigma
+        lower, upper = bounds.lower, bounds.upper
         steps = np.column_stack([np.arange(m - 1), np.arange(1, m)])
         spreads = [np.full(m - 1, sig)]
         if prior.kind == "uniform":
@@ -127,16 +129,16 @@ def graph_terms(problem: GraphProblem) -> GraphTerms:
             target.append(0.5 * (lower + upper))
             sigma.append(spread)
             zone.append(0.5 * (upper - lower) / sig if i == 0 else np.zeros(m - 1))
-    plane = plane_rows = None
+    plane_rows = plane_offsets = None
     if problem.plane is not None:  # add_plane_priors: each receiver's offset across the plane
         plane_rows = np.zeros((m, (m + len(problem.sources)) * dim))
         for i in range(m):
             plane_rows[i, i * dim : (i + 1) * dim] = problem.plane
         plane_rows /= GAUGE_TIGHT * problem.noise_std
-        plane = plane_rows[:, : m * dim] @ problem.receivers.ravel()
+        plane_offsets = plane_rows[:, : m * dim] @ problem.receivers.ravel()
     return GraphTerms(
         dim, m + len(problem.sources), np.vstack(ends), np.concatenate(target),
-        np.concatenate(sigma), np.concatenate(zone), plane, plane_rows,
+        np.concatenate(sigma), np.concatenate(zone), plane_rows, plane_offsets,
     )  # fmt: skip
 
 
@@ -145,7 +147,8 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
     most ``problem.lm.max_iterations`` evaluations of the residuals (0: the cost where the points
     are). The :class:`rangeslam.solvers.gtsam_graph.GraphFit` as GTSAM's would be, without
     covariances: its ``error`` GTSAM's (half the whitened squared sum), its ``iterations``
-    MINPACK's Jacobian evaluations, SOLVER_FAILED where the limit stopped it short of the
+    MINPACK's Jacobian evaluations (the limit itself where the limit of evaluations ended it: the
+    limit's message counts evaluations), SOLVER_FAILED where the limit stopped it short of the
     minimum (a Gauss-Newton step predicting more than STATIONARY_CHI2 noise variances) or the
     cost is not finite (SolverError). Raises ValueError as :func:`graph_terms` does."""
     terms = graph_terms(problem)
@@ -164,13 +167,16 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
             Dfun=lambda v: np.vstack([terms.jacobian(v), np.zeros((pad, v.size))]),
             full_output=True, maxfev=limit, ftol=_TOLERANCE, xtol=_TOLERANCE, gtol=_TOLERANCE,
         )  # fmt: skip
+        if not np.all(np.isfinite(z)):
+            raise SolverError("MINPACK Levenberg-Marquardt diverged", status="non-finite points")
         iterations = int(info["njev"])
-        if code == 5:  # the limit, not a tolerance, ended it
+        if code == 5:  # the limit of evaluations, not a tolerance, ended it
             iterations = limit
             remaining = predicted_decrease(terms.residuals(z), terms.jacobian(z))
-    # the gauge: the rigid motion that brings the estimate best onto the start (the cost does not
-    # see it; GTSAM's graph pins it with priors at the start)
-    z = start_frame(z.reshape(-1, terms.dim), start.reshape(-1, terms.dim), problem.plane).ravel()
+        # the gauge: the rigid motion that brings the estimate best onto the start (the cost
+        # does not see it; GTSAM's graph pins it with priors at the start)
+        shape = (-1, terms.dim)
+        z = start_frame(z.reshape(shape), start.reshape(shape), problem.plane).ravel()
     error = 0.5 * float(np.sum(terms.residuals(z) ** 2))
     if not np.isfinite(error):
         raise SolverError("MINPACK Levenberg-Marquardt diverged", status=f"error {error}")
@@ -216,6 +222,9 @@ def predicted_decrease(residuals: np.ndarray, jacobian: np.ndarray) -> float:
     units): |r|^2 - |r + J delta|^2 for the least-squares step delta of the whitened
     ``residuals`` (R,) and their ``jacobian`` (R, n). Compared with STATIONARY_CHI2 by
     :func:`rangeslam.solvers.gtsam_graph.lm_verdict`."""
-    step = np.linalg.lstsq(jacobian, -residuals, rcond=None)[0]
+    try:
+        step = np.linalg.lstsq(jacobian, -residuals, rcond=None)[0]
+    except np.linalg.LinAlgError:  # as GTSAM's: a system that cannot be solved predicts inf
+        return float("inf")
     after = residuals + jacobian @ step
     return float(residuals @ residuals - after @ after)

@@ -56,7 +56,14 @@ from rangeslam.solvers.robust_kernels import (
 from rangeslam.solvers.step_bounds import KNOWN_STEP_WIDTH, StepBounds
 from rangeslam.status import HasStatus, Status
 
-__all__ = ["GAUGE_TIGHT", "STEP_PRIORS", "GraphFit", "LMOptions", "refine_graph"]
+__all__ = [
+    "GAUGE_TIGHT",
+    "STEP_PRIORS",
+    "GraphFit",
+    "LMOptions",
+    "dead_zone_bounds",
+    "refine_graph",
+]
 
 #: Readings of step bounds in the graph (see the module docstring).
 STEP_PRIORS = ("uniform", "dead_zone")
@@ -316,15 +323,24 @@ def add_range_factors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> N
         graph.add(range_factor(keys[int(i)], keys[m + int(j)], float(r[i, j]), noise))
 
 
+def dead_zone_bounds(prior: StepPrior) -> StepBounds:
+    """The bounds the step prior's factors use: ``prior.bounds``, where a known step length
+    (lower = upper) survived refine_graph's door (built without it, or widened by less than a
+    unit in the last place) widened as parse_step_prior does (scale: the steps or the sigma): the
+    dead zone needs a positive width."""
+    bounds = prior.bounds
+    if np.any(bounds.upper <= bounds.lower):
+        scale = max(float(np.median(bounds.midpoints)), prior.sigma)
+        bounds = bounds.widened(KNOWN_STEP_WIDTH * scale)
+    return bounds
+
+
 def add_step_priors(gtsam, graph, prior: StepPrior, keys: list[int], d: int) -> None:
     """Per step, a dead-zone range factor of half-width (upper - lower) / 2 at the midpoint, and
     with "uniform" the moment-matched Gaussian of U(lower, upper) (never below sigma)."""
     range_factor = gtsam.RangeFactor3 if d == 3 else gtsam.RangeFactor2
-    bounds, sig = prior.bounds, prior.sigma
-    if np.any(bounds.upper <= bounds.lower):
-        # A known step length (lower = upper) built without refine_graph's door: the dead zone
-        # needs a positive width, so widen as parse_step_prior does (scale: the steps or sigma).
-        bounds = bounds.widened(KNOWN_STEP_WIDTH * max(float(np.median(bounds.midpoints)), sig))
+    sig = prior.sigma
+    bounds = dead_zone_bounds(prior)
     lower, upper = bounds.lower, bounds.upper
     for i in range(prior.bounds.n_steps):
         half = 0.5 * (upper[i] - lower[i])
