@@ -32,7 +32,7 @@ from rangeslam.mdu.slam_verdict import SlamProblem, SlamRun
 from rangeslam.verdict.judge import CheckRecord
 from rangeslam.verdict.thresholds import CHI2_LEVEL
 
-__all__ = ["PLANAR_CHECK", "best_plane", "planar_answer"]
+__all__ = ["PLANAR_CHECK", "best_plane", "planar_answer", "planar_fit"]
 
 #: The name of the check record the nested test leaves in :attr:`SlamResult.checks`.
 PLANAR_CHECK = "the walk in its plane"
@@ -45,28 +45,38 @@ def best_plane(receivers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centre, np.linalg.svd(receivers - centre)[2][-1]
 
 
+def planar_fit(problem: SlamProblem, answer: np.ndarray, sigma: float, normal: np.ndarray):
+    """The nested model's fit from ``answer`` (M + K, 3), the receivers held in the plane across
+    ``normal`` (3,), with covariances. A robust graph: GTSAM's LM. A Gaussian graph: MINPACK to
+    its minimum (:mod:`rangeslam.solvers.graph_minpack`), then GTSAM's covariances there without
+    iterating (its status MINPACK's). GTSAM's LM creeps along the landmarks' flat valleys here
+    (15-2000 iterations against MINPACK's 30-180 Jacobians; on 12 walks of 8 steps 2.9 s
+    against 0.9 s: benchmarks/README.md, "slam's random starts by MINPACK"), and where it
+    stopped depended on the last bits of its start: a Fig. 5 walk's NEES differed in the
+    fifth digit from run to run of one process when GTSAM iterated from MINPACK's end."""
+    if problem.robust is not None:
+        return graph_fit(problem, answer, sigma, covariances=True, plane=normal)
+    near = graph_fit(problem, answer, sigma, plane=normal, minpack=True)
+    at = graph_fit(problem, stacked(near), sigma, covariances=True, plane=normal, max_iterations=0)
+    return dataclasses.replace(at, status=near.status, message=near.message)
+
+
 def planar_answer(problem: SlamProblem, best: SlamRun) -> tuple[SlamRun, CheckRecord | None]:
     """``best`` (a refined 3-D run), or its refit in the trajectory's plane (module docstring)
     when the likelihood-ratio test keeps the plane, with covariances; and the test's record
     (statistic: the deviance gap; level: the chi-square(M - 3) quantile; passed: the refit ran),
     None where the test does not apply (2-D, fewer than 4 steps, no GTSAM fit). Both models are
-    minimised and scored on the graph of ``best``'s own range sigma (its covariances' too); a
-    Gaussian graph's refit is brought near its minimum by MINPACK first (GTSAM's LM creeps along
-    the landmarks' flat valleys there: 15-2000 iterations against 30-180 Jacobians, on 12
-    walks of 8 steps 2.9 s against 0.9 s; benchmarks/README.md, "slam's random starts by
-    MINPACK"), GTSAM's fit and covariances from there. A refit that fails leaves ``best``, with
-    the failure as the record's reason."""
+    minimised and scored on the graph of ``best``'s own range sigma (its covariances' too;
+    :func:`planar_fit`). A refit that fails leaves ``best``, with the failure as the record's
+    reason."""
     m, sigma = problem.ranges.shape[0], best.sigma
     if problem.dim != 3 or m < 4 or best.fit is None or not sigma:
         return best, None
     level = float(chi2.ppf(CHI2_LEVEL, m - 3))
     answer = np.vstack([best.receivers, best.sources])
     normal = best_plane(best.receivers)[1]
-    try:  # from the receivers projected onto the plane: MINPACK, then GTSAM's fit from there
-        start = answer
-        if problem.robust is None:
-            start = stacked(graph_fit(problem, answer, sigma, plane=normal, minpack=True))
-        fit = graph_fit(problem, start, sigma, covariances=True, plane=normal)
+    try:  # from the receivers projected onto the plane (planar_fit)
+        fit = planar_fit(problem, answer, sigma, normal)
     except (SolverError, InvalidInputError, RuntimeError) as exc:
         return best, CheckRecord(PLANAR_CHECK, float("nan"), level, False, f"refit failed: {exc}")
     gap = graph_deviance(problem, stacked(fit), sigma) - graph_deviance(problem, answer, sigma)

@@ -81,7 +81,7 @@ class GraphTerms:
         res = np.where(self.zone > 0, np.sign(e) * np.maximum(np.abs(e) - self.zone, 0.0), e)
         if self.plane_rows is None:
             return res
-        return np.concatenate([res, self.plane_rows @ z - self.plane_offsets])
+        return np.concatenate([res, (self.plane_rows * z).sum(axis=1) - self.plane_offsets])
 
     def jacobian(self, z: np.ndarray) -> np.ndarray:
         """(R (+ M), N d) the Jacobian of :meth:`residuals` at ``z``."""
@@ -99,7 +99,9 @@ class GraphTerms:
     def _lengths(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = z.reshape(-1, self.dim)
         diff = p[self.ends[:, 0]] - p[self.ends[:, 1]]
-        return np.sqrt(np.einsum("ij,ij->i", diff, diff)), diff
+        # elementwise products summed along the row, as the plane's rows are: no BLAS product
+        # or einsum, whose order of summation may follow the arrays' memory alignment
+        return np.sqrt((diff * diff).sum(axis=1)), diff
 
 
 def graph_terms(problem: GraphProblem) -> GraphTerms:
@@ -135,7 +137,7 @@ def graph_terms(problem: GraphProblem) -> GraphTerms:
         for i in range(m):
             plane_rows[i, i * dim : (i + 1) * dim] = problem.plane
         plane_rows /= GAUGE_TIGHT * problem.noise_std
-        plane_offsets = plane_rows[:, : m * dim] @ problem.receivers.ravel()
+        plane_offsets = (plane_rows[:, : m * dim] * problem.receivers.ravel()).sum(axis=1)
     return GraphTerms(
         dim, m + len(problem.sources), np.vstack(ends), np.concatenate(target),
         np.concatenate(sigma), np.concatenate(zone), plane_rows, plane_offsets,
