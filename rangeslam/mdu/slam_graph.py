@@ -70,9 +70,9 @@ def graph_fit(
     the same Gaussian graph by MINPACK (:func:`rangeslam.solvers.graph_minpack.minpack_refine`:
     no robust kernel or covariances)."""
     m = problem.ranges.shape[0]
-    if minpack:
-        if problem.robust is not None or covariances:
-            raise ValueError("graph_fit: minpack fits a Gaussian graph without covariances")
+    if minpack:  # (a robust kernel is refused by graph_minpack.graph_terms)
+        if covariances:
+            raise ValueError("graph_fit: minpack fits without covariances")
         return minpack_refine(
             pts[:m], pts[m:], problem.ranges, noise_std=sigma, mask=problem.observed,
             step_bounds=problem.bounds, step_sigma=problem.step_sigma,

@@ -155,7 +155,8 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
     cost is not finite (SolverError). Raises ValueError as :func:`graph_terms` does."""
     terms = graph_terms(problem)
     start = np.vstack([problem.receivers, problem.sources]).ravel()
-    initial = 0.5 * float(np.sum(terms.residuals(start) ** 2))
+    at_start = terms.residuals(start)
+    initial = 0.5 * float(np.sum(at_start**2))
     limit = problem.lm.max_iterations
     z, iterations, remaining = start, 0, 0.0
     if limit > 0:
@@ -163,7 +164,7 @@ def minpack_fit(problem: GraphProblem) -> GraphFit:
         # ranges, its gauge free), costing nothing and changing no step. scipy's leastsq is
         # MINPACK's lmder with less wrapping than least_squares(method="lm"), the same iterates
         # (11% less time on the judge's fits).
-        pad = max(start.size - len(terms.residuals(start)), 0)
+        pad = max(start.size - len(at_start), 0)
         z, _, info, _, code = leastsq(
             lambda v: np.concatenate([terms.residuals(v), np.zeros(pad)]), start,
             Dfun=lambda v: np.vstack([terms.jacobian(v), np.zeros((pad, v.size))]),
