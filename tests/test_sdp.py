@@ -7,11 +7,14 @@ import pytest
 from rangeslam import InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.mdu.core import mdu_edm, mdu_mask
+from rangeslam.solvers import sdp as sdp_module
 from rangeslam.solvers.sdp import (
     EDMCompletionSDP,
+    clear_sdp_pool,
     complete_edm,
     eigen_gap,
     low_rank_direction,
+    pooled_sdp,
     random_direction,
 )
 
@@ -107,6 +110,85 @@ def test_problem_is_built_once_and_reused(rng):
     b = complete_edm(edm(2 * x), mask, 3, problem=problem, max_iterations=5)
     assert problem._problem is built
     np.testing.assert_allclose(b.edm, 4 * a.edm, rtol=1e-4, atol=1e-6)
+
+
+@pytest.fixture
+def empty_pool():
+    clear_sdp_pool()
+    yield
+    clear_sdp_pool()
+
+
+def _bounded_walk(rng, n=10):
+    """Points of a walk (n, 3), the full mask, its consecutive pairs and +-20% bounds on them."""
+    x = np.cumsum(rng.normal(0, 0.5, (n, 3)), axis=0)
+    pairs = np.column_stack([np.arange(n - 1), np.arange(1, n)])
+    steps = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    return x, ~np.eye(n, dtype=bool), pairs, (0.8 * steps, 1.2 * steps)
+
+
+def test_a_pooled_problem_gives_the_bits_of_a_new_one(rng, empty_pool):
+    """A problem handed out again by the pool keeps its compiled form but builds its solver anew
+    for the next data: each completion is bitwise that of a problem built for its data, whatever
+    the pooled one solved before (its solver updated instead, walks differed by up to 2e-3)."""
+    _, mask, pairs, _ = _bounded_walk(rng)
+    run = {"max_iterations": 4, "bounded_pairs": pairs}
+    with pooled_sdp(mask, bounded_pairs=pairs) as first:
+        pass
+    for _ in range(4):
+        y, _, _, bounds = _bounded_walk(rng)
+        noisy = edm(y) + rng.normal(0, 1e-3, mask.shape) * mask
+        noisy = 0.5 * (noisy + noisy.T)
+        with pooled_sdp(mask, bounded_pairs=pairs) as again:
+            assert again is first
+            reused = complete_edm(noisy, mask, 3, problem=again, bounds=bounds, **run)
+        fresh = complete_edm(noisy, mask, 3, bounds=bounds, **run)
+        assert reused.iterations == fresh.iterations
+        np.testing.assert_array_equal(reused.gram, fresh.gram)
+
+
+def test_the_pool_hands_a_problem_to_one_user_at_a_time(empty_pool):
+    mask = ~np.eye(7, dtype=bool)
+    with pooled_sdp(mask) as outer, pooled_sdp(mask) as inner:
+        assert inner is not outer
+    with pooled_sdp(mask) as later, pooled_sdp(mask, loss="l1") as other:
+        assert later in (outer, inner)
+        assert other not in (outer, inner) and other.loss == "l1"
+    with pooled_sdp(mask, bounded_pairs=[[0, 1]]) as bounded:
+        assert bounded not in (outer, inner, other) and len(bounded.bounded_pairs) == 1
+
+
+def test_a_problem_that_raised_is_dropped_and_a_closed_generator_returns_its_own(empty_pool):
+    mask = ~np.eye(6, dtype=bool)
+    with pytest.raises(SolverError), pooled_sdp(mask) as broken:
+        raise SolverError("simulated failure")
+    with pooled_sdp(mask) as built:
+        assert built is not broken
+
+    def runs():
+        with pooled_sdp(mask) as sdp:
+            yield sdp
+            yield sdp
+
+    gen = runs()
+    held = next(gen)
+    with pooled_sdp(mask) as meanwhile:  # in use by the generator: not handed out
+        assert meanwhile is not held
+    gen.close()  # returned: the last one back is the first one out
+    with pooled_sdp(mask) as after:
+        assert after is held
+
+
+def test_the_pool_keeps_at_most_pool_size_problems(monkeypatch, empty_pool):
+    monkeypatch.setattr(sdp_module, "POOL_SIZE", 2)
+    made = {}
+    for n in (5, 6, 7):
+        with pooled_sdp(~np.eye(n, dtype=bool)) as sdp:
+            made[n] = sdp
+    with pooled_sdp(~np.eye(5, dtype=bool)) as again:  # the least recently used was dropped
+        assert again is not made[5]
+    with pooled_sdp(~np.eye(7, dtype=bool)) as kept:
+        assert kept is made[7]
 
 
 def _breaks(monkeypatch, *names):

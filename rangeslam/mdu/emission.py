@@ -431,15 +431,15 @@ def emission_passes(problem: EmissionProblem, scale: float, ssr: float) -> bool:
 def emission_starts(problem: EmissionProblem, scaled: ScaledUnfolding, rng, failures: list):
     """Step 2: yield (points (M + K, d) scaled, from_sdp): the SDP on the corrected ranges
     (distances must be >= 0 there), then random points."""
-    from rangeslam.solvers.sdp import EDMCompletionSDP
+    from rangeslam.solvers.sdp import pooled_sdp
 
     w = mdu_mask(problem.observed)
     d_tilde = mdu_edm(np.maximum(scaled.corrected, 0.0) / scaled.scale)
-    sdp = EDMCompletionSDP(w)
-    for comp in convex_iteration_runs(
-        sdp, d_tilde, w, problem.dim, options=problem.options, rng=rng, failures=failures
-    ):
-        yield comp.points, True
+    with pooled_sdp(w) as sdp:
+        for comp in convex_iteration_runs(
+            sdp, d_tilde, w, problem.dim, options=problem.options, rng=rng, failures=failures
+        ):
+            yield comp.points, True
     for _ in range(problem.random_starts):
         yield rng.standard_normal((sum(problem.ranges.shape), problem.dim)), False
 

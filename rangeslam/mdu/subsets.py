@@ -273,18 +273,18 @@ def keyframe_runs(
     of a walk's ranges (M, K) and pattern ``observed`` (M, K), on its keyframes
     (:class:`WalkKeyframes`) and expanded to every step; ``bounds`` a StepBounds or None. SDP
     failures are appended to ``failures``."""
-    from rangeslam.solvers.sdp import EDMCompletionSDP  # cvxpy only where an SDP is solved
+    from rangeslam.solvers.sdp import pooled_sdp  # cvxpy only where an SDP is solved
 
     keys = WalkKeyframes.choose(observed, dim)
     n = len(keys.rows)
     w = mdu_mask(observed[keys.rows])
     pairs = None if bounds is None else np.column_stack([np.arange(n - 1), np.arange(1, n)])
-    sdp = EDMCompletionSDP(w, bounded_pairs=pairs)
-    for completion in convex_iteration_runs(
-        sdp, mdu_edm(ranges[keys.rows]), w, dim, options=options, rng=rng, failures=failures,
-        bounds=keys.bounds(bounds),
-    ):  # fmt: skip
-        yield keys.expand(completion) if keys.is_subset else completion
+    with pooled_sdp(w, bounded_pairs=pairs) as sdp:
+        for completion in convex_iteration_runs(
+            sdp, mdu_edm(ranges[keys.rows]), w, dim, options=options, rng=rng,
+            failures=failures, bounds=keys.bounds(bounds),
+        ):  # fmt: skip
+            yield keys.expand(completion) if keys.is_subset else completion
 
 
 def core_runs(
@@ -297,23 +297,23 @@ def core_runs(
     run whose expansion fails is lost like a failed SDP (its reason appended to ``failures``).
     ``loss``: the SDP's ("l1" for robust runs); ``every_run_settles``: every run stops once its
     embedding settles (:func:`rangeslam.mdu.core.convex_iteration_runs`)."""
-    from rangeslam.solvers.sdp import EDMCompletionSDP  # cvxpy only where an SDP is solved
+    from rangeslam.solvers.sdp import pooled_sdp  # cvxpy only where an SDP is solved
 
     core = CalibrationCore.choose(observed, dim, rng)
     block = np.ix_(core.receivers, core.sources)
     w = mdu_mask(observed[block])
-    sdp = EDMCompletionSDP(w, loss=loss)
-    runs = convex_iteration_runs(
-        sdp, mdu_edm(ranges[block]), w, dim, options=options, rng=rng, failures=failures,
-        every_run_settles=every_run_settles,
-    )  # fmt: skip
-    for completion in runs:
-        if not core.is_subset:
+    with pooled_sdp(w, loss=loss) as sdp:
+        runs = convex_iteration_runs(
+            sdp, mdu_edm(ranges[block]), w, dim, options=options, rng=rng, failures=failures,
+            every_run_settles=every_run_settles,
+        )  # fmt: skip
+        for completion in runs:
+            if core.is_subset:
+                try:
+                    completion = core.expand(
+                        completion, ranges, observed, robust=loss == "l1", rng=rng
+                    )
+                except SolverError as exc:
+                    failures.append(str(exc))
+                    continue
             yield completion
-            continue
-        try:
-            completion = core.expand(completion, ranges, observed, robust=loss == "l1", rng=rng)
-        except SolverError as exc:
-            failures.append(str(exc))
-            continue
-        yield completion

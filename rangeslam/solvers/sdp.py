@@ -12,7 +12,11 @@ K(G) = diag(G)1^T + 1 diag(G)^T - 2G (eq. 6), W the boolean mask of observed pai
 
 from __future__ import annotations
 
+import threading
 import warnings
+from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -28,8 +32,10 @@ __all__ = [
     "RANGE_MODELS",
     "EDMCompletion",
     "EDMCompletionSDP",
+    "clear_sdp_pool",
     "complete_edm",
     "low_rank_direction",
+    "pooled_sdp",
     "random_direction",
 ]
 
@@ -233,7 +239,15 @@ class EDMCompletionSDP:
             raise RuntimeError("the EDM completion problem is not DPP")
         self.scale = 1.0
         self._conic = None  # the conic data of the loaded data (set_data), built on first solve
-        self._z_to_q = None  # (x, N^2) how Z enters the conic objective q (the compiled problem's)
+        # (compiled problem, (x, N^2) how Z enters its conic objective q)
+        self._z_to_q = None
+        self._warm = False  # whether the next solve updates the solver the last one left
+
+    def restart(self) -> None:
+        """Make the next solve build its solver anew, as the first solve of a new problem does
+        (the compiled problem is kept): a problem re-used for other data (:func:`pooled_sdp`)
+        then gives the same bits as one built for them."""
+        self._warm = False
 
     def _calibration_terms(self, residual, range_groups: ArrayLike, range_model: str):
         """Residual minus the calibrated squared ranges a r^2 - 2 c r + e of each group."""
@@ -438,20 +452,83 @@ class EDMCompletionSDP:
         if self._conic is None:
             self._conic = self._compile(options)
         data, chain, inverse, q_data = self._conic
-        data[cp.settings.C] = q_data + self._z_to_q @ self._z.value.ravel(order="F")
-        raw = chain.solve_via_data(self._problem, data, warm_start=True, solver_opts=options)
+        data[cp.settings.C] = q_data + self._z_to_q[1] @ self._z.value.ravel(order="F")
+        raw = chain.solve_via_data(self._problem, data, warm_start=self._warm, solver_opts=options)
+        self._warm = True
         self._problem.unpack_results(raw, chain, inverse)
 
     def _compile(self, options: dict) -> tuple:
-        """(conic data, solving chain, inverse data, q without Z) of the loaded data; the first
-        call also reads how Z enters q (its columns of the compiled objective)."""
+        """(conic data, solving chain, inverse data, q without Z) of the loaded data, and how Z
+        enters q (its columns of the compiled objective, read again when cvxpy compiled anew:
+        a fallback solver's solve replaces the problem's compiled form)."""
         data, chain, inverse = self._problem.get_problem_data(self.solver, solver_opts=options)
-        if self._z_to_q is None:
-            compiled = data[cp.settings.PARAM_PROB]
+        compiled = data[cp.settings.PARAM_PROB]
+        if self._z_to_q is None or self._z_to_q[0] is not compiled:
             col = compiled.param_id_to_col[self._z.id]
-            self._z_to_q = compiled.q[:-1, col : col + self.n * self.n]
-        q_data = data[cp.settings.C] - self._z_to_q @ self._z.value.ravel(order="F")
+            self._z_to_q = (compiled, compiled.q[:-1, col : col + self.n * self.n])
+        q_data = data[cp.settings.C] - self._z_to_q[1] @ self._z.value.ravel(order="F")
         return data, chain, inverse, q_data
+
+
+#: Problems kept for re-use by :func:`pooled_sdp`, per thread (the least recently used dropped).
+POOL_SIZE = 8
+_pool = threading.local()
+
+
+@contextmanager
+def pooled_sdp(
+    mask: ArrayLike, *, bounded_pairs: ArrayLike | None = None, loss: str = "l2"
+) -> Iterator[EDMCompletionSDP]:
+    """``with pooled_sdp(mask, bounded_pairs=..., loss=...) as sdp``: an
+    :class:`EDMCompletionSDP` of that structure, re-used from an earlier call of this thread
+    when one is idle (restarted: :meth:`EDMCompletionSDP.restart`), else built. cvxpy compiles a
+    problem once: an estimator called on many data sets of one shape (the walks of a benchmark,
+    the windows of a log) compiles once, and each set's solves give the same bits as a new
+    problem's. The problem goes back to the pool when the block ends normally or its generator
+    is closed; after any other exception it is dropped. ``mask``, ``bounded_pairs``, ``loss``
+    as for :class:`EDMCompletionSDP`."""
+    w = np.asarray(mask)
+    pairs = None if bounded_pairs is None else np.asarray(bounded_pairs)
+    key = (
+        w.shape, w.dtype.str, w.tobytes(), loss,
+        None if pairs is None else (pairs.shape, pairs.dtype.str, pairs.tobytes()),
+    )  # fmt: skip
+    idle = _idle_problems().get(key)
+    if idle:
+        sdp = idle.pop()
+        sdp.restart()
+    else:
+        sdp = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, loss=loss)
+    try:
+        yield sdp
+    except GeneratorExit:  # the generator using it was closed: it is whole
+        _put_back(key, sdp)
+        raise
+    _put_back(key, sdp)
+
+
+def _put_back(key: tuple, sdp: EDMCompletionSDP) -> None:
+    """Return ``sdp`` to this thread's pool, the least recently used dropped beyond POOL_SIZE."""
+    idle = _idle_problems()
+    idle.setdefault(key, []).append(sdp)
+    idle.move_to_end(key)
+    while sum(map(len, idle.values())) > POOL_SIZE:
+        oldest = next(iter(idle))
+        idle[oldest].pop(0)
+        if not idle[oldest]:
+            del idle[oldest]
+
+
+def clear_sdp_pool() -> None:
+    """Drop this thread's idle pooled problems (:func:`pooled_sdp`), to free their memory."""
+    _idle_problems().clear()
+
+
+def _idle_problems() -> OrderedDict:
+    """This thread's idle pooled problems: structure key -> list of problems."""
+    if not hasattr(_pool, "idle"):
+        _pool.idle = OrderedDict()
+    return _pool.idle
 
 
 def _clarabel_default_regularisation() -> float:
