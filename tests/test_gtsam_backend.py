@@ -240,13 +240,13 @@ def test_the_gauge_prior_pins_only_its_rows(d):
     space, so the linear factor is exact); directions outside the rows cost nothing."""
     import gtsam
 
-    from rangeslam.solvers.gtsam_graph import GAUGE_TIGHT, _partial_prior
+    from rangeslam.solvers.gtsam_graph import GAUGE_TIGHT, partial_prior
 
     rng = np.random.default_rng(d)
     key, at = gtsam.symbol("x", 3), rng.standard_normal(d)
     rows = np.linalg.qr(rng.standard_normal((d, d)))[0][: d - 1]  # all but one direction
     noise_std = 0.01
-    factor = _partial_prior(gtsam, key, at, rows, noise_std)
+    factor = partial_prior(gtsam, key, at, rows, noise_std)
     sigma = GAUGE_TIGHT * noise_std
     for p in (at + rng.standard_normal(d), at + 5.0 * rng.standard_normal(d)):
         values = gtsam.Values()

@@ -62,6 +62,7 @@ __all__ = [
     "GraphFit",
     "LMOptions",
     "dead_zone_bounds",
+    "partial_prior",
     "refine_graph",
 ]
 
@@ -263,7 +264,7 @@ def _gauge_frame(points: np.ndarray, idx: list[int]) -> np.ndarray:
     return np.column_stack([e1, e2, np.cross(e1, e2)])
 
 
-def _partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std: float):
+def partial_prior(gtsam, key: int, at: np.ndarray, rows: np.ndarray, noise_std: float):
     """Factor pinning the components rows @ (p - at) of one point (rows: (n, d)), and no other:
     the gauge prior that leaves every observable direction to the measurements. A point is a
     vector space, so the linear factor rows (p - at) held at ``at`` is exact (a native
@@ -387,7 +388,7 @@ def add_gauge_priors(gtsam, graph, points: np.ndarray, keys: list[int], problem:
     if d == 3:
         axes.append([2])  # c: along the normal of the plane abc
     for p, pinned in zip(idx, axes, strict=True):
-        graph.add(_partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, problem.noise_std))
+        graph.add(partial_prior(gtsam, keys[p], points[p], frame[:, pinned].T, problem.noise_std))
 
 
 def add_in_plane_gauge_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
@@ -401,8 +402,8 @@ def add_in_plane_gauge_priors(gtsam, graph, problem: GraphProblem, keys: list[in
     along /= np.linalg.norm(along)
     across = np.cross(normal, along)
     sigma = problem.noise_std
-    graph.add(_partial_prior(gtsam, keys[0], x[0], np.vstack([along, across]), sigma))
-    graph.add(_partial_prior(gtsam, keys[far], x[far], across[None, :], sigma))
+    graph.add(partial_prior(gtsam, keys[0], x[0], np.vstack([along, across]), sigma))
+    graph.add(partial_prior(gtsam, keys[far], x[far], across[None, :], sigma))
 
 
 def add_plane_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> None:
@@ -412,7 +413,7 @@ def add_plane_priors(gtsam, graph, problem: GraphProblem, keys: list[int]) -> No
     no variance across it."""
     row = problem.plane[None, :]
     for i, key in enumerate(keys[: len(problem.receivers)]):
-        graph.add(_partial_prior(gtsam, key, problem.receivers[i], row, problem.noise_std))
+        graph.add(partial_prior(gtsam, key, problem.receivers[i], row, problem.noise_std))
 
 
 @dataclass(frozen=True)
