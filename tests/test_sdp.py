@@ -7,16 +7,15 @@ import pytest
 from rangeslam import InvalidInputError, SolverError
 from rangeslam.geometry.edm import edm, range_matrix
 from rangeslam.mdu.core import mdu_edm, mdu_mask
-from rangeslam.solvers import sdp as sdp_module
+from rangeslam.solvers import sdp_pool
 from rangeslam.solvers.sdp import (
     EDMCompletionSDP,
-    clear_sdp_pool,
     complete_edm,
     eigen_gap,
     low_rank_direction,
-    pooled_sdp,
     random_direction,
 )
+from rangeslam.solvers.sdp_pool import clear_sdp_pool, pooled_sdp
 
 
 def _random_mask(rng, n, fraction):
@@ -180,7 +179,7 @@ def test_a_problem_that_raised_is_dropped_and_a_closed_generator_returns_its_own
 
 
 def test_the_pool_keeps_at_most_pool_size_problems(monkeypatch, empty_pool):
-    monkeypatch.setattr(sdp_module, "POOL_SIZE", 2)
+    monkeypatch.setattr(sdp_pool, "POOL_SIZE", 2)
     made = {}
     for n in (5, 6, 7):
         with pooled_sdp(~np.eye(n, dtype=bool)) as sdp:
@@ -189,6 +188,51 @@ def test_the_pool_keeps_at_most_pool_size_problems(monkeypatch, empty_pool):
         assert again is not made[5]
     with pooled_sdp(~np.eye(7, dtype=bool)) as kept:
         assert kept is made[7]
+
+
+def test_the_pool_trims_past_structures_taken_and_dropped(monkeypatch, empty_pool):
+    """A structure whose problem was taken and then dropped (an exception) or is still held (a
+    nested block) leaves nothing behind that trimming trips on."""
+    monkeypatch.setattr(sdp_pool, "POOL_SIZE", 2)
+    with pooled_sdp(~np.eye(5, dtype=bool)):
+        pass
+    with pytest.raises(KeyboardInterrupt), pooled_sdp(~np.eye(5, dtype=bool)):
+        raise KeyboardInterrupt
+    with pooled_sdp(~np.eye(4, dtype=bool)) as held:
+        for n in range(6, 10):
+            with pooled_sdp(~np.eye(n, dtype=bool)):
+                pass
+    with pooled_sdp(~np.eye(4, dtype=bool)) as again:
+        assert again is held
+    with pooled_sdp(~np.eye(8, dtype=bool)) as recent, pooled_sdp(~np.eye(6, dtype=bool)) as old:
+        assert recent.n == 8 and old.n == 6
+
+
+def test_a_pooled_problem_retried_after_a_raise_gives_a_new_problems_bits(
+    rng, monkeypatch, empty_pool
+):
+    """Clarabel raising in the first solve of a data set sends it to the retry, which reads
+    cvxpy's cached solver: a pooled problem holds none from its last data (restart)."""
+    from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+
+    original = CLARABEL.solve_via_data
+
+    def cold_fails(self, data, warm_start, *args, **kwargs):
+        if not warm_start:
+            raise cp.error.SolverError("simulated failure")
+        return original(self, data, warm_start, *args, **kwargs)
+
+    x, mask, _, _ = _bounded_walk(rng, 9)
+    y = x + rng.normal(0, 0.3, x.shape)
+    noisy = edm(y) + rng.normal(0, 1e-3, mask.shape) * mask
+    noisy = 0.5 * (noisy + noisy.T)
+    with pooled_sdp(mask) as sdp:
+        complete_edm(edm(x), mask, 3, problem=sdp, max_iterations=3)
+    monkeypatch.setattr(CLARABEL, "solve_via_data", cold_fails)
+    with pooled_sdp(mask) as sdp:
+        reused = complete_edm(noisy, mask, 3, problem=sdp, max_iterations=3)
+    fresh = complete_edm(noisy, mask, 3, max_iterations=3)
+    np.testing.assert_array_equal(reused.gram, fresh.gram)
 
 
 def _breaks(monkeypatch, *names):

@@ -431,7 +431,7 @@ def emission_passes(problem: EmissionProblem, scale: float, ssr: float) -> bool:
 def emission_starts(problem: EmissionProblem, scaled: ScaledUnfolding, rng, failures: list):
     """Step 2: yield (points (M + K, d) scaled, from_sdp): the SDP on the corrected ranges
     (distances must be >= 0 there), then random points."""
-    from rangeslam.solvers.sdp import pooled_sdp
+    from rangeslam.solvers.sdp_pool import pooled_sdp
 
     w = mdu_mask(problem.observed)
     d_tilde = mdu_edm(np.maximum(scaled.corrected, 0.0) / scaled.scale)

@@ -273,7 +273,7 @@ def keyframe_runs(
     of a walk's ranges (M, K) and pattern ``observed`` (M, K), on its keyframes
     (:class:`WalkKeyframes`) and expanded to every step; ``bounds`` a StepBounds or None. SDP
     failures are appended to ``failures``."""
-    from rangeslam.solvers.sdp import pooled_sdp  # cvxpy only where an SDP is solved
+    from rangeslam.solvers.sdp_pool import pooled_sdp  # cvxpy only where an SDP is solved
 
     keys = WalkKeyframes.choose(observed, dim)
     n = len(keys.rows)
@@ -297,7 +297,7 @@ def core_runs(
     run whose expansion fails is lost like a failed SDP (its reason appended to ``failures``).
     ``loss``: the SDP's ("l1" for robust runs); ``every_run_settles``: every run stops once its
     embedding settles (:func:`rangeslam.mdu.core.convex_iteration_runs`)."""
-    from rangeslam.solvers.sdp import pooled_sdp  # cvxpy only where an SDP is solved
+    from rangeslam.solvers.sdp_pool import pooled_sdp  # cvxpy only where an SDP is solved
 
     core = CalibrationCore.choose(observed, dim, rng)
     block = np.ix_(core.receivers, core.sources)

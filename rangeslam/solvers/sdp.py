@@ -12,11 +12,7 @@ K(G) = diag(G)1^T + 1 diag(G)^T - 2G (eq. 6), W the boolean mask of observed pai
 
 from __future__ import annotations
 
-import threading
 import warnings
-from collections import OrderedDict
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -32,10 +28,8 @@ __all__ = [
     "RANGE_MODELS",
     "EDMCompletion",
     "EDMCompletionSDP",
-    "clear_sdp_pool",
     "complete_edm",
     "low_rank_direction",
-    "pooled_sdp",
     "random_direction",
 ]
 
@@ -244,10 +238,16 @@ class EDMCompletionSDP:
         self._warm = False  # whether the next solve updates the solver the last one left
 
     def restart(self) -> None:
-        """Make the next solve build its solver anew, as the first solve of a new problem does
-        (the compiled problem is kept): a problem re-used for other data (:func:`pooled_sdp`)
-        then gives the same bits as one built for them."""
+        """Forget the last data's solver and conic data (the compiled problem is kept): the next
+        solve builds its solver anew, as the first solve of a new problem does, so a problem
+        re-used for other data (:func:`rangeslam.solvers.sdp_pool.pooled_sdp`) gives the same
+        bits as one built for them, and an idle one holds no solver's memory. (cvxpy keeps the
+        solver in the problem's cache, which its retries read: cleared too.)"""
         self._warm = False
+        self._conic = None
+        cache = getattr(self._problem, "_solver_cache", None)
+        if cache is not None:
+            cache.clear()
 
     def _calibration_terms(self, residual, range_groups: ArrayLike, range_model: str):
         """Residual minus the calibrated squared ranges a r^2 - 2 c r + e of each group."""
@@ -468,67 +468,6 @@ class EDMCompletionSDP:
             self._z_to_q = (compiled, compiled.q[:-1, col : col + self.n * self.n])
         q_data = data[cp.settings.C] - self._z_to_q[1] @ self._z.value.ravel(order="F")
         return data, chain, inverse, q_data
-
-
-#: Problems kept for re-use by :func:`pooled_sdp`, per thread (the least recently used dropped).
-POOL_SIZE = 8
-_pool = threading.local()
-
-
-@contextmanager
-def pooled_sdp(
-    mask: ArrayLike, *, bounded_pairs: ArrayLike | None = None, loss: str = "l2"
-) -> Iterator[EDMCompletionSDP]:
-    """``with pooled_sdp(mask, bounded_pairs=..., loss=...) as sdp``: an
-    :class:`EDMCompletionSDP` of that structure, re-used from an earlier call of this thread
-    when one is idle (restarted: :meth:`EDMCompletionSDP.restart`), else built. cvxpy compiles a
-    problem once: an estimator called on many data sets of one shape (the walks of a benchmark,
-    the windows of a log) compiles once, and each set's solves give the same bits as a new
-    problem's. The problem goes back to the pool when the block ends normally or its generator
-    is closed; after any other exception it is dropped. ``mask``, ``bounded_pairs``, ``loss``
-    as for :class:`EDMCompletionSDP`."""
-    w = np.asarray(mask)
-    pairs = None if bounded_pairs is None else np.asarray(bounded_pairs)
-    key = (
-        w.shape, w.dtype.str, w.tobytes(), loss,
-        None if pairs is None else (pairs.shape, pairs.dtype.str, pairs.tobytes()),
-    )  # fmt: skip
-    idle = _idle_problems().get(key)
-    if idle:
-        sdp = idle.pop()
-        sdp.restart()
-    else:
-        sdp = EDMCompletionSDP(mask, bounded_pairs=bounded_pairs, loss=loss)
-    try:
-        yield sdp
-    except GeneratorExit:  # the generator using it was closed: it is whole
-        _put_back(key, sdp)
-        raise
-    _put_back(key, sdp)
-
-
-def _put_back(key: tuple, sdp: EDMCompletionSDP) -> None:
-    """Return ``sdp`` to this thread's pool, the least recently used dropped beyond POOL_SIZE."""
-    idle = _idle_problems()
-    idle.setdefault(key, []).append(sdp)
-    idle.move_to_end(key)
-    while sum(map(len, idle.values())) > POOL_SIZE:
-        oldest = next(iter(idle))
-        idle[oldest].pop(0)
-        if not idle[oldest]:
-            del idle[oldest]
-
-
-def clear_sdp_pool() -> None:
-    """Drop this thread's idle pooled problems (:func:`pooled_sdp`), to free their memory."""
-    _idle_problems().clear()
-
-
-def _idle_problems() -> OrderedDict:
-    """This thread's idle pooled problems: structure key -> list of problems."""
-    if not hasattr(_pool, "idle"):
-        _pool.idle = OrderedDict()
-    return _pool.idle
 
 
 def _clarabel_default_regularisation() -> float:
