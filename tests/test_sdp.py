@@ -211,16 +211,17 @@ def test_the_pool_trims_past_structures_taken_and_dropped(monkeypatch, empty_poo
 def test_a_pooled_problem_retried_after_a_raise_gives_a_new_problems_bits(
     rng, monkeypatch, empty_pool
 ):
-    """Clarabel raising in the first solve of a data set sends it to the retry, which reads
-    cvxpy's cached solver: a pooled problem holds none from its last data (restart)."""
+    """Clarabel raising while it has no solver to update (a data set's first solve) sends the
+    solve down the retries to the fallback solver: a pooled problem holds no solver from its
+    last data (restart), so it takes the same path as a new problem, to the same bits."""
     from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
 
     original = CLARABEL.solve_via_data
 
-    def cold_fails(self, data, warm_start, *args, **kwargs):
-        if not warm_start:
+    def cold_fails(self, data, warm_start, verbose, solver_opts, solver_cache=None):
+        if not solver_cache:  # a data set's first solve: no solver to update yet
             raise cp.error.SolverError("simulated failure")
-        return original(self, data, warm_start, *args, **kwargs)
+        return original(self, data, warm_start, verbose, solver_opts, solver_cache)
 
     x, mask, _, _ = _bounded_walk(rng, 9)
     y = x + rng.normal(0, 0.3, x.shape)

@@ -235,15 +235,13 @@ class EDMCompletionSDP:
         self._conic = None  # the conic data of the loaded data (set_data), built on first solve
         # (compiled problem, (x, N^2) how Z enters its conic objective q)
         self._z_to_q = None
-        self._warm = False  # whether the next solve updates the solver the last one left
 
     def restart(self) -> None:
         """Forget the last data's solver and conic data (the compiled problem is kept): the next
         solve builds its solver anew, as the first solve of a new problem does, so a problem
         re-used for other data (:func:`rangeslam.solvers.sdp_pool.pooled_sdp`) gives the same
         bits as one built for them, and an idle one holds no solver's memory. (cvxpy keeps the
-        solver in the problem's cache, which its retries read: cleared too.)"""
-        self._warm = False
+        solver in the problem's cache, which every solve after the first updates.)"""
         self._conic = None
         cache = getattr(self._problem, "_solver_cache", None)
         if cache is not None:
@@ -453,8 +451,7 @@ class EDMCompletionSDP:
             self._conic = self._compile(options)
         data, chain, inverse, q_data = self._conic
         data[cp.settings.C] = q_data + self._z_to_q[1] @ self._z.value.ravel(order="F")
-        raw = chain.solve_via_data(self._problem, data, warm_start=self._warm, solver_opts=options)
-        self._warm = True
+        raw = chain.solve_via_data(self._problem, data, warm_start=True, solver_opts=options)
         self._problem.unpack_results(raw, chain, inverse)
 
     def _compile(self, options: dict) -> tuple:
